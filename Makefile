@@ -1,0 +1,36 @@
+# Two commands on a fresh Debian machine with Python 3.11 and gcc:
+#   make demo   build the FMUs and run the example end to end
+#   make test   run the test suite
+PYTHON ?= $(shell command -v python3.11 || command -v python3)
+VENV   := .venv
+BIN    := $(VENV)/bin
+DEBS   := libtbb12 valgrind
+
+.PHONY: demo test bench setup sysdeps clean
+
+$(BIN)/.installed: pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/pip install --quiet --upgrade pip
+	$(BIN)/pip install --quiet -e '.[test]'
+	touch $@
+
+sysdeps:
+	@missing=""; for p in $(DEBS); do dpkg -s $$p >/dev/null 2>&1 || missing="$$missing $$p"; done; \
+	if [ -n "$$missing" ]; then \
+	  SUDO=$$( [ "$$(id -u)" = 0 ] || echo sudo ); \
+	  $$SUDO apt-get update -qq && $$SUDO env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $$missing; \
+	fi
+
+setup: sysdeps $(BIN)/.installed
+
+demo: setup
+	$(BIN)/motiontwin demo --out build/demo
+
+test: setup
+	$(BIN)/python -m pytest -q
+
+bench: setup
+	for b in tests/benchmarks/bench_*.py; do $(BIN)/python $$b || exit 1; done
+
+clean:
+	rm -rf build $(VENV)

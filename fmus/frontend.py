@@ -1,0 +1,351 @@
+"""Modelica front end: parse a Modelica class with pymoca and return it as a flat CasADi DAE.
+
+pymoca does the parsing, flattening and translation to CasADi; this module adds what the
+pipeline needs around it: errors that name file, line and column, the description strings and
+vendor annotations that pymoca's CasADi model drops, array variables expanded to scalars
+(``x[1]``, ``x[2]``, 1-based as in Modelica), and two compatibility fixes for casadi >= 3.7.
+"""
+from __future__ import annotations
+
+import math
+import os
+import re
+import types
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import casadi as ca
+
+for _cls in (ca.MX, ca.SX, ca.DM):  # pymoca 0.12 still calls the Python 2 operator name
+    _cls.__div__ = _cls.__truediv__
+
+
+class ModelicaError(Exception):
+    """A Modelica source cannot be turned into a model; the message names file, line and column."""
+
+
+@dataclass
+class Variable:
+    """One scalar Modelica variable with the attributes the FMU and the identification need."""
+
+    name: str
+    symbol: ca.SX
+    description: str = ""
+    unit: str = ""
+    start: Any = None  # float, or an SX expression of parameters
+    min: float = -math.inf
+    max: float = math.inf
+    nominal: float | None = None
+
+
+@dataclass
+class FlatModel:
+    """A Modelica class as a flat DAE ``residual(der_x, x, z, u, p, t) == 0`` in CasADi SX.
+
+    ``states`` carry ``der_states`` in the same order; ``algebraics`` are the remaining unknowns.
+    ``parameters`` have numeric values; ``calculated`` are parameters bound to expressions of
+    other parameters (substituted into ``residual``, kept so they can be reported).
+    """
+
+    name: str
+    description: str
+    source: Path
+    states: list[Variable]
+    der_states: list[ca.SX]
+    algebraics: list[Variable]
+    inputs: list[Variable]
+    parameters: list[Variable]
+    calculated: list[tuple[Variable, ca.SX]]
+    outputs: list[str]
+    residual: ca.SX
+    time: ca.SX
+    annotation: dict[str, Any] = field(default_factory=dict)
+
+
+def _casadi_proxy() -> types.ModuleType:
+    """casadi, but with Function names made valid (pymoca names functions ``Pkg.f``)."""
+
+    class Proxy(types.ModuleType):
+        def __getattr__(self, name: str) -> Any:
+            return getattr(ca, name)
+
+        @staticmethod
+        def Function(name: Any, *args: Any, **kwargs: Any) -> ca.Function:  # noqa: N802 (casadi's name)
+            if isinstance(name, str):
+                name = re.sub(r"[^A-Za-z0-9]+", "_", name).strip("_") or "f"
+            return ca.Function(name, *args, **kwargs)
+
+    return Proxy("casadi_for_pymoca")
+
+
+def _import_pymoca() -> tuple[Any, Any, Any]:
+    import pymoca.backends.casadi.generator as generator
+    import pymoca.parser as parser
+    from pymoca.backends.casadi import api
+
+    if not isinstance(generator.ca, types.ModuleType) or generator.ca.__name__ != "casadi_for_pymoca":
+        generator.ca = _casadi_proxy()
+    return parser, api, generator
+
+
+def _mo_files(source: Path) -> list[Path]:
+    if source.is_file():
+        return [source]
+    if not source.is_dir():
+        raise ModelicaError(f"{source}: no such Modelica file or folder")
+    return sorted(p for p in source.rglob("*.mo") if p.is_file())
+
+
+def parse_tree(source: Path) -> Any:
+    """Parse every ``.mo`` file under ``source`` (a file or a library folder) into one pymoca tree."""
+    parser, _, _ = _import_pymoca()
+    tree = None
+    files = _mo_files(source)
+    if not files:
+        raise ModelicaError(f"{source}: no .mo files found")
+    for path in files:
+        text = path.read_text(encoding="utf-8")
+        try:
+            parsed = parser.parse(text)
+        except parser.ModelicaSyntaxError as exc:
+            msg, info = exc.args[0], exc.args[1] if len(exc.args) > 1 else None
+            line, col = (info[1], info[2] + 1) if info else ("?", "?")
+            raise ModelicaError(f"{path}:{line}:{col}: syntax error: {msg}") from None
+        except NotImplementedError as exc:
+            raise ModelicaError(f"{path}: unsupported construct: {exc}") from None
+        if parsed is None:
+            raise ModelicaError(f"{path}: could not be parsed")
+        tree = parsed if tree is None else _extend(tree, parsed)
+    return tree
+
+
+def _extend(tree: Any, other: Any) -> Any:
+    tree.extend(other)
+    return tree
+
+
+def _find_class(tree: Any, name: str) -> Any:
+    node = tree
+    for part in name.split("."):
+        classes = getattr(node, "classes", {})
+        if part not in classes:
+            return None
+        node = classes[part]
+    return node
+
+
+_UNSUPPORTED = ("when", "sample", "pre", "noEvent", "smooth", "delay", "algorithm", "initial equation")
+
+
+def _explain_unsupported(text: str) -> str:
+    found = [w for w in _UNSUPPORTED if re.search(rf"\b{w}\b", text)]
+    return f" (the front end does not support: {', '.join(found)})" if found else ""
+
+
+def _annotation(cls: Any) -> dict[str, Any]:
+    """Vendor annotation ``__motiontwin(...)`` of a class, as nested dicts of strings."""
+
+    def walk(mod: Any) -> dict[str, Any]:
+        out: dict[str, Any] = {}
+        for arg in getattr(mod, "arguments", []) or []:
+            value = getattr(arg, "value", None)
+            comp = getattr(value, "component", None)
+            if comp is None:
+                continue
+            key = comp.name
+            mods = getattr(value, "modifications", []) or []
+            if mods and hasattr(mods[0], "arguments"):
+                out[key] = walk(mods[0])
+            elif mods:
+                item = mods[0]
+                out[key] = getattr(item, "value", None) if hasattr(item, "value") else getattr(item, "name", None)
+            else:
+                out[key] = True
+        return out
+
+    ann = walk(getattr(cls, "annotation", None))
+    return ann.get("__motiontwin", {}) if isinstance(ann.get("__motiontwin"), dict) else {}
+
+
+def _descriptions(tree: Any, class_name: str) -> tuple[str, dict[str, str]]:
+    """Class description and per-variable description strings from the flattened pymoca AST."""
+    import pymoca.ast
+    import pymoca.tree
+
+    flat = pymoca.tree.flatten(tree, pymoca.ast.ComponentRef.from_string(class_name))
+    cls = flat.classes.get(class_name) or next(iter(flat.classes.values()))
+    comments = {name: (sym.comment or "").strip().strip('"') for name, sym in cls.symbols.items()}
+    return (cls.comment or "").strip().strip('"'), comments
+
+
+def _scalar_names(name: str, shape: tuple[int, ...]) -> list[str]:
+    n = int(shape[0]) * int(shape[1]) if len(shape) == 2 else int(shape[0])
+    return [name] if n == 1 else [f"{name}[{i + 1}]" for i in range(n)]
+
+
+def _as_list(value: Any, n: int) -> list[Any]:
+    if isinstance(value, (list, tuple)):
+        return list(value)
+    if isinstance(value, (ca.MX, ca.SX, ca.DM)) and value.numel() == n and n > 1:
+        return [value[i] for i in range(n)]
+    return [value] * n
+
+
+def _number(value: Any, default: float) -> float:
+    if isinstance(value, (int, float)) and not (isinstance(value, float) and math.isnan(value)):
+        return float(value)
+    if isinstance(value, ca.DM) or (isinstance(value, (ca.MX, ca.SX)) and value.is_constant()):
+        return float(ca.DM(value))
+    return default
+
+
+def load(source: str | os.PathLike[str], class_name: str) -> FlatModel:
+    """Translate Modelica class ``class_name`` found under ``source`` into a :class:`FlatModel`."""
+    source = Path(source)
+    _, api, _ = _import_pymoca()
+    tree = parse_tree(source)
+    cls = _find_class(tree, class_name)
+    if cls is None:
+        raise ModelicaError(f"{source}: class {class_name!r} not found")
+    try:
+        model = api.generate_model(tree, class_name, {"replace_constants": True, "check_balanced": False})
+        description, comments = _descriptions(tree, class_name)
+    except Exception as exc:  # pymoca raises bare Exceptions and NotImplementedErrors
+        text = _class_text(source, class_name)
+        raise ModelicaError(
+            f"{source}: class {class_name}: the front end failed: {exc}{_explain_unsupported(text)}"
+        ) from None
+    if model.initial_equations:
+        raise ModelicaError(f"{source}: class {class_name}: initial equations are not supported; use start values")
+    return _to_sx(model, class_name, description, comments, source, _annotation(cls))
+
+
+def _class_text(source: Path, class_name: str) -> str:
+    short = class_name.split(".")[-1]
+    for path in _mo_files(source):
+        text = path.read_text(encoding="utf-8")
+        if re.search(rf"\b(model|block|class)\s+{re.escape(short)}\b", text):
+            return text
+    return ""
+
+
+def _to_sx(model: Any, name: str, description: str, comments: dict[str, str], source: Path,
+           annotation: dict[str, Any]) -> FlatModel:
+    """Expand pymoca's MX model into scalar SX symbols (the form code generation and AD prefer)."""
+    groups = {g: list(getattr(model, g)) for g in ("states", "der_states", "alg_states", "inputs", "parameters")}
+    mx_syms: list[ca.MX] = []
+    sx_syms: list[ca.SX] = []
+    scalars: dict[str, list[Variable]] = {g: [] for g in groups}
+    for group, variables in groups.items():
+        for var in variables:
+            sym = var.symbol
+            names = _scalar_names(sym.name(), sym.shape)
+            sx = ca.SX.sym(sym.name(), len(names))
+            mx_syms.append(sym)
+            sx_syms.append(sx)
+            base = sym.name()
+            for i, scalar in enumerate(names):
+                scalars[group].append(Variable(
+                    name=scalar if group != "der_states" else f"der({scalars['states'][len(scalars[group])].name})",
+                    symbol=sx[i],
+                    description=comments.get(base, ""),
+                    unit=getattr(var, "unit", "") or "",
+                    start=_as_list(var.start, len(names))[i],
+                    min=_number(_as_list(var.min, len(names))[i], -math.inf),
+                    max=_number(_as_list(var.max, len(names))[i], math.inf),
+                    nominal=(_number(_as_list(var.nominal, len(names))[i], 0.0) or None),
+                ))
+                if group == "parameters":
+                    scalars[group][-1].start = _as_list(var.value, len(names))[i]
+    time_mx = model.time
+    time_sx = ca.SX.sym("time")
+    residual_mx = ca.vertcat(*[ca.vec(e) for e in model.equations]) if model.equations else ca.MX(0, 1)
+    to_sx = ca.Function("to_sx", [time_mx, *mx_syms], [residual_mx] + _start_exprs(groups), {"allow_free": True})
+    if to_sx.has_free():
+        raise ModelicaError(f"{source}: class {name}: equations use undeclared symbols {to_sx.get_free()}")
+    out = to_sx.expand()(time_sx, *sx_syms)
+    residual = ca.simplify(out[0])
+    starts = iter(out[1:])
+    for group in ("states", "alg_states", "inputs", "parameters"):
+        for var in groups[group]:
+            expr = next(starts)
+            n = expr.numel()
+            first = next(i for i, v in enumerate(scalars[group]) if v.name == _scalar_names(var.symbol.name(), var.symbol.shape)[0])
+            for i in range(n):
+                e = expr[i]
+                scalars[group][first + i].start = float(ca.DM(e)) if e.is_constant() else e
+    return _split_parameters(FlatModel(
+        name=name,
+        description=description,
+        source=source,
+        states=scalars["states"],
+        der_states=[v.symbol for v in scalars["der_states"]],
+        algebraics=scalars["alg_states"],
+        inputs=scalars["inputs"],
+        parameters=scalars["parameters"],
+        calculated=[],
+        outputs=_expand_outputs(model, scalars),
+        residual=residual,
+        time=time_sx,
+        annotation=annotation,
+    ))
+
+
+def _start_exprs(groups: dict[str, list[Any]]) -> list[ca.MX]:
+    """Start values (states, algebraics, inputs) and values (parameters) as MX, one vector per variable."""
+    exprs = []
+    for group in ("states", "alg_states", "inputs", "parameters"):
+        for var in groups[group]:
+            n = var.symbol.numel()
+            raw = var.value if group == "parameters" else var.start
+            items = _as_list(raw, n)
+            exprs.append(ca.vertcat(*[_mx_value(x) for x in items]))
+    return exprs
+
+
+def _mx_value(x: Any) -> ca.MX:
+    if isinstance(x, ca.MX):
+        return x
+    if x is None or (isinstance(x, float) and math.isnan(x)):
+        return ca.MX(math.nan)
+    return ca.MX(float(x))
+
+
+def _expand_outputs(model: Any, scalars: dict[str, list[Variable]]) -> list[str]:
+    names = {v.name for g in ("states", "alg_states") for v in scalars[g]}
+    out: list[str] = []
+    for base in model.outputs:
+        matching = [n for n in sorted(names, key=_natural) if n == base or n.startswith(base + "[")]
+        out.extend(matching)
+    return out
+
+
+def _natural(name: str) -> list[Any]:
+    return [int(t) if t.isdigit() else t for t in re.split(r"(\d+)", name)]
+
+
+def _split_parameters(model: FlatModel) -> FlatModel:
+    """Separate numeric parameters from parameters bound to expressions of others; substitute the latter."""
+    free = [p for p in model.parameters if isinstance(p.start, float) and not math.isnan(p.start)]
+    bound = [p for p in model.parameters if not (isinstance(p.start, float))]
+    missing = [p.name for p in model.parameters if isinstance(p.start, float) and math.isnan(p.start)]
+    if missing:
+        raise ModelicaError(f"{model.source}: class {model.name}: parameters without a value: {', '.join(missing)}")
+    if bound:
+        syms = ca.vertcat(*[p.symbol for p in bound])
+        exprs = ca.vertcat(*[p.start for p in bound])
+        for _ in range(len(bound)):  # resolve chains of bound parameters
+            if not ca.depends_on(exprs, syms):
+                break
+            exprs = ca.substitute(exprs, syms, exprs)
+        if ca.depends_on(exprs, syms):
+            raise ModelicaError(f"{model.source}: class {model.name}: cyclic parameter bindings among "
+                                + ", ".join(p.name for p in bound))
+        model.residual = ca.substitute(model.residual, syms, exprs)
+        for v in model.states + model.algebraics + model.inputs:
+            if isinstance(v.start, ca.SX):
+                v.start = ca.substitute(v.start, syms, exprs)
+        model.calculated = [(p, exprs[i]) for i, p in enumerate(bound)]
+    model.parameters = free
+    return model

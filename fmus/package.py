@@ -1,0 +1,65 @@
+"""Compile the generated and runtime C sources and pack them into an ``.fmu`` archive, atomically."""
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import tempfile
+import zipfile
+from pathlib import Path
+
+import fmpy
+
+RUNTIME_DIR = Path(__file__).parent / "runtime"
+FMI_HEADERS = {
+    "2.0": ("fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h"),
+    "3.0": ("fmi3Functions.h", "fmi3FunctionTypes.h", "fmi3PlatformTypes.h"),
+}
+PLATFORM_DIR = {"2.0": "linux64", "3.0": "x86_64-linux"}
+CFLAGS = ("-O2", "-fPIC", "-std=c99", "-fvisibility=hidden", "-Wall", "-Wno-unused-parameter",
+          "-Wno-unused-variable", "-Wno-unused-function")
+
+
+class BuildError(Exception):
+    """The C sources of an FMU did not compile; the message carries the compiler's output."""
+
+
+def runtime_sources(fmi_version: str) -> list[Path]:
+    """The model-agnostic runtime files an FMU of ``fmi_version`` needs (C files and headers)."""
+    other = "fmi3.c" if fmi_version == "2.0" else "fmi2.c"
+    files = sorted(p for p in RUNTIME_DIR.iterdir() if p.suffix in (".c", ".h") and p.name != other)
+    headers = Path(fmpy.__file__).parent / "c-code"
+    return files + [headers / h for h in FMI_HEADERS[fmi_version]]
+
+
+def compile_binary(src_dir: Path, c_files: list[str], output: Path) -> None:
+    """gcc the C files of ``src_dir`` into the shared library ``output`` (only libc and libm needed)."""
+    cmd = [os.environ.get("CC", "gcc"), *CFLAGS, "-shared", "-static-libgcc", f"-I{src_dir}",
+           *[str(src_dir / f) for f in c_files], "-o", str(output), "-lm"]
+    proc = subprocess.run(cmd, capture_output=True, text=True)
+    if proc.returncode != 0:
+        raise BuildError(f"compiling {output.name} failed:\n{proc.stderr.strip()}")
+
+
+def pack(staging: Path, fmu_path: Path) -> Path:
+    """Zip the folder ``staging`` into ``fmu_path`` through a temporary file in the same folder."""
+    fmu_path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{fmu_path.stem}-", suffix=".fmu.part", dir=fmu_path.parent)
+    os.close(fd)
+    try:
+        with zipfile.ZipFile(tmp, "w", zipfile.ZIP_DEFLATED) as zf:
+            for path in sorted(staging.rglob("*")):
+                if path.is_file():
+                    zf.write(path, path.relative_to(staging).as_posix())
+        os.replace(tmp, fmu_path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return fmu_path
+
+
+def copy_sources(files: list[Path], dest: Path) -> list[str]:
+    dest.mkdir(parents=True, exist_ok=True)
+    for f in files:
+        shutil.copy2(f, dest / f.name)
+    return [f.name for f in files]

@@ -1,0 +1,87 @@
+"""Test helpers: drive an FMU with fmpy's low-level classes and capture what it logs."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import fmpy
+import numpy as np
+from fmpy.fmi2 import FMU2Model, FMU2Slave, fmi2CallbackFunctions, fmi2CallbackLoggerTYPE
+from fmpy.fmi3 import FMU3Model, FMU3Slave
+
+
+@dataclass
+class Loaded:
+    fmu: object
+    md: object
+    vr: dict[str, int]
+    messages: list[str] = field(default_factory=list)
+
+
+def instantiate(path: Path, kind: str = "cs") -> Loaded:
+    """Extract and instantiate ``path`` (kind "cs" or "me") with a logger that records messages."""
+    md = fmpy.read_model_description(str(path))
+    unzipdir = fmpy.extract(str(path))
+    iface = md.coSimulation if kind == "cs" else md.modelExchange
+    messages: list[str] = []
+    vr = {v.name: v.valueReference for v in md.modelVariables}
+    if md.fmiVersion == "2.0":
+        cls = FMU2Slave if kind == "cs" else FMU2Model
+        fmu = cls(guid=md.guid, unzipDirectory=unzipdir, modelIdentifier=iface.modelIdentifier,
+                  instanceName="test")
+        callbacks = fmi2CallbackFunctions()
+
+        def log(env, name, status, category, message):  # noqa: ANN001 (ctypes callback)
+            messages.append(message.decode())
+
+        callbacks.logger = fmi2CallbackLoggerTYPE(log)
+        callbacks.allocateMemory = fmpy.fmi2.defaultCallbacks.allocateMemory
+        callbacks.freeMemory = fmpy.fmi2.defaultCallbacks.freeMemory
+        fmu._keep_logger = callbacks  # keep the ctypes objects alive
+        fmu.instantiate(callbacks=callbacks, loggingOn=True)
+    else:
+        cls = FMU3Slave if kind == "cs" else FMU3Model
+        fmu = cls(guid=md.guid, unzipDirectory=unzipdir, modelIdentifier=iface.modelIdentifier,
+                  instanceName="test")
+
+        def log3(env, status, category, message):  # noqa: ANN001
+            messages.append(message.decode())
+
+        fmu.instantiate(loggingOn=True, logMessage=log3)
+    return Loaded(fmu, md, vr, messages)
+
+
+def get(ld: Loaded, *names: str) -> np.ndarray:
+    vrs = [ld.vr[n] for n in names]
+    f = ld.fmu
+    return np.array(f.getReal(vrs) if ld.md.fmiVersion == "2.0" else f.getFloat64(vrs))
+
+
+def set_(ld: Loaded, values: dict[str, float]) -> None:
+    vrs = [ld.vr[n] for n in values]
+    vals = [float(v) for v in values.values()]
+    if ld.md.fmiVersion == "2.0":
+        ld.fmu.setReal(vrs, vals)
+    else:
+        ld.fmu.setFloat64(vrs, vals)
+
+
+def initialize(ld: Loaded, start: dict[str, float] | None = None, tolerance: float | None = None) -> None:
+    f = ld.fmu
+    if ld.md.fmiVersion == "2.0":
+        f.setupExperiment(tolerance=tolerance, startTime=0.0)
+    if start:
+        set_(ld, start)
+    f.enterInitializationMode() if ld.md.fmiVersion == "2.0" else f.enterInitializationMode(tolerance=tolerance)
+    f.exitInitializationMode()
+
+
+def step(ld: Loaded, t: float, h: float) -> None:
+    ld.fmu.doStep(currentCommunicationPoint=t, communicationStepSize=h)
+
+
+def free(ld: Loaded) -> None:
+    try:
+        ld.fmu.terminate()
+    finally:
+        ld.fmu.freeInstance()
