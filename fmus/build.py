@@ -7,8 +7,11 @@ Pipeline: :mod:`fmus.frontend` (pymoca) -> :mod:`fmus.symbolic` (explicit CasADi
 from __future__ import annotations
 
 import hashlib
+import multiprocessing
+import os
 import tempfile
 import uuid
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -97,12 +100,23 @@ def exported_classes(modelica: Path | str = MODELICA_DIR) -> list[str]:
     return sorted(found)
 
 
+def _build_versions(job: tuple[str, str, str, tuple[str, ...]]) -> list[BuiltFmu]:
+    class_name, modelica, out_dir, versions = job
+    model = load_model(class_name, modelica)
+    return [build_fmu(model, out_dir, version) for version in versions]
+
+
 def build(classes: list[str], modelica: Path | str = MODELICA_DIR, out_dir: Path | str = DEFAULT_OUT,
-          fmi_versions: tuple[str, ...] = FMI_VERSIONS) -> list[BuiltFmu]:
-    """Build every class in ``classes`` for every FMI version."""
-    built = []
+          fmi_versions: tuple[str, ...] = FMI_VERSIONS, workers: int | None = None) -> list[BuiltFmu]:
+    """Build every class in ``classes`` for every FMI version, one class per process (default: all cores).
+
+    The front end runs first for every class, so a Modelica error stops the build before anything is written.
+    """
     for class_name in classes:
-        model = load_model(class_name, modelica)
-        for version in fmi_versions:
-            built.append(build_fmu(model, out_dir, version))
-    return built
+        load_model(class_name, modelica)
+    jobs = [(c, str(modelica), str(out_dir), tuple(fmi_versions)) for c in classes]
+    workers = min(workers or os.cpu_count() or 1, len(jobs))
+    if workers <= 1:
+        return [fmu for job in jobs for fmu in _build_versions(job)]
+    with ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn")) as pool:
+        return [fmu for fmus in pool.map(_build_versions, jobs) for fmu in fmus]

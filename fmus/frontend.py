@@ -17,8 +17,10 @@ from typing import Any
 
 import casadi as ca
 
-for _cls in (ca.MX, ca.SX, ca.DM):  # pymoca 0.12 still calls the Python 2 operator name
+for _cls in (ca.MX, ca.SX, ca.DM):  # pymoca 0.12 looks operators and Modelica built-ins up by these names
     _cls.__div__ = _cls.__truediv__
+    _cls.atan, _cls.asin, _cls.acos = _cls.arctan, _cls.arcsin, _cls.arccos
+    _cls.atan2 = _cls.__arctan2__
 
 
 class ModelicaError(Exception):
@@ -116,12 +118,10 @@ def parse_tree(source: Path) -> Any:
             raise ModelicaError(f"{path}: unsupported construct: {exc}") from None
         if parsed is None:
             raise ModelicaError(f"{path}: could not be parsed")
-        tree = parsed if tree is None else _extend(tree, parsed)
-    return tree
-
-
-def _extend(tree: Any, other: Any) -> Any:
-    tree.extend(other)
+        if tree is None:
+            tree = parsed
+        else:
+            tree.extend(parsed)
     return tree
 
 

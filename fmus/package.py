@@ -1,6 +1,7 @@
 """Compile the generated and runtime C sources and pack them into an ``.fmu`` archive, atomically."""
 from __future__ import annotations
 
+import hashlib
 import os
 import shutil
 import subprocess
@@ -32,13 +33,40 @@ def runtime_sources(fmi_version: str) -> list[Path]:
     return files + [headers / h for h in FMI_HEADERS[fmi_version]]
 
 
+def _object_cache() -> Path:
+    base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
+    return Path(base) / "motiontwin" / "objects"
+
+
 def compile_binary(src_dir: Path, c_files: list[str], output: Path) -> None:
-    """gcc the C files of ``src_dir`` into the shared library ``output`` (only libc and libm needed)."""
-    cmd = [os.environ.get("CC", "gcc"), *CFLAGS, "-shared", "-static-libgcc", f"-I{src_dir}",
-           *[str(src_dir / f) for f in c_files], "-o", str(output), "-lm"]
+    """gcc the C files of ``src_dir`` into the shared library ``output`` (only libc and libm needed).
+
+    Object files are cached by the hash of compiler, flags, the C file and every header in ``src_dir``:
+    the runtime compiles once for all models, and a model's generated code once for FMI 2.0 and 3.0.
+    """
+    cc = os.environ.get("CC", "gcc")
+    headers = hashlib.sha256()
+    for h in sorted(src_dir.glob("*.h")):
+        headers.update(h.name.encode() + h.read_bytes())
+    cache = _object_cache()
+    cache.mkdir(parents=True, exist_ok=True)
+    objects = []
+    for name in c_files:
+        key = hashlib.sha256((cc + " ".join(CFLAGS)).encode() + headers.digest() + (src_dir / name).read_bytes())
+        obj = cache / f"{key.hexdigest()}.o"
+        if not obj.exists():
+            fd, tmp = tempfile.mkstemp(suffix=".o.part", dir=cache)
+            os.close(fd)
+            _run([cc, *CFLAGS, f"-I{src_dir}", "-c", str(src_dir / name), "-o", tmp], f"compiling {name}")
+            os.replace(tmp, obj)
+        objects.append(str(obj))
+    _run([cc, "-shared", "-static-libgcc", *objects, "-o", str(output), "-lm"], f"linking {output.name}")
+
+
+def _run(cmd: list[str], what: str) -> None:
     proc = subprocess.run(cmd, capture_output=True, text=True)
     if proc.returncode != 0:
-        raise BuildError(f"compiling {output.name} failed:\n{proc.stderr.strip()}")
+        raise BuildError(f"{what} failed:\n{proc.stderr.strip()}")
 
 
 def pack(staging: Path, fmu_path: Path) -> Path:

@@ -171,6 +171,7 @@ def _discretise(model: SymbolicModel, spec: dict, where: str) -> None:
     names = [v.name for v in model.parameters]
     if period not in names:
         raise ModelicaError(f"{where}: sampled(period={period}) must name a parameter of the class")
+    model.computed = [c for c in model.computed if c.causality != "calculatedParameter"]  # substituted already
     x, u = model.x, model.u
     y = model.y
     if model.state_outputs:

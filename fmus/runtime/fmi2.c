@@ -105,8 +105,7 @@ fmi2Status fmi2ExitInitializationMode(fmi2Component c)
 fmi2Status fmi2Terminate(fmi2Component c)
 {
     CHECK(MT_EVENT | MT_CONTINUOUS | MT_STEP, "fmi2Terminate");
-    INST->mode = MT_TERMINATED;
-    return fmi2OK;
+    return (fmi2Status)mt_terminate(INST);
 }
 
 fmi2Status fmi2Reset(fmi2Component c)
@@ -406,7 +405,7 @@ fmi2Status fmi2CancelStep(fmi2Component c)
 static fmi2Status no_status(fmi2Component c, const char *fn)
 {
     CHECK(MT_ANY_MODE, fn);
-    mt_log(INST, MT_ERROR, "logStatusError", "%s: this status kind is not provided (fmi2DoStep never returns "
+    mt_log(INST, MT_DISCARD, "logStatusError", "%s: this status kind is not provided (fmi2DoStep never returns "
            "fmi2Pending)", fn);
     return fmi2Discard;
 }

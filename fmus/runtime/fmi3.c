@@ -152,8 +152,7 @@ fmi3Status fmi3EnterEventMode(fmi3Instance instance)
 fmi3Status fmi3Terminate(fmi3Instance instance)
 {
     CHECK(MT_EVENT | MT_CONTINUOUS | MT_STEP, "fmi3Terminate");
-    INST->mode = MT_TERMINATED;
-    return fmi3OK;
+    return (fmi3Status)mt_terminate(INST);
 }
 
 fmi3Status fmi3Reset(fmi3Instance instance)

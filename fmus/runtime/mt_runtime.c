@@ -62,7 +62,7 @@ void mt_log(mt_instance *inst, int status, const char *category, const char *fmt
     char msg[1024];
     va_list ap;
     if (!inst || !inst->emit) return;
-    if (status < MT_ERROR && !(inst->logging_on && inst->log_events && strcmp(category, "logEvents") == 0))
+    if (status == MT_OK && !(inst->logging_on && inst->log_events && strcmp(category, "logEvents") == 0))
         return;
     va_start(ap, fmt);
     vsnprintf(msg, sizeof msg, fmt, ap);
@@ -316,6 +316,7 @@ void mt_reset(mt_instance *inst)
     inst->k_next = 0;
     inst->at_sample = 0;
     inst->solver.h = 0.0;
+    inst->solver.n_accepted = inst->solver.n_rejected = inst->solver.n_rhs = inst->solver.n_jac = 0;
 }
 
 /* ------------------------------------------------------------------------------------------ */
@@ -487,7 +488,7 @@ int mt_set_float64(mt_instance *inst, const unsigned int *vr, size_t n, const do
             return MT_ERROR;
         }
         if (b == B_U && m->min && m->max && (v < m->min[vr[k]] || v > m->max[vr[k]])) {
-            LOG_ERROR(inst, "%s: input %s = %.17g is outside its range [%g, %g]", fn, name, v, m->min[vr[k]],
+            LOG_ERROR(inst, "%s: input %s = %.15g is outside its range [%.15g, %.15g]", fn, name, v, m->min[vr[k]],
                       m->max[vr[k]]);
             return MT_ERROR;
         }
@@ -551,11 +552,11 @@ int mt_exit_initialization(mt_instance *inst)
             return mt_fail(inst);
         }
         if (m->min && v < m->min[vr]) {
-            LOG_ERROR(inst, "%s: parameter %s = %.17g is below its minimum %.17g", fn, m->names[vr], v, m->min[vr]);
+            LOG_ERROR(inst, "%s: parameter %s = %.15g is below its minimum %.15g", fn, m->names[vr], v, m->min[vr]);
             return mt_fail(inst);
         }
         if (m->max && v > m->max[vr]) {
-            LOG_ERROR(inst, "%s: parameter %s = %.17g is above its maximum %.17g", fn, m->names[vr], v, m->max[vr]);
+            LOG_ERROR(inst, "%s: parameter %s = %.15g is above its maximum %.15g", fn, m->names[vr], v, m->max[vr]);
             return mt_fail(inst);
         }
     }
@@ -604,6 +605,15 @@ int mt_exit_initialization(mt_instance *inst)
     return MT_OK;
 }
 
+int mt_terminate(mt_instance *inst)
+{
+    inst->mode = MT_TERMINATED;
+    LOG_EVENT(inst, "Terminate: t = %.17g, solver steps %ld accepted, %ld rejected, %ld derivative and %ld "
+              "Jacobian evaluations", inst->t, inst->solver.n_accepted, inst->solver.n_rejected, inst->solver.n_rhs,
+              inst->solver.n_jac);
+    return MT_OK;
+}
+
 /* ------------------------------------------------------------------------------------------ */
 /* Co-Simulation                                                                               */
 
@@ -637,12 +647,14 @@ int mt_do_step(mt_instance *inst, double t, double h, const char *fn)
                           "inputs/parameters outside its range)", fn, state, inst->solver.fail_time);
                 break;
             case MT_SOLVER_UNDERFLOW:
-                LOG_ERROR(inst, "%s: step size underflow at t = %.17g: the integration does not converge at "
-                          "tolerance %g", fn, inst->solver.fail_time, inst->rtol);
+                LOG_ERROR(inst, "%s: step size underflow at t = %.17g: the integration of state %s does not "
+                          "converge at tolerance %g (diverging model or inputs/parameters outside its range)", fn,
+                          inst->solver.fail_time, state, inst->rtol);
                 break;
             case MT_SOLVER_MAXSTEPS:
                 LOG_ERROR(inst, "%s: more than %ld solver steps in one communication step, stopped at t = %.17g "
-                          "(diverging or extremely stiff model)", fn, inst->solver.max_steps, inst->solver.fail_time);
+                          "(state %s limits the step size: diverging or extremely stiff model)", fn,
+                          inst->solver.max_steps, inst->solver.fail_time, state);
                 break;
             default:
                 LOG_ERROR(inst, "%s: evaluation of the model failed at t = %.17g", fn, inst->solver.fail_time);
@@ -966,7 +978,7 @@ int mt_derivatives(mt_instance *inst, const unsigned int *unknowns, size_t n_unk
             if (row < 0)
                 d = (bk == B_X && j == i) ? 1.0 : 0.0; /* a state with respect to the states */
             else
-                d = inst->J[row + (size_t)col * nr];
+                d = inst->J[(size_t)row + (size_t)col * (size_t)nr];
             if (adjoint)
                 sensitivity[b] += d * seed[a];
             else

@@ -67,8 +67,8 @@ mt_instance *mt_instantiate(const char *name, const char *token, int co_simulati
 void mt_free(mt_instance *inst);
 void mt_reset(mt_instance *inst);
 
-/* printf-style message; MT_ERROR and worse always reach the logger, others only when their
- * category is enabled. */
+/* printf-style message; warnings, discards and errors always reach the logger, MT_OK messages only
+ * when their category is enabled. */
 void mt_log(mt_instance *inst, int status, const char *category, const char *fmt, ...)
 #ifdef __GNUC__
     __attribute__((format(printf, 4, 5)))
@@ -89,6 +89,9 @@ int mt_wrong_type(mt_instance *inst, const unsigned int *vr, size_t n, const cha
 /* Initialisation. */
 int mt_setup(mt_instance *inst, int tolerance_defined, double tolerance, double start_time);
 int mt_exit_initialization(mt_instance *inst);
+
+/* Enter Terminated; logs the solver statistics (category logEvents). */
+int mt_terminate(mt_instance *inst);
 
 /* Co-Simulation: integrate from t to t + h (h >= 0). */
 int mt_do_step(mt_instance *inst, double t, double h, const char *fn);

@@ -50,6 +50,7 @@ int mt_solver_init(mt_solver *s, int n)
     s->rtol = 1e-8;
     s->max_steps = 1000000;
     s->fail_index = -1;
+    s->worst_index = 0;
     s->work = calloc(nw ? nw : 1, sizeof(double));
     s->pivot = calloc(n ? (size_t)n : 1, sizeof(int));
     if (!s->work || !s->pivot) {
@@ -101,14 +102,15 @@ int mt_lu_factor(double *A, int n, int *pivot)
 void mt_lu_solve(const double *A, int n, const int *pivot, double *b)
 {
     int i, k;
-    for (k = 0; k < n; k++) {
+    for (k = 0; k < n; k++) { /* P b: the factorisation swapped whole rows, L included */
         if (pivot[k] != k) {
             double tmp = b[k];
             b[k] = b[pivot[k]];
             b[pivot[k]] = tmp;
         }
-        for (i = k + 1; i < n; i++) b[i] -= A[i + k * n] * b[k];
     }
+    for (k = 0; k < n; k++)
+        for (i = k + 1; i < n; i++) b[i] -= A[i + k * n] * b[k];
     for (k = n - 1; k >= 0; k--) {
         b[k] /= A[k + k * n];
         for (i = 0; i < k; i++) b[i] -= A[i + k * n] * b[k];
@@ -134,10 +136,10 @@ static double atol_of(const mt_solver *s, int i)
 static int stages(mt_solver *s, mt_rhs_fn f, void *ctx, double t, double h, const double *x, double *xnew,
                   double *err)
 {
-    int n = s->n, i, j, k;
+    int n = s->n, i, j, k, worst = 0;
     double *K = W_K(s), *fcn = W_FCN(s), *tmp = W_TMP(s), *G = W_G(s);
     const double *J = W_J(s), *f0 = W_F0(s), *dfdt = W_DFDT(s);
-    double diag = 1.0 / (h * GAMMA_DIAG), sum = 0.0;
+    double diag = 1.0 / (h * GAMMA_DIAG), sum = 0.0, big = -1.0;
     for (k = 0; k < n * n; k++) G[k] = -J[k];
     for (k = 0; k < n; k++) G[k + k * n] += diag;
     if (mt_lu_factor(G, n, s->pivot) != 0) return 1;
@@ -159,7 +161,11 @@ static int stages(mt_solver *s, mt_rhs_fn f, void *ctx, double t, double h, cons
             for (k = 0; k < n; k++) Ki[k] += hc * K[(size_t)j * n + k];
         }
         mt_lu_solve(G, n, s->pivot, Ki);
-        if (first_nonfinite(Ki, n) >= 0) return 1;
+        j = first_nonfinite(Ki, n);
+        if (j >= 0) {
+            s->worst_index = j;
+            return 1;
+        }
     }
     for (k = 0; k < n; k++) {
         double xn = x[k], e = 0.0, sc;
@@ -170,7 +176,12 @@ static int stages(mt_solver *s, mt_rhs_fn f, void *ctx, double t, double h, cons
         xnew[k] = xn;
         sc = atol_of(s, k) + s->rtol * fmax(fabs(x[k]), fabs(xn));
         sum += (e / sc) * (e / sc);
+        if (!(fabs(e / sc) <= big)) {
+            big = fabs(e / sc);
+            worst = k;
+        }
     }
+    s->worst_index = worst;
     *err = n > 0 ? sqrt(sum / n) : 0.0;
     return isfinite(*err) ? 0 : 1;
 }
@@ -247,6 +258,7 @@ int mt_solver_integrate(mt_solver *s, mt_rhs_fn f, mt_jac_fn jac, void *ctx, dou
         }
         if (++steps > s->max_steps) {
             s->fail_time = *t;
+            s->fail_index = s->worst_index;
             return MT_SOLVER_MAXSTEPS;
         }
         if (hs >= remaining) {
@@ -255,6 +267,7 @@ int mt_solver_integrate(mt_solver *s, mt_rhs_fn f, mt_jac_fn jac, void *ctx, dou
         }
         if (hs < hmin) {
             s->fail_time = *t;
+            s->fail_index = s->worst_index;
             return MT_SOLVER_UNDERFLOW;
         }
         rc = stages(s, f, ctx, *t, hs, x, xnew, &err);

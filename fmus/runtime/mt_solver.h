@@ -35,6 +35,7 @@ typedef struct {
     long max_steps;       /* bound on steps per mt_solver_integrate call */
     long n_accepted, n_rejected, n_rhs, n_jac;  /* statistics since mt_solver_init */
     int fail_index;       /* state index responsible for a failure, -1 if none */
+    int worst_index;      /* state with the largest weighted error in the last rejected step */
     double fail_time;     /* time of a failure */
     double *work;         /* workspace */
     int *pivot;

@@ -10,4 +10,5 @@ equation
   der(x) = v;
   m * der(v) = u - d * v;
   q = x;
+  annotation(__motiontwin(export = true));
 end LinearMotorJoint;

@@ -1,0 +1,35 @@
+within MotionTwin.Plants;
+model CheungJoint "Joint-space model of one Cheung and Hung actuator, eqs. (6)-(8) with M = 1: q/u = K/(s*(s+alpha)) * (omega^2/omega_bar^2) * (s^2 + 2*zeta_bar*omega_bar*s + omega_bar^2)/(s^2 + 2*zeta*omega*s + omega^2), realised as motor mass + flexible coupling + linkage mass"
+  parameter Real K(unit = "m/(N.s2)", min = 1e-9) = 1 "Low-frequency gain K of eq. (7) (1/total moving mass)";
+  parameter Real alpha(unit = "1/s", min = 0) = 10 "Pole alpha of eq. (7) (total viscous friction / total mass)";
+  parameter Real omega(unit = "rad/s", min = 1e-6) = 2450 "Resonance frequency omega of eq. (8)";
+  parameter Real zeta(unit = "1", min = 0) = 0.05 "Resonance damping ratio zeta";
+  parameter Real omega_bar(unit = "rad/s", min = 1e-6) = 1885 "Antiresonance frequency omega-bar of eq. (8) (must be below omega)";
+  parameter Real zeta_bar(unit = "1", min = 0) = 0.05 "Antiresonance damping ratio zeta-bar";
+  parameter Real m_motor(unit = "kg") = omega_bar ^ 2 / (K * omega ^ 2) "Motor (slider) mass, from K*omega^2/omega_bar^2 = 1/m_motor";
+  parameter Real a_bar(unit = "1/s") = 2 * zeta_bar * omega_bar "Antiresonance damping term 2*zeta_bar*omega_bar = (d_link + c_coupling)/m_link";
+  parameter Real A_motor(unit = "N.s/m") = m_motor * (alpha + 2 * zeta * omega - a_bar) "d_motor + c_coupling, from the s^2 coefficient of the denominator";
+  parameter Real g_c(unit = "N.s/m") = A_motor - alpha / K "Helper: 2*c_coupling - a_bar*m_link";
+  parameter Real qa(unit = "1/s2") = omega_bar ^ 2 - a_bar ^ 2 / 4 "Helper: quadratic coefficient of the m_link equation";
+  parameter Real qb(unit = "kg/s2") = omega_bar ^ 2 * m_motor + A_motor * a_bar - g_c * a_bar / 2 - (2 * zeta * omega * alpha + omega ^ 2) * m_motor "Helper: linear coefficient of the m_link equation";
+  parameter Real m_link(unit = "kg") = (-qb + sqrt(qb ^ 2 + qa * g_c ^ 2)) / (2 * qa) "Linkage mass (positive root of the s^1-coefficient condition)";
+  parameter Real k_c(unit = "N/m") = omega_bar ^ 2 * m_link "Coupling stiffness, omega_bar^2 = k_c/m_link";
+  parameter Real c_c(unit = "N.s/m") = (g_c + a_bar * m_link) / 2 "Coupling damping";
+  parameter Real d_motor(unit = "N.s/m") = A_motor - c_c "Viscous friction of the motor (slider) to ground";
+  parameter Real d_link(unit = "N.s/m") = a_bar * m_link - c_c "Viscous friction of the linkage to ground";
+  input Real u(unit = "N") "Actuator force on the motor mass";
+  output Real q(unit = "m") "Measured actuator (encoder) position, collocated with the force";
+  output Real q_link(unit = "m") "Linkage position behind the flexible coupling";
+  Real x1(unit = "m", start = 0, fixed = true) "Motor position";
+  Real v1(unit = "m/s", start = 0, fixed = true) "Motor velocity";
+  Real x2(unit = "m", start = 0, fixed = true) "Linkage position";
+  Real v2(unit = "m/s", start = 0, fixed = true) "Linkage velocity";
+equation
+  der(x1) = v1;
+  der(x2) = v2;
+  m_motor * der(v1) = u - d_motor * v1 - k_c * (x1 - x2) - c_c * (v1 - v2);
+  m_link * der(v2) = -d_link * v2 + k_c * (x1 - x2) + c_c * (v1 - v2);
+  q = x1;
+  q_link = x2;
+  annotation(__motiontwin(export = true), Documentation(info = "Collocated two-mass system. With masses m_motor, m_link, coupling k_c, c_c and viscous d_motor, d_link to ground, q/u = (m_link*s^2 + (d_link + c_c)*s + k_c)/(s*cubic(s)) and matching coefficients with eqs. (6)-(8) gives: m_motor = omega_bar^2/(K*omega^2); k_c/m_link = omega_bar^2; (d_link + c_c)/m_link = 2*zeta_bar*omega_bar; (d_motor + c_c)/m_motor = alpha + 2*zeta*omega - 2*zeta_bar*omega_bar; d_motor + d_link = alpha/K; and the s^1 coefficient fixes m_link (one positive root). The transfer function is exact for any values; the damping values are physical (non-negative) for lightly damped modes. Defaults: 1 kg total, resonance 390 Hz and antiresonance 300 Hz (the notch band of Cheung Table 2, d1)."));
+end CheungJoint;

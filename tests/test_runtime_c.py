@@ -1,0 +1,301 @@
+"""The model-agnostic C runtime (fmus/runtime): solver order, sampled-part semantics, errors, FMU state, derivatives.
+
+Complements tests/test_fmu_build.py (which checks CS against ME + CVODE, start values and the state round
+trip). References here: an analytic solution (solver order), scipy's Tustin discretisation of the hand-derived
+controller equations (sampled part), fmpy's Model Exchange driver (time events), the analytic Jacobian
+(directional and adjoint derivatives). Units: SI.
+"""
+from __future__ import annotations
+
+import ctypes
+import math
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+from fmpy import simulate_fmu
+from fmpy.fmi1 import FMICallException
+from scipy.signal import cont2discrete
+
+from fmus import build
+from tests import fmi_util as fu
+
+RUNTIME = Path(build.__file__).parent / "runtime"
+VERSIONS = build.FMI_VERSIONS
+JOINT = {"m": 2.0, "d": 10.0, "Fc": 5.0, "v_eps": 1e-4}  # FrictionJoint defaults
+
+
+@pytest.fixture
+def opened():
+    """Instances created by a test, freed afterwards."""
+    instances: list[fu.Loaded] = []
+    yield instances
+    for ld in instances:
+        ld.fmu.freeInstance()
+
+
+def _open(opened: list[fu.Loaded], path: Path, kind: str = "cs") -> fu.Loaded:
+    ld = fu.instantiate(path, kind)
+    opened.append(ld)
+    return ld
+
+
+def _enter_init(ld: fu.Loaded) -> None:
+    if ld.md.fmiVersion == "2.0":
+        ld.fmu.setupExperiment(startTime=0.0)
+        ld.fmu.enterInitializationMode()
+    else:
+        ld.fmu.enterInitializationMode(startTime=0.0)
+
+
+def _errors(ld: fu.Loaded) -> list[str]:
+    return [m for m in ld.messages if "sample" not in m and "initialized" not in m]
+
+
+# ---------------------------------------------------------------------------------------------
+# Solver
+
+
+def test_rodas4_converges_with_order_four(tmp_path):
+    """Fixed-step RODAS4 on x' = -2 t x^2 (x = 1/(1+t^2)): the error drops by 2^4 per halving of h."""
+    lib = tmp_path / "libsolver.so"
+    subprocess.run(["gcc", "-shared", "-fPIC", "-O2", "-std=c99", "-o", str(lib), str(RUNTIME / "mt_solver.c"), "-lm"],
+                   check=True)
+    so = ctypes.CDLL(str(lib))
+    dbl = ctypes.POINTER(ctypes.c_double)
+    rhs_t = ctypes.CFUNCTYPE(ctypes.c_int, ctypes.c_void_p, ctypes.c_double, dbl, dbl)
+    jac_t = ctypes.CFUNCTYPE(ctypes.c_int, ctypes.c_void_p, ctypes.c_double, dbl, dbl, dbl)
+
+    @rhs_t
+    def rhs(ctx, t, x, dx):
+        dx[0] = -2.0 * t * x[0] ** 2
+        return 0
+
+    @jac_t
+    def jac(ctx, t, x, J, dfdt):
+        J[0] = -4.0 * t * x[0]
+        dfdt[0] = -2.0 * x[0] ** 2
+        return 0
+
+    solver = ctypes.create_string_buffer(512)  # larger than sizeof(mt_solver)
+    assert so.mt_solver_init(solver, 1) == 0
+    so.mt_rosenbrock_step.argtypes = [ctypes.c_void_p, rhs_t, jac_t, ctypes.c_void_p, ctypes.c_double,
+                                      ctypes.c_double, dbl, dbl, dbl]
+    errors = []
+    for n in (5, 10, 20, 40, 80):
+        x, x_new, estimate = (ctypes.c_double * 1)(1.0), (ctypes.c_double * 1)(), ctypes.c_double()
+        for i in range(n):
+            assert so.mt_rosenbrock_step(solver, rhs, jac, None, i / n, 1.0 / n, x, x_new, ctypes.byref(estimate)) == 0
+            x[0] = x_new[0]
+        errors.append(abs(x[0] - 0.5))
+    so.mt_solver_free(solver)
+    orders = np.log2(np.array(errors[:-1]) / np.array(errors[1:]))
+    assert np.all((orders > 3.8) & (orders < 4.5)), orders
+
+
+def test_dense_lu_with_pivoting_solves_like_numpy(tmp_path):
+    """mt_lu_factor/mt_lu_solve on random systems up to 12 x 12 (pivoting happens) vs numpy.linalg.solve."""
+    lib = tmp_path / "liblu.so"
+    subprocess.run(["gcc", "-shared", "-fPIC", "-O2", "-std=c99", "-o", str(lib), str(RUNTIME / "mt_solver.c"), "-lm"],
+                   check=True)
+    so = ctypes.CDLL(str(lib))
+    rng = np.random.default_rng(3)
+    for n in range(1, 13):
+        A = rng.normal(size=(n, n))
+        b = rng.normal(size=n)
+        lu = np.asfortranarray(A).flatten(order="F").astype(float)
+        x = b.copy()
+        pivot = (ctypes.c_int * n)()
+        dbl = ctypes.POINTER(ctypes.c_double)
+        assert so.mt_lu_factor(lu.ctypes.data_as(dbl), n, pivot) == 0
+        so.mt_lu_solve(lu.ctypes.data_as(dbl), n, pivot, x.ctypes.data_as(dbl))
+        assert np.allclose(x, np.linalg.solve(A, b), rtol=1e-10, atol=1e-12), n
+
+
+def test_cosimulation_of_a_nine_state_closed_loop_matches_cvode(tmp_path):
+    """Joint plant + continuous robust controller (9 states, eigenvalues to -4850 1/s and +-2500j 1/s):
+    CS (rtol 1e-8) vs ME + CVode (rtol 1e-10), all inputs 0.1, within 1e-6 of each output's peak."""
+    model = build.load_model("MotionTwin.Examples.JointWithRobustController")
+    path = str(build.build_fmu(model, tmp_path, "3.0").path)
+    common = dict(stop_time=0.1, output_interval=1e-3, output=["q", "u"],
+                  start_values={"r": 0.1, "r_dot": 0.1, "r_ddot": 0.1, "r_dddot": 0.1})
+    cs = simulate_fmu(path, fmi_type="CoSimulation", relative_tolerance=1e-8, **common)
+    me = simulate_fmu(path, fmi_type="ModelExchange", solver="CVode", relative_tolerance=1e-10, **common)
+    for name in ("q", "u"):
+        assert np.max(np.abs(cs[name] - me[name])) <= 1e-6 * np.max(np.abs(me[name])), name
+
+
+# ---------------------------------------------------------------------------------------------
+# Sampled part
+
+
+def _sampled_pi_reference(kp: float, ki: float, kd: float, tau: float, ts: float) -> tuple[np.ndarray, ...]:
+    """scipy's Tustin discretisation of tests/models/SampledPI.mo, written out by hand as (A, B, C, D):
+    der(xi) = Ki e, der(xd) = (e - xd)/tau, y = Kp e + xi + Kd (e - xd)/tau."""
+    A = np.array([[0.0, 0.0], [0.0, -1.0 / tau]])
+    B = np.array([[ki], [1.0 / tau]])
+    C = np.array([[1.0, -kd / tau]])
+    D = np.array([[kp + kd / tau]])
+    Ad, Bd, Cd, Dd, _ = cont2discrete((A, B, C, D), ts, method="bilinear")
+    return Ad, Bd, Cd, Dd
+
+
+@pytest.mark.parametrize("version", VERSIONS)
+@pytest.mark.parametrize("steps_per_sample", [0.4, 1, 3])
+def test_sampled_part_semantics_in_cosimulation(built_fmus, opened, version, steps_per_sample):
+    """The sample at t_k = k*Ts uses the input present when the FMU is at t_k (held inside a long step); the
+    output is held until the next sample; an input set again at t0 redoes the sample at t0."""
+    ld = _open(opened, built_fmus["SampledPI", version])
+    kp, ki, kd, tau, ts = fu.get(ld, "Kp", "Ki", "Kd", "tau", "Ts")
+    Ad, Bd, Cd, Dd = _sampled_pi_reference(kp, ki, kd, tau, ts)
+    h = ts / steps_per_sample
+    n_steps = 40
+    inputs = np.random.default_rng(7).normal(size=n_steps)
+    _enter_init(ld)
+    fu.set_(ld, {"e": 5.0})
+    ld.fmu.exitInitializationMode()
+    fu.set_(ld, {"e": inputs[0]})  # event iteration at t0
+    z, held = np.zeros(2), []
+    for k in range(int(math.ceil(n_steps * h / ts)) + 1):
+        e = inputs[min(int(math.floor(k * ts / h + 1e-9)), n_steps - 1)]  # input of the step containing t_k
+        held.append((Cd @ z + Dd[:, 0] * e)[0])
+        z = Ad @ z + Bd[:, 0] * e
+    got, expected = [fu.get(ld, "y")[0]], [held[0]]
+    for i in range(n_steps):
+        fu.set_(ld, {"e": inputs[i]})
+        fu.step(ld, i * h, h)
+        got.append(fu.get(ld, "y")[0])
+        expected.append(held[int(math.ceil((i + 1) * h / ts - 1e-9)) - 1])  # last sample strictly before t+h
+    assert np.allclose(got, expected, rtol=1e-10, atol=1e-12 * np.max(np.abs(expected)))
+
+
+@pytest.mark.parametrize("version", VERSIONS)
+def test_sampled_part_model_exchange_matches_cosimulation(built_fmus, version):
+    """In Model Exchange the samples are time events (nextEventTime); the held output equals Co-Simulation's."""
+    path = str(built_fmus["SampledPI", version])
+    ts, t_end = 1e-3, 0.05
+    tk = np.arange(0.0, t_end + ts / 2, ts)
+    ek = np.sin(2 * np.pi * 10 * tk)
+    signal = np.array(list(zip(np.repeat(tk, 2)[1:], np.repeat(ek, 2)[:-1])), dtype=[("time", float), ("e", float)])
+    common = dict(input=signal, stop_time=t_end, output_interval=ts, output=["y"])
+    cs = simulate_fmu(path, fmi_type="CoSimulation", **common)
+    me = simulate_fmu(path, fmi_type="ModelExchange", solver="CVode", **common)
+    _, first = np.unique(me["time"], return_index=True)  # left limits at the event instants, as CS reports them
+    me = me[first]
+    assert len(cs) == len(me) == len(tk) and np.max(np.abs(cs["y"])) > 1.0
+    assert np.allclose(cs["y"], me["y"], rtol=1e-12, atol=1e-12)
+
+
+# ---------------------------------------------------------------------------------------------
+# Bad input and call sequence
+
+
+@pytest.mark.parametrize("version", VERSIONS)
+@pytest.mark.parametrize("name, value, text", [("m", 0.0, "m = 0 is below its minimum 1e-09"),
+                                               ("v_eps", -1.0, "v_eps = -1 is below its minimum 1e-12")])
+def test_parameter_out_of_range_names_value_and_bound(built_fmus, opened, version, name, value, text):
+    ld = _open(opened, built_fmus["FrictionJoint", version])
+    _enter_init(ld)
+    fu.set_(ld, {name: value})
+    with pytest.raises(FMICallException):
+        ld.fmu.exitInitializationMode()
+    assert any(text in m for m in ld.messages), ld.messages
+    with pytest.raises(FMICallException):  # the failed instance refuses to step
+        fu.step(ld, 0.0, 1e-3)
+
+
+@pytest.mark.parametrize("version", VERSIONS)
+def test_non_finite_values_are_refused_and_the_instance_stays_usable(built_fmus, opened, version):
+    ld = _open(opened, built_fmus["FrictionJoint", version])
+    _enter_init(ld)
+    with pytest.raises(FMICallException):
+        fu.set_(ld, {"d": float("nan")})
+    ld.fmu.exitInitializationMode()
+    with pytest.raises(FMICallException):
+        fu.set_(ld, {"u": float("inf")})
+    assert any("parameter d = nan" in m for m in ld.messages), ld.messages
+    assert any("input u = inf" in m for m in ld.messages), ld.messages
+    assert fu.get(ld, "d")[0] == JOINT["d"]
+    fu.set_(ld, {"u": 8.0})
+    fu.step(ld, 0.0, 1e-2)
+    assert fu.get(ld, "q")[0] > 0
+
+
+@pytest.mark.parametrize("version", VERSIONS)
+def test_diverging_integration_is_an_error_not_a_crash(built_fmus, opened, version):
+    ld = _open(opened, built_fmus["FrictionJoint", version])
+    _enter_init(ld)
+    ld.fmu.exitInitializationMode()
+    fu.set_(ld, {"u": 1e308})
+    with pytest.raises(FMICallException):
+        fu.step(ld, 0.0, 1e12)
+    assert any("does not converge" in m and "state" in m for m in ld.messages), ld.messages
+    with pytest.raises(FMICallException):  # refused after the error ...
+        fu.step(ld, 0.0, 1e-3)
+    assert np.all(np.isfinite(fu.get(ld, "q", "v")))  # ... getters still answer
+
+
+@pytest.mark.parametrize("version", VERSIONS)
+def test_out_of_sequence_calls_are_refused(built_fmus, opened, version):
+    ld = _open(opened, built_fmus["FrictionJoint", version])
+    me = _open(opened, built_fmus["FrictionJoint", version], "me")
+    _enter_init(ld)
+    ld.fmu.exitInitializationMode()
+    with pytest.raises(FMICallException):
+        fu.set_(ld, {"m": 3.0})  # a fixed parameter after initialisation
+    with pytest.raises(FMICallException):
+        fu.step(ld, 0.5, 1e-3)  # not the FMU's time
+    with pytest.raises(FMICallException):
+        me.fmu.setTime(0.1)  # Model Exchange before initialisation
+    assert any("parameter m can only be set before the end of initialization" in m for m in ld.messages)
+    assert any("does not match the FMU time" in m for m in ld.messages)
+    assert any("illegal call sequence" in m for m in me.messages)
+
+
+# ---------------------------------------------------------------------------------------------
+# FMU state and derivatives
+
+
+@pytest.mark.parametrize("version", VERSIONS)
+def test_fmu_state_of_another_model_or_corrupted_is_rejected(built_fmus, opened, version):
+    joint = _open(opened, built_fmus["FrictionJoint", version])
+    pi = _open(opened, built_fmus["SampledPI", version])
+    v2 = version == "2.0"
+    for ld in (joint, pi):
+        _enter_init(ld)
+        ld.fmu.exitInitializationMode()
+    blob = bytes(pi.fmu.serializeFMUstate(pi.fmu.getFMUstate()) if v2 else
+                 pi.fmu.serializeFMUState(pi.fmu.getFMUState()))
+    deserialize = joint.fmu.deSerializeFMUstate if v2 else joint.fmu.deserializeFMUState
+    with pytest.raises(FMICallException):
+        deserialize(blob)
+    with pytest.raises(FMICallException):
+        deserialize(b"garbage" + blob[7:])
+    assert any("another model" in m for m in joint.messages), joint.messages
+    assert any("bad header" in m for m in joint.messages), joint.messages
+
+
+@pytest.mark.parametrize("version", VERSIONS)
+def test_directional_and_adjoint_derivatives_match_the_analytic_jacobian(built_fmus, opened, version):
+    ld = _open(opened, built_fmus["FrictionJoint", version])
+    v0, u0 = 2e-4, 1.5
+    _enter_init(ld)
+    fu.set_(ld, {"v": v0, "u": u0})
+    ld.fmu.exitInitializationMode()
+    m, d, fc, eps = (JOINT[k] for k in ("m", "d", "Fc", "v_eps"))
+    dvdot_dv = (-d - fc / eps / math.cosh(v0 / eps) ** 2) / m
+    vr = ld.vr
+    unknowns = [vr["der(q)"], vr["der(v)"], vr["a"], vr["q"]]
+    knowns = [vr["q"], vr["v"], vr["u"]]
+    J = np.array([[0.0, 1.0, 0.0], [0.0, dvdot_dv, 1.0 / m], [0.0, dvdot_dv, 1.0 / m], [1.0, 0.0, 0.0]])
+    for j in range(3):
+        column = ld.fmu.getDirectionalDerivative(unknowns, knowns, list(np.eye(3)[j]))
+        assert np.allclose(column, J[:, j], rtol=1e-12, atol=0)
+    if version == "3.0":
+        for i in range(4):
+            row = ld.fmu.getAdjointDerivative(unknowns, knowns, list(np.eye(4)[i]), nSensitivity=len(knowns))
+            assert np.allclose(row, J[i], rtol=1e-12, atol=0)
+    with pytest.raises(FMICallException):
+        ld.fmu.getDirectionalDerivative(unknowns, [vr["m"]], [1.0])
+    assert any("m" in msg and "is a parameter" in msg for msg in ld.messages), ld.messages
