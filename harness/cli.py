@@ -6,6 +6,8 @@ import sys
 from pathlib import Path
 from typing import Callable
 
+import numpy as np
+
 
 def _build(args: argparse.Namespace) -> int:
     from fmus import build
@@ -28,6 +30,72 @@ def _demo(args: argparse.Namespace) -> int:
     return 0
 
 
+def _excite(args: argparse.Namespace) -> int:
+    from harness import excitation, recording
+
+    rec = excitation.experiment_recording(excitation.load_experiment(args.experiment))
+    for path in recording.write_recording(args.out, rec):
+        print(path)
+    if args.mat:
+        print(recording.write_mat(args.out.with_suffix(".mat"), rec))
+    return 0
+
+
+def _input_signal(spec: str) -> tuple[str, tuple[np.ndarray, np.ndarray]]:
+    """``NAME=EXPERIMENT.toml[:FIELD]`` -> (NAME, (time, values)); FIELD defaults to value or position."""
+    from harness import excitation
+
+    name, sep, rest = spec.partition("=")
+    if not sep or not name:
+        raise ValueError(f"--input {spec!r}: expected NAME=EXPERIMENT.toml[:FIELD]")
+    path, field = rest, ""
+    if ":" in rest and rest.rsplit(":", 1)[0].endswith(".toml"):
+        path, field = rest.rsplit(":", 1)
+    signals = excitation.load_experiment(path).generate()
+    field = field or ("value" if "value" in signals else "position")
+    if field not in signals:
+        raise ValueError(f"--input {spec!r}: the experiment has no field {field!r}; it has {sorted(signals)}")
+    values = signals[field]
+    if values.ndim != 1:
+        raise ValueError(f"--input {spec!r}: field {field!r} has {values.shape[1]} axes; an input takes one")
+    return name, (signals["time"], values)
+
+
+def _run(args: argparse.Namespace) -> int:
+    from harness import recording
+    from harness.master import Master
+
+    inputs = dict(_input_signal(spec) for spec in args.input)
+    with Master(args.system) as master:
+        logs = master.run(inputs=inputs, stop_time=args.stop_time)
+        meta = master.metadata()
+    group = args.log or next(iter(logs))
+    if group not in logs:
+        raise ValueError(f"--log {group!r}: the system logs {sorted(logs)}")
+    log = logs[group]
+    columns = {name: log[name] for name in log.dtype.names if name != "time"}
+    units = {name: meta["units"].get(name) or "" for name in columns}
+    rec = recording.make_recording(log["time"], columns, units, sample_time=float(log["time"][1] - log["time"][0]),
+                                   excited={"inputs": args.input}, fmus=meta["fmus"],
+                                   metadata={"system": str(args.system), "order": meta["order"]})
+    for path in recording.write_recording(args.out, rec):
+        print(path)
+    return 0
+
+
+def _regress(args: argparse.Namespace) -> int:
+    from harness import regress
+
+    return regress.run_suite(args.suite, args.update, args.junit, args.plots)
+
+
+def _ssp(args: argparse.Namespace) -> int:
+    from harness import ssp
+
+    print(ssp.export_ssp(args.system, args.out, args.drop_external_in_sums))
+    return 0
+
+
 def _parser() -> argparse.ArgumentParser:
     from fmus.build import DEFAULT_OUT, FMI_VERSIONS, MODELICA_DIR
 
@@ -42,6 +110,35 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--out", type=Path, default=DEFAULT_OUT, help="output folder (FMUs go to OUT/fmi2, OUT/fmi3)")
     p.set_defaults(func=_build)
 
+    p = sub.add_parser("excite", help="sample an excitation experiment file into a recording")
+    p.add_argument("experiment", type=Path, help="experiment TOML, e.g. harness/experiments/swept_sine_80_500.toml")
+    p.add_argument("--out", type=Path, required=True, help="recording CSV (a JSON sidecar is written beside it)")
+    p.add_argument("--mat", action="store_true", help="also write a MATLAB .mat file")
+    p.set_defaults(func=_excite)
+
+    p = sub.add_parser("run", help="co-simulate a system file and write a recording")
+    p.add_argument("system", type=Path, help="system description (TOML)")
+    p.add_argument("--input", action="append", default=[], metavar="NAME=EXPERIMENT.toml[:FIELD]",
+                   help="drive external input NAME with an experiment's signal (FIELD: value, position, ...)")
+    p.add_argument("--stop-time", type=float, default=None, help="[s] (default: the system file's stop_time)")
+    p.add_argument("--log", default=None, help="log group to record (default: the first)")
+    p.add_argument("--out", type=Path, required=True, help="recording CSV (a JSON sidecar is written beside it)")
+    p.set_defaults(func=_run)
+
+    p = sub.add_parser("regress", help="run a regression suite against reference recordings (tolerance tubes)")
+    p.add_argument("suite", type=Path, help="suite file (TOML)")
+    p.add_argument("--update", action="store_true", help="rebaseline: rewrite the reference recordings")
+    p.add_argument("--junit", type=Path, default=None, help="write JUnit XML here")
+    p.add_argument("--plots", type=Path, default=None, help="write a plot per failing signal here")
+    p.set_defaults(func=_regress)
+
+    p = sub.add_parser("ssp", help="export a system file as an SSP archive")
+    p.add_argument("system", type=Path)
+    p.add_argument("out", type=Path)
+    p.add_argument("--drop-external-in-sums", action="store_true",
+                   help="drop external inputs from sum junctions (SSP 1.0 has no sum junctions)")
+    p.set_defaults(func=_ssp)
+
     p = sub.add_parser("demo", help="build the example FMUs and run the example end to end")
     p.add_argument("--out", type=Path, default=Path("build") / "demo")
     p.set_defaults(func=_demo)
@@ -51,12 +148,13 @@ def _parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     from fmus.frontend import ModelicaError
     from fmus.package import BuildError
+    from harness.master import FMUCallError
 
     args = _parser().parse_args(argv)
     func: Callable[[argparse.Namespace], int] = args.func
     try:
         return func(args)
-    except (ModelicaError, BuildError, KeyError, ValueError, FileNotFoundError) as exc:
+    except (ModelicaError, BuildError, FMUCallError, KeyError, ValueError, FileNotFoundError) as exc:
         print(f"motiontwin {args.command}: {exc}", file=sys.stderr)
         return 1
 

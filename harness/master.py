@@ -1,0 +1,921 @@
+"""Co-simulation master: steps Co-Simulation FMUs (FMI 2.0 and 3.0) connected by named ports.
+
+Times are in seconds; signal values are in the units the FMUs declare (checked across connections).
+
+How a run works
+---------------
+* The time grid is ``t_k = start_time + k * base_step``, ``k = 0..N``. Every FMU has a fixed
+  communication step ``m * base_step`` (integer ``m``) and starts a step at the ticks ``k`` with
+  ``k % m == 0``; its inputs are set just before that step and held over it. When the run
+  length is not a multiple of its step, its last step is shortened (refused for FMUs without
+  ``canHandleVariableCommunicationStepSize``).
+* External signals (``input.NAME``) are arrays over the base grid, held over each base step.
+  A connection with several sources is a sum junction: ``to = sum(gain_i * source_i)``,
+  e.g. plant force = controller output + u_ext.
+* Stepping order inside a tick (Gauss-Seidel): for every connection from FMU A to FMU B,
+  A is stepped before B, except when B is *sampled* and A is not: then B goes first.
+  A sampled FMU (``sampled = true``, or having the parameter ``Ts``, see ``ts_parameter``) is a
+  discrete controller that samples its inputs at the start of ``doStep`` and holds its output
+  over the step. Stepping it
+  first hands the plant the output held over the same interval (no extra delay), while the
+  controller sees the plant output at the start of the interval, as a real sampled loop does.
+  Cycles among the remaining constraints are broken in declaration order (that edge then uses
+  the value from the previous communication point). ``order = [...]`` in the system file
+  overrides all of this.
+* Logging at tick ``k`` records the value valid from ``t_k`` on: outputs of continuous FMUs
+  before they step at ``t_k``, outputs of sampled FMUs after they step at ``t_k``, inputs as set
+  at ``t_k`` and external signals at ``t_k``. Nothing is stepped at the final time ``t_N``, so
+  there a sampled FMU's output is the one held from its last sample. Results are numpy
+  structured arrays with a ``time`` field and one field per logged signal (the layout
+  ``fmpy.simulate_fmu`` returns; array variables give "port[1]", "port[2]", ...), one array per
+  log group.
+* FMUs are extracted once per process and instantiated once per :class:`Master`. A run starts
+  from a common initial state: an FMU with ``canGetAndSetFMUstate`` keeps its state right after
+  initialization and later runs restore it (``setFMUstate``) when the start time, its parameter
+  overrides and its inputs at the start are unchanged; otherwise (and for FMUs without that
+  capability) it is reset (``fmi2Reset``/``fmi3Reset``) and initialized again. Sweeps therefore
+  never unzip or load anything twice.
+* Errors: unknown ports (with the available ones), unit mismatches, steps that are not integer
+  multiples of the base step or of an FMU's Ts raise before anything runs; an FMU call that
+  fails raises :class:`FMUCallError` with the FMU, the call, the time and the messages the FMU
+  passed to the logger callback (kept per instance).
+* Speed: value references are ctypes arrays built once; fmpy's low-level ``fmi2GetReal`` /
+  ``fmi3GetFloat64`` write straight into one preallocated float64 buffer that inputs, outputs,
+  external signals and the logs are numpy views of.
+"""
+
+from __future__ import annotations
+
+import atexit
+import ctypes
+import itertools
+import re
+import shutil
+import threading
+import weakref
+from collections import deque
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable, Mapping
+
+import numpy as np
+from fmpy import extract, read_model_description
+from fmpy.fmi1 import FMICallException
+from fmpy.fmi2 import (
+    FMU2Slave,
+    fmi2CallbackAllocateMemoryTYPE,
+    fmi2CallbackFreeMemoryTYPE,
+    fmi2CallbackFunctions,
+    fmi2CallbackLoggerTYPE,
+)
+from fmpy.fmi3 import FMU3Slave, fmi3Boolean, fmi3Float64
+from tqdm import tqdm
+
+from .system import INPUT_NAMESPACE, System, load_system, split_port
+
+_REAL_TYPES = ("Real", "Float64")
+_STATUS = ["OK", "WARNING", "DISCARD", "ERROR", "FATAL", "PENDING"]
+
+
+class PortError(ValueError):
+    """A port name does not exist or cannot be used where it appears."""
+
+
+class UnitMismatchError(ValueError):
+    """Two connected ports declare different units."""
+
+
+class StepError(ValueError):
+    """A communication or log step is not an integer multiple of the base step or of an FMU's Ts."""
+
+
+class FMUCallError(RuntimeError):
+    """An FMU returned an error: says which FMU, which call, at which time, and what it logged."""
+
+    def __init__(self, instance: str, function: str, status: int, time: float, messages: list[str]):
+        label = _STATUS[status] if 0 <= status < len(_STATUS) else str(status)
+        logged = "\n  ".join(messages) if messages else "(the FMU logged no message)"
+        super().__init__(f"FMU '{instance}': {function} returned {label} at t = {time:.9g} s. "
+                         f"Logged messages:\n  {logged}")
+        self.instance = instance
+        self.function = function
+        self.status = status
+        self.time = time
+        self.messages = messages
+
+
+# ---------------------------------------------------------------------------------------------
+# extraction cache (once per process)
+
+_EXTRACTED: dict[tuple[str, int, int], str] = {}
+
+
+def _cleanup_extracted() -> None:
+    for folder in _EXTRACTED.values():
+        shutil.rmtree(folder, ignore_errors=True)
+
+
+atexit.register(_cleanup_extracted)
+
+
+def extracted_fmu(path: str | Path) -> str:
+    """Folder holding the unzipped FMU; unzipped at most once per process and FMU file version."""
+    path = Path(path).resolve()
+    stat = path.stat()
+    key = (str(path), stat.st_mtime_ns, stat.st_size)
+    if key not in _EXTRACTED:
+        _EXTRACTED[key] = str(extract(str(path)))
+    return _EXTRACTED[key]
+
+
+# ---------------------------------------------------------------------------------------------
+# units
+
+_DERIVED_SI = {
+    "N": {"kg": 1, "m": 1, "s": -2},
+    "J": {"kg": 1, "m": 2, "s": -2},
+    "W": {"kg": 1, "m": 2, "s": -3},
+    "Pa": {"kg": 1, "m": -1, "s": -2},
+    "Hz": {"s": -1},
+}
+_FACTOR = re.compile(r"^([A-Za-z_]+)(-?\d+)?$")
+
+
+def canonical_unit(unit: str) -> tuple[tuple[str, int], ...] | None:
+    """Exponents of a Modelica unit string ("m/s2", "m.s-1", "N.s/m") over SI base units, or
+    None when the string is not parseable (then it is compared verbatim)."""
+    powers: dict[str, int] = {}
+    for position, part in enumerate(unit.split("/")):
+        sign = 1 if position == 0 else -1
+        for factor in part.split("."):
+            if factor in ("", "1"):
+                continue
+            match = _FACTOR.match(factor)
+            if not match:
+                return None
+            name, exponent = match.group(1), int(match.group(2) or 1)
+            for base, p in _DERIVED_SI.get(name, {name: 1}).items():
+                powers[base] = powers.get(base, 0) + sign * exponent * p
+    return tuple(sorted((k, v) for k, v in powers.items() if v != 0))
+
+
+def units_compatible(a: str | None, b: str | None) -> bool:
+    """True when either unit is undeclared or both denote the same SI unit."""
+    if not a or not b:
+        return True
+    ca, cb = canonical_unit(a), canonical_unit(b)
+    return a == b if ca is None or cb is None else ca == cb
+
+
+# ---------------------------------------------------------------------------------------------
+# one FMU instance
+
+
+def _variable_unit(variable: Any) -> str | None:
+    if variable.unit:
+        return variable.unit
+    declared = getattr(variable, "declaredType", None)
+    return getattr(declared, "unit", None) if declared is not None else None
+
+
+class FMUInstance:
+    """An extracted, instantiated Co-Simulation FMU with a logger that keeps its messages."""
+
+    def __init__(self, name: str, path: str | Path, debug_logging: bool = False):
+        self.name = name
+        self.path = Path(path)
+        if not self.path.is_file():
+            raise FileNotFoundError(f"FMU '{name}': file not found: {self.path}")
+        self.model_description = md = read_model_description(str(self.path))
+        if md.coSimulation is None:
+            raise ValueError(f"FMU '{name}' ({self.path}) does not support Co-Simulation")
+        self.fmi3 = md.fmiVersion.startswith("3")
+        self.variables = {v.name: v for v in md.modelVariables}
+        self.messages: deque[str] = deque(maxlen=50)
+        self.can_reset_state = bool(md.coSimulation.canGetAndSetFMUstate)
+        unzipdir = extracted_fmu(self.path)
+        kwargs = dict(guid=md.guid, unzipDirectory=unzipdir,
+                      modelIdentifier=md.coSimulation.modelIdentifier, instanceName=name)
+        # loggingOn = False still passes warnings and errors to the logger (FMI 2.0/3.0), without
+        # the per-call debug messages some exporters emit when it is on.
+        if self.fmi3:
+            self.slave = FMU3Slave(**kwargs)
+            self.slave.instantiate(loggingOn=debug_logging, logMessage=self._log3)
+        else:
+            self.slave = FMU2Slave(**kwargs)
+            self._callbacks = _fmi2_callbacks(self)
+            self.slave.instantiate(callbacks=self._callbacks, loggingOn=debug_logging)
+        self.initialized = False
+        self.initial_state: tuple[Any, Any] | None = None
+
+    def _record(self, status: int, category: bytes | None, message: bytes | None) -> None:
+        label = _STATUS[status] if 0 <= status < len(_STATUS) else str(status)
+        text = message.decode("utf-8", "replace") if message else ""
+        cat = category.decode("utf-8", "replace") if category else ""
+        self.messages.append(f"[{label}] {cat}: {text}" if cat else f"[{label}] {text}")
+
+    def _log3(self, env, status, category, message) -> None:
+        self._record(status, category, message)
+
+    def variable(self, name: str) -> Any:
+        return self.variables[name]
+
+    def size(self, name: str) -> int:
+        shape = self.variables[name].shape
+        return int(np.prod(shape)) if shape else 1
+
+    def ports(self, causality: str) -> list[str]:
+        return [v.name for v in self.variables.values() if v.causality == causality]
+
+    def set_start_values(self, values: Mapping[str, Any]) -> None:
+        """Set parameters/start values by name (before initialization), converting by type."""
+        for name, value in values.items():
+            if name not in self.variables:
+                raise PortError(f"FMU '{self.name}' has no variable '{name}' (parameter override). "
+                                f"Parameters: {', '.join(self.ports('parameter')) or '-'}; "
+                                f"inputs: {', '.join(self.ports('input')) or '-'}")
+            v = self.variables[name]
+            vr = [v.valueReference]
+            s = self.slave
+            if v.type in _REAL_TYPES:
+                (s.setFloat64 if self.fmi3 else s.setReal)(vr, [float(value)])
+            elif v.type in ("Integer", "Enumeration") and not self.fmi3:
+                s.setInteger(vr, [int(value)])
+            elif v.type in ("Int32", "Int16", "Int8", "UInt8", "UInt16", "UInt32", "Int64", "UInt64",
+                            "Enumeration"):
+                setter = "setInt64" if v.type == "Enumeration" else f"set{v.type}"
+                getattr(s, setter)(vr, [int(value)])
+            elif v.type == "Boolean":
+                s.setBoolean(vr, [bool(value)])
+            elif v.type == "String":
+                s.setString(vr, [str(value)])
+            else:
+                raise PortError(f"FMU '{self.name}': cannot set variable '{name}' of type {v.type}")
+
+    def start_value(self, name: str) -> float | None:
+        """The start value of a variable from the model description as a float (None if absent)."""
+        start = self.variables[name].start
+        try:
+            return float(start) if start is not None else None
+        except (TypeError, ValueError):
+            return None
+
+    def save_initial_state(self, key: Any) -> None:
+        """Keep the state right after initialization, to start later runs from it."""
+        self.free_initial_state()
+        self.initial_state = (key, self.slave.getFMUState() if self.fmi3 else self.slave.getFMUstate())
+
+    def restore_initial_state(self) -> None:
+        state = self.initial_state[1]
+        (self.slave.setFMUState if self.fmi3 else self.slave.setFMUstate)(state)
+
+    def free_initial_state(self) -> None:
+        if self.initial_state is not None:
+            (self.slave.freeFMUState if self.fmi3 else self.slave.freeFMUstate)(self.initial_state[1])
+            self.initial_state = None
+
+    def reset(self) -> None:
+        self.free_initial_state()
+        self.slave.reset()
+        self.initialized = False
+
+    def free(self, terminate: bool = True) -> None:
+        """Terminate (unless it failed fatally) and free the instance. The shared library stays
+        loaded and the logger callbacks stay alive (fmpy's freeInstance would unload the library):
+        FMUs that embed a runtime, e.g. PythonFMU3's Python objects, can leave objects behind whose
+        code or logger is called at a later garbage collection."""
+        _RETIRED.append((self.slave, getattr(self, "_callbacks", None), getattr(self.slave, "logMessage", None)))
+        try:
+            self.free_initial_state()
+            if self.initialized and terminate:
+                self.slave.terminate()
+        except FMICallException:
+            pass
+        self.initialized = False
+        if self.slave.component:
+            free = self.slave.fmi3FreeInstance if self.fmi3 else self.slave.fmi2FreeInstance
+            free(self.slave.component)
+            self.slave.component = None
+        _FMI2_INSTANCES.pop(getattr(self, "environment", 0), None)
+
+
+# FMI 2.0 messages are printf-style with variadic arguments, which ctypes cannot receive; fmpy's
+# addLoggerProxy formats them in C and forwards them to ONE process-wide Python callback (the last
+# one registered). So every FMI 2.0 instance of the harness uses the same, never-freed dispatcher,
+# and the instance is identified by the componentEnvironment pointer of its callbacks struct.
+# Messages of FMUs that are not ours (e.g. fmpy.simulate_fmu's default callbacks) are printed as
+# fmpy's default logger does.
+_FMI2_INSTANCES: dict[int, "weakref.ref[FMUInstance]"] = {}
+_RETIRED: list[tuple[Any, ...]] = []  # ctypes callbacks of freed instances, never released
+_NEXT_ENVIRONMENT = itertools.count(1)
+
+
+def _dispatch_fmi2(env, instance_name, status, category, message) -> None:
+    ref = _FMI2_INSTANCES.get(env or 0)
+    fmu = ref() if ref is not None else None
+    if fmu is not None:
+        fmu._record(status, category, message)
+    else:
+        label = _STATUS[status] if 0 <= status < len(_STATUS) else str(status)
+        print(f"[{label}] {message.decode('utf-8', 'replace') if message else ''}")
+
+
+_DISPATCH_FMI2 = fmi2CallbackLoggerTYPE(_dispatch_fmi2)
+
+
+def _fmi2_callbacks(fmu: "FMUInstance") -> fmi2CallbackFunctions:
+    from fmpy import calloc, free
+    from fmpy.logging import addLoggerProxy
+
+    environment = next(_NEXT_ENVIRONMENT)
+    _FMI2_INSTANCES[environment] = weakref.ref(fmu)
+    fmu.environment = environment
+    callbacks = fmi2CallbackFunctions()
+    callbacks.logger = _DISPATCH_FMI2
+    callbacks.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
+    callbacks.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
+    callbacks.componentEnvironment = environment
+    addLoggerProxy(ctypes.byref(callbacks))
+    return callbacks
+
+
+# ---------------------------------------------------------------------------------------------
+# planning helpers
+
+
+def _integer_ratio(value: float, unit: float) -> int | None:
+    ratio = value / unit
+    n = round(ratio)
+    return n if n >= 1 and abs(ratio - n) <= 1e-9 * max(1.0, abs(ratio)) else None
+
+
+def stepping_order(names: list[str], edges: list[tuple[str, str]], sampled: Mapping[str, bool]) -> list[str]:
+    """Gauss-Seidel order from data-flow edges (producer, consumer); see the module docstring."""
+    before: dict[str, set[str]] = {n: set() for n in names}  # before[b] = FMUs that must precede b
+    for a, b in edges:
+        if a == b:
+            continue
+        if sampled[b] and not sampled[a]:
+            before[a].add(b)
+        else:
+            before[b].add(a)
+    order: list[str] = []
+    remaining = list(names)
+    while remaining:
+        ready = [n for n in remaining if not (before[n] & set(remaining))]
+        chosen = ready[0] if ready else remaining[0]
+        order.append(chosen)
+        remaining.remove(chosen)
+    return order
+
+
+@dataclass
+class _Slot:
+    """Where a logged signal lives in the flat value buffer and when it is snapshot."""
+
+    index: int
+    after_step: bool
+
+
+class Master:
+    """Runs a :class:`~harness.system.System` repeatedly; FMUs are instantiated once.
+
+    >>> master = Master(load_system("loop.toml"))
+    >>> logs = master.run(inputs={"r": r_on_base_grid}, stop_time=0.5)
+    >>> logs["log"]["plant.x"]
+    """
+
+    def __init__(self, system: System | str | Path, progress: bool | None = None, reuse_state: bool = True,
+                 debug_logging: bool = False):
+        self.system = system if isinstance(system, System) else load_system(system)
+        self.progress = progress
+        self.reuse_state = reuse_state
+        self.debug_logging = debug_logging
+        sys_ = self.system
+        self.instances: dict[str, FMUInstance] = {}
+        try:
+            for spec in sys_.fmus.values():
+                self.instances[spec.name] = FMUInstance(spec.name, spec.path, debug_logging)
+            self._plan()
+        except BaseException:
+            self.close()
+            raise
+
+    # -- planning ---------------------------------------------------------------------------
+
+    def _where(self) -> str:
+        return f"{self.system.source}: " if self.system.source else ""
+
+    def _resolve(self, port: str, role: str) -> tuple[str, str]:
+        """Check a port name; role is 'source', 'input' (a connection target) or 'log'."""
+        instance, variable = split_port(port)
+        if instance == INPUT_NAMESPACE:
+            if variable not in self.system.inputs:
+                raise PortError(f"{self._where()}unknown external input '{port}'. Declared inputs: "
+                                f"{', '.join('input.' + n for n in self.system.inputs) or '(none: add [inputs.NAME])'}")
+            if role == "input":
+                raise PortError(f"{self._where()}'{port}' is an external signal and cannot be a connection target")
+            return instance, variable
+        if instance not in self.instances:
+            raise PortError(f"{self._where()}unknown FMU instance '{instance}' in port '{port}'. "
+                            f"Instances: {', '.join(self.instances)}")
+        fmu = self.instances[instance]
+        wanted = {"source": ("output",), "input": ("input",)}.get(role)
+        v = fmu.variables.get(variable)
+        if v is None or (wanted and v.causality not in wanted):
+            kind = {"source": "outputs", "input": "inputs"}.get(role)
+            if kind:
+                available = fmu.ports(kind[:-1])
+            else:
+                available = fmu.ports("output") + fmu.ports("input")
+                kind = "inputs and outputs (any variable can be logged)"
+            raise PortError(f"{self._where()}unknown port '{port}' (used as {role}): FMU '{instance}' "
+                            f"has {kind}: {', '.join(available) or '(none)'}")
+        if v.type not in _REAL_TYPES:
+            raise PortError(f"{self._where()}port '{port}' has type {v.type}; only Real/Float64 "
+                            f"variables can be connected or logged")
+        if role != "log" and fmu.size(variable) != 1:
+            raise PortError(f"{self._where()}port '{port}' is an array; only scalars can be connected")
+        return instance, variable
+
+    def _unit(self, instance: str, variable: str) -> str | None:
+        if instance == INPUT_NAMESPACE:
+            return self.system.inputs[variable].unit
+        return _variable_unit(self.instances[instance].variables[variable])
+
+    def _steps(self, parameters: Mapping[str, Any]) -> dict[str, int]:
+        """Communication step of each FMU in base steps; checks multiples of base_step and Ts."""
+        base = self.system.base_step
+        multiples: dict[str, int] = {}
+        for name, spec in self.system.fmus.items():
+            fmu = self.instances[name]
+            ts = None
+            tsp = spec.ts_parameter
+            if tsp in fmu.variables:
+                ts = parameters.get(f"{name}.{tsp}", spec.parameters.get(tsp, fmu.start_value(tsp)))
+            step = spec.step if spec.step is not None else (float(ts) if ts else base)
+            m = _integer_ratio(step, base)
+            if m is None:
+                raise StepError(f"{self._where()}[fmus.{name}] step = {step:g} s is not an integer multiple "
+                                f"of base_step = {base:g} s")
+            if ts and _integer_ratio(step, float(ts)) is None:
+                raise StepError(f"{self._where()}[fmus.{name}] step = {step:g} s is not an integer multiple "
+                                f"of the FMU's sampling period {tsp} = {float(ts):g} s")
+            multiples[name] = m
+        return multiples
+
+    def _plan(self) -> None:
+        sys_ = self.system
+        base = sys_.base_step
+        names = list(sys_.fmus)
+        self.sampled = {n: (sys_.fmus[n].sampled if sys_.fmus[n].sampled is not None
+                            else sys_.fmus[n].ts_parameter in self.instances[n].variables) for n in names}
+        self.multiples = self._steps({})
+
+        # connections: resolve ports, check units and duplicate targets
+        targets: dict[str, list[tuple[tuple[str, str], float]]] = {}
+        edges: list[tuple[str, str]] = []
+        for c in sys_.connections:
+            dst = self._resolve(c.to, "input")
+            if c.to in targets:
+                raise PortError(f"{self._where()}input '{c.to}' is the target of two connections; "
+                                f"use one connection with from = [a, b] (a sum junction)")
+            dst_unit = self._unit(*dst)
+            sources = []
+            for port, gain in zip(c.sources, c.gains):
+                src = self._resolve(port, "source")
+                src_unit = self._unit(*src)
+                if not units_compatible(src_unit, dst_unit):
+                    raise UnitMismatchError(f"{self._where()}connection '{port}' -> '{c.to}': unit '{src_unit}' "
+                                            f"does not match '{dst_unit}'")
+                sources.append((src, gain))
+                if src[0] != INPUT_NAMESPACE:
+                    edges.append((src[0], dst[0]))
+            targets[c.to] = sources
+
+        self.order = list(sys_.order) if sys_.order else stepping_order(names, edges, self.sampled)
+
+        # flat value buffer: [read slots per FMU][input slots per FMU][external inputs]
+        logged = [(g, s, self._resolve(s, "log")) for g in sys_.logs for s in g.signals]
+        reads: dict[str, list[str]] = {n: [] for n in names}
+        for sources in targets.values():
+            for (inst, var), _ in sources:
+                if inst != INPUT_NAMESPACE and var not in reads[inst]:
+                    reads[inst].append(var)
+        for _, port, (inst, var) in logged:
+            if inst != INPUT_NAMESPACE and port not in targets and var not in reads[inst]:
+                reads[inst].append(var)
+        slot: dict[str, int] = {}
+        size = 0
+        self._read_ranges: dict[str, tuple[int, int]] = {}
+        for n in names:
+            lo = size
+            for var in reads[n]:
+                slot[f"{n}.{var}"] = size
+                size += self.instances[n].size(var)
+            self._read_ranges[n] = (lo, size)
+        self._input_ranges: dict[str, tuple[int, int]] = {}
+        self._input_ports: dict[str, list[str]] = {n: [] for n in names}
+        for port in targets:
+            self._input_ports[split_port(port)[0]].append(port)
+        for n in names:
+            lo = size
+            for port in self._input_ports[n]:
+                slot[port] = size
+                size += 1
+            self._input_ranges[n] = (lo, size)
+        self._ext_names = list(sys_.inputs)
+        self._ext_range = (size, size + len(self._ext_names))
+        for name in self._ext_names:
+            slot[f"{INPUT_NAMESPACE}.{name}"] = size
+            size += 1
+        self._slot = slot
+        self._cbuffer = (ctypes.c_double * max(size, 1))()
+        self.values = np.ctypeslib.as_array(self._cbuffer)
+        self._reads = reads
+        self._targets = targets
+
+        # gather plan per FMU: input slots <- sum of gain * source slots
+        self._gather: dict[str, tuple[np.ndarray, np.ndarray | None]] = {}
+        for n in names:
+            ports = self._input_ports[n]
+            src_slots: list[int] = []
+            for port in ports:
+                for (inst, var), _ in targets[port]:
+                    s = slot[f"{inst}.{var}"]
+                    if s not in src_slots:
+                        src_slots.append(s)
+            if all(len(targets[p]) == 1 and targets[p][0][1] == 1.0 for p in ports):
+                idx = np.array([slot["{}.{}".format(*targets[p][0][0])] for p in ports], dtype=np.intp)
+                self._gather[n] = (idx, None)
+            else:
+                gains = np.zeros((len(ports), len(src_slots)))
+                for i, port in enumerate(ports):
+                    for (inst, var), gain in targets[port]:
+                        gains[i, src_slots.index(slot[f"{inst}.{var}"])] += gain
+                self._gather[n] = (np.array(src_slots, dtype=np.intp), gains)
+
+        # log plan
+        self._logs = []
+        for group in sys_.logs:
+            step = group.step if group.step is not None else base
+            m = _integer_ratio(step, base)
+            if m is None:
+                raise StepError(f"{self._where()}[[log]] '{group.name}' step = {step:g} s is not an integer "
+                                f"multiple of base_step = {base:g} s")
+            columns: list[str] = []
+            slots: list[_Slot] = []
+            for port in group.signals:
+                inst, var = split_port(port)
+                width = 1 if inst == INPUT_NAMESPACE else self.instances[inst].size(var)
+                after = (inst == INPUT_NAMESPACE or port in targets or self.sampled[inst])
+                for j in range(width):
+                    columns.append(port if width == 1 else f"{port}[{j + 1}]")
+                    slots.append(_Slot(slot[port] + j, after))
+            self._logs.append((group.name, m, columns, slots))
+        self._fast_paths()
+
+    def _fast_paths(self) -> None:
+        """Bind the low-level fmpy calls with ctypes pointers into the flat buffer, once."""
+        self._bound: dict[str, tuple[Callable, Callable, Callable]] = {}
+        double_p = ctypes.POINTER(ctypes.c_double)
+        for n, fmu in self.instances.items():
+            s = fmu.slave
+            comp = s.component
+
+            def pointer(lo: int) -> Any:
+                return ctypes.cast(ctypes.byref(self._cbuffer, lo * 8), double_p)
+
+            rlo, rhi = self._read_ranges[n]
+            ilo, ihi = self._input_ranges[n]
+            read_vrs = [fmu.variables[v].valueReference for v in self._reads[n]]
+            in_vrs = [fmu.variables[split_port(p)[1]].valueReference for p in self._input_ports[n]]
+            rvr = (ctypes.c_uint * max(len(read_vrs), 1))(*read_vrs)
+            ivr = (ctypes.c_uint * max(len(in_vrs), 1))(*in_vrs)
+            rptr, iptr = pointer(rlo), pointer(ilo)
+            nr, ni, nrv, niv = len(read_vrs), len(in_vrs), rhi - rlo, ihi - ilo
+            if fmu.fmi3:
+                get_f, set_f, step_f = s.fmi3GetFloat64, s.fmi3SetFloat64, s.fmi3DoStep
+                flags = [fmi3Boolean() for _ in range(3)]
+                last = fmi3Float64()
+                refs = [ctypes.byref(f) for f in flags] + [ctypes.byref(last)]
+                terminate = flags[1]
+
+                def get(get_f=get_f, comp=comp, rvr=rvr, nr=nr, rptr=rptr, nrv=nrv):
+                    get_f(comp, rvr, nr, rptr, nrv)
+
+                def put(set_f=set_f, comp=comp, ivr=ivr, ni=ni, iptr=iptr, niv=niv):
+                    set_f(comp, ivr, ni, iptr, niv)
+
+                def step(t, h, step_f=step_f, comp=comp, refs=refs, terminate=terminate, name=n, fmu=fmu):
+                    step_f(comp, t, h, False, *refs)
+                    if terminate.value:
+                        raise FMUCallError(name, "fmi3DoStep (terminateSimulation requested)", 0, t,
+                                           list(fmu.messages))
+            else:
+                get_f, set_f, step_f = s.fmi2GetReal, s.fmi2SetReal, s.fmi2DoStep
+
+                def get(get_f=get_f, comp=comp, rvr=rvr, nr=nr, rptr=rptr):
+                    get_f(comp, rvr, nr, rptr)
+
+                def put(set_f=set_f, comp=comp, ivr=ivr, ni=ni, iptr=iptr):
+                    set_f(comp, ivr, ni, iptr)
+
+                def step(t, h, step_f=step_f, comp=comp):
+                    step_f(comp, t, h, 1)
+            noop = _noop
+            self._bound[n] = (get if nr else noop, put if ni else noop, step)
+
+    # -- running ----------------------------------------------------------------------------
+
+    def grid_size(self, stop_time: float | None = None) -> int:
+        """Number of base steps N of a run to ``stop_time`` (the grid has N + 1 points)."""
+        sys_ = self.system
+        stop = stop_time if stop_time is not None else sys_.stop_time
+        if stop is None:
+            raise ValueError(f"{self._where()}no stop_time in the system file and none given to run()")
+        n = _integer_ratio(stop - sys_.start_time, sys_.base_step)
+        if n is None:
+            raise StepError(f"run length {stop - sys_.start_time:g} s is not an integer multiple of "
+                            f"base_step = {sys_.base_step:g} s")
+        return n
+
+    def time_grid(self, stop_time: float | None = None) -> np.ndarray:
+        """The base time grid t_k = start_time + k * base_step, k = 0..N (s)."""
+        n = self.grid_size(stop_time)
+        return self.system.start_time + np.arange(n + 1) * self.system.base_step
+
+    def _external(self, inputs: Mapping[str, Any] | None, n: int) -> np.ndarray:
+        inputs = dict(inputs or {})
+        unknown = sorted(set(inputs) - set(self._ext_names))
+        if unknown:
+            raise PortError(f"unknown external input(s) {unknown}; declared: {self._ext_names}")
+        grid = self.system.start_time + np.arange(n + 1) * self.system.base_step
+        table = np.empty((n + 1, len(self._ext_names)))
+        for j, name in enumerate(self._ext_names):
+            if name not in inputs:
+                default = self.system.inputs[name].default
+                if default is None:
+                    raise ValueError(f"external input '{name}' was not supplied to run() and has no default")
+                table[:, j] = default
+                continue
+            value = inputs[name]
+            if isinstance(value, tuple) and len(value) == 2:
+                t, v = (np.asarray(value[0], float), np.asarray(value[1], float))
+                if t.ndim != 1 or t.shape != v.shape or np.any(np.diff(t) <= 0):
+                    raise ValueError(f"external input '{name}': (time, values) must be 1-D, equally long, "
+                                     f"with increasing time")
+                index = np.searchsorted(t, grid + 1e-9 * self.system.base_step, side="right") - 1
+                table[:, j] = v[np.clip(index, 0, len(v) - 1)]
+            else:
+                v = np.asarray(value, float)
+                if v.ndim == 0:
+                    table[:, j] = v
+                elif v.shape != (n + 1,):
+                    raise ValueError(f"external input '{name}': expected {n + 1} samples on the base grid "
+                                     f"(or a (time, values) pair), got shape {v.shape}")
+                else:
+                    table[:, j] = v
+            if not np.all(np.isfinite(table[:, j])):
+                raise ValueError(f"external input '{name}' contains NaN or inf")
+        return table
+
+    def _initialize(self, parameters: Mapping[str, Any], ext0: np.ndarray) -> None:
+        sys_ = self.system
+        per_fmu: dict[str, dict[str, Any]] = {n: dict(spec.parameters) for n, spec in sys_.fmus.items()}
+        for key, value in parameters.items():
+            inst, var = split_port(key)
+            if inst not in per_fmu:
+                raise PortError(f"parameter override '{key}': unknown FMU instance '{inst}'. "
+                                f"Instances: {', '.join(per_fmu)}")
+            per_fmu[inst][var] = value
+        values = self.values
+        for n in self.order:  # start values of read slots, used by FMUs initialized before them
+            fmu = self.instances[n]
+            lo, _ = self._read_ranges[n]
+            for var in self._reads[n]:
+                width = fmu.size(var)
+                start = per_fmu[n].get(var, fmu.start_value(var) if width == 1 else None)
+                values[lo:lo + width] = float(start) if start is not None else 0.0
+                lo += width
+        elo, ehi = self._ext_range
+        values[elo:ehi] = ext0
+        t0 = sys_.start_time
+        self._time = t0
+        for n in self.order:
+            fmu = self.instances[n]
+            get, put, _ = self._bound[n]
+            self._gather_inputs(n)
+            lo, hi = self._input_ranges[n]
+            key = (t0, repr(sorted(per_fmu[n].items())), values[lo:hi].tobytes())
+            if fmu.initial_state is not None and fmu.initial_state[0] == key:
+                self._current = (n, "setFMUstate")
+                fmu.restore_initial_state()
+            else:
+                self._current = (n, "reset")
+                if fmu.initialized:
+                    fmu.reset()
+                fmu.messages.clear()
+                self._current = (n, "setupExperiment/set start values")
+                if not fmu.fmi3:
+                    fmu.slave.setupExperiment(startTime=t0)
+                fmu.set_start_values(per_fmu[n])
+                self._current = (n, "enterInitializationMode")
+                if fmu.fmi3:
+                    fmu.slave.enterInitializationMode(startTime=t0)
+                else:
+                    fmu.slave.enterInitializationMode()
+                self._current = (n, "set inputs")
+                put()
+                self._current = (n, "exitInitializationMode")
+                fmu.slave.exitInitializationMode()
+                fmu.initialized = True
+                if fmu.can_reset_state and self.reuse_state:
+                    self._current = (n, "getFMUstate")
+                    fmu.save_initial_state(key)
+            self._current = (n, "get outputs")
+            get()
+
+    def _gather_inputs(self, n: str) -> None:
+        idx, gains = self._gather[n]
+        lo, hi = self._input_ranges[n]
+        if hi > lo:
+            self.values[lo:hi] = self.values[idx] if gains is None else gains @ self.values[idx]
+
+    def run(self, inputs: Mapping[str, Any] | None = None, parameters: Mapping[str, Any] | None = None,
+            stop_time: float | None = None, progress: bool | None = None) -> dict[str, np.ndarray]:
+        """Reset and initialize all FMUs, then step to ``stop_time``.
+
+        ``inputs`` maps external input names to arrays on the base grid (N + 1 samples), scalars,
+        or ``(time, values)`` pairs (held from each sample to the next). ``parameters`` maps
+        "inst.variable" to values applied on top of the system file's overrides for this run.
+        Returns one structured array (``time`` + logged signals) per log group name.
+        """
+        parameters = dict(parameters or {})
+        multiples = self._steps(parameters) if parameters else self.multiples
+        n_steps = self.grid_size(stop_time)
+        for name, m in multiples.items():
+            cs = self.instances[name].model_description.coSimulation
+            if n_steps % m and not cs.canHandleVariableCommunicationStepSize:
+                raise StepError(f"run length {n_steps * self.system.base_step:g} s is not a multiple of FMU "
+                                f"'{name}''s step {m * self.system.base_step:g} s, and it cannot shorten its last "
+                                f"step (canHandleVariableCommunicationStepSize = false)")
+        ext = self._external(inputs, n_steps)
+        base, t0 = self.system.base_step, self.system.start_time
+        logs = []
+        for name, m, columns, slots in self._logs:
+            rows = n_steps // m + 1
+            pre = np.array([s.index for s in slots if not s.after_step], dtype=np.intp)
+            post = np.array([s.index for s in slots if s.after_step], dtype=np.intp)
+            pre_cols = np.array([i for i, s in enumerate(slots) if not s.after_step], dtype=np.intp)
+            post_cols = np.array([i for i, s in enumerate(slots) if s.after_step], dtype=np.intp)
+            logs.append((m, np.empty((rows, len(slots))), pre, post, pre_cols, post_cols))
+
+        try:
+            self._initialize(parameters, ext[0])
+            self._loop(n_steps, ext, logs, base, t0, multiples, progress)
+        except FMICallException as exc:
+            name, _ = self._current
+            error = FMUCallError(name, exc.function, exc.status, self._time, list(self.instances[name].messages))
+            if exc.status >= 4:  # fatal: the instance cannot be used any more, make a fresh one
+                self._reinstantiate(name)
+            raise error from None
+
+        results: dict[str, np.ndarray] = {}
+        for (name, m, columns, _), (_, data, *_rest) in zip(self._logs, logs):
+            dtype = np.dtype([("time", np.float64)] + [(c, np.float64) for c in columns])
+            out = np.empty(data.shape[0], dtype=dtype)
+            out["time"] = t0 + np.arange(data.shape[0]) * m * base
+            for j, c in enumerate(columns):
+                out[c] = data[:, j]
+            results[name] = out
+        return results
+
+    def _loop(self, n_steps: int, ext: np.ndarray, logs: list, base: float, t0: float,
+              multiples: Mapping[str, int], progress: bool | None) -> None:
+        values = self.values
+        elo, ehi = self._ext_range
+        has_ext = ehi > elo
+        plan = []
+        for n in self.order:
+            get, put, step = self._bound[n]
+            idx, gains = self._gather[n]
+            lo, hi = self._input_ranges[n]
+            plan.append((n, multiples[n], get, put, step, idx, gains, lo, hi, hi > lo))
+        show = self.progress if progress is None else progress
+        bar = tqdm(total=n_steps, unit="step", delay=3.0, disable=(show is False), leave=False,
+                   desc="co-simulation")
+        chunk = max(1000, n_steps // 100)
+        try:
+            for k_start in range(0, n_steps, chunk):
+                k_end = min(k_start + chunk, n_steps)
+                for k in range(k_start, k_end):
+                    if has_ext:
+                        values[elo:ehi] = ext[k]
+                    for m, data, pre, post, pre_cols, post_cols in logs:
+                        if k % m == 0 and len(pre):
+                            data[k // m, pre_cols] = values[pre]
+                    t = t0 + k * base
+                    self._time = t
+                    for n, m, get, put, step, idx, gains, lo, hi, has_in in plan:
+                        if k % m:
+                            continue
+                        self._current = (n, "")
+                        if has_in:
+                            values[lo:hi] = values[idx] if gains is None else gains @ values[idx]
+                            put()
+                        step(t, (m if k + m <= n_steps else n_steps - k) * base)
+                        get()
+                    for m, data, pre, post, pre_cols, post_cols in logs:
+                        if k % m == 0 and len(post):
+                            data[k // m, post_cols] = values[post]
+                bar.update(k_end - k_start)
+            # final point: inputs as they would be set at t_N, no step
+            if has_ext:
+                values[elo:ehi] = ext[n_steps]
+            self._time = t0 + n_steps * base
+            for n in self.order:
+                self._gather_inputs(n)
+            for m, data, pre, post, pre_cols, post_cols in logs:
+                if n_steps % m == 0:
+                    data[n_steps // m, pre_cols] = values[pre]
+                    data[n_steps // m, post_cols] = values[post]
+        finally:
+            bar.close()
+
+    def _reinstantiate(self, name: str) -> None:
+        """After a fatal error only freeInstance is allowed: free and make a fresh instance."""
+        self.instances[name].free(terminate=False)
+        self.instances[name] = FMUInstance(name, self.system.fmus[name].path, self.debug_logging)
+        self._fast_paths()
+
+    # -- bookkeeping ------------------------------------------------------------------------
+
+    def metadata(self) -> dict[str, Any]:
+        """What a recording sidecar needs: FMUs, steps, order, parameter overrides."""
+        sys_ = self.system
+        return {
+            "base_step": sys_.base_step,
+            "start_time": sys_.start_time,
+            "order": list(self.order),
+            "fmus": {
+                n: {
+                    "path": str(spec.path),
+                    "model_name": self.instances[n].model_description.modelName,
+                    "fmi_version": self.instances[n].model_description.fmiVersion,
+                    "step": self.multiples[n] * sys_.base_step,
+                    "sampled": self.sampled[n],
+                    "parameters": dict(spec.parameters),
+                }
+                for n, spec in sys_.fmus.items()
+            },
+            "units": {
+                port: self._unit(*split_port(port))
+                for group in sys_.logs for port in group.signals
+            },
+        }
+
+    def close(self) -> None:
+        """Terminate and free every FMU instance."""
+        for fmu in getattr(self, "instances", {}).values():
+            try:
+                fmu.free()
+            except FMICallException:
+                pass
+        self.instances = {}
+
+    def __enter__(self) -> "Master":
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
+
+
+def _noop() -> None:
+    return None
+
+
+_LOCAL = threading.local()
+_ALL_MASTERS: list[Master] = []
+
+
+def master_for(system: System | str | Path) -> Master:
+    """A Master for ``system`` cached per process and thread, so sweeps reuse instantiated FMUs."""
+    system = system if isinstance(system, System) else load_system(system)
+    cache = getattr(_LOCAL, "masters", None)
+    if cache is None:
+        cache = _LOCAL.masters = {}
+    key = system.key()
+    if key not in cache:
+        cache[key] = Master(system, progress=False)
+        _ALL_MASTERS.append(cache[key])
+    return cache[key]
+
+
+def _close_masters() -> None:
+    for master in _ALL_MASTERS:
+        master.close()
+    _ALL_MASTERS.clear()
+
+
+atexit.register(_close_masters)
