@@ -1,0 +1,282 @@
+"""Frequency-response identification of a direct-drive joint (Cheung & Hung eqs. 6-8).
+
+    P(s) = L(s) H(s),   L(s) = K / (s (s + alpha)),
+    H(s) = prod_m (w_m^2 / wb_m^2) (s^2 + 2 zb_m wb_m s + wb_m^2) / (s^2 + 2 z_m w_m s + w_m^2)
+
+with resonances (w_m, z_m) and antiresonances (wb_m, zb_m); H(0) = 1. The FRF is estimated from
+swept-sine data with the H1 estimator (Welch-averaged cross/auto spectra, scipy.signal.csd/welch) and
+the coherence. Acceleration is obtained from the encoder position by a centred second difference, whose
+exact (real, zero-phase) frequency response is part of the fitted model, so it causes no bias.
+The model is fitted by nonlinear least squares on log-magnitude and phase (scipy least_squares), with
+parameters in log space so they stay positive.
+
+Units: time s, frequency Hz for data, rad/s for model poles/zeros (omega, alpha); K in
+(output unit)/(input unit)/s^2, e.g. m/s^2 per V.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import control
+import numpy as np
+import scipy.ndimage
+import scipy.optimize
+import scipy.signal
+
+__all__ = [
+    "FrequencyResponse",
+    "estimate_frf",
+    "acceleration_from_position",
+    "second_difference_response",
+    "JointModel",
+    "JointModelFit",
+    "fit_joint_frf",
+    "LowFrequencyFit",
+    "fit_low_frequency_model",
+]
+
+
+@dataclass(frozen=True)
+class FrequencyResponse:
+    """Estimated FRF: frequency [Hz], complex response y/u, coherence in [0, 1]."""
+
+    frequency: np.ndarray
+    response: np.ndarray
+    coherence: np.ndarray
+
+    def band(self, f_min: float, f_max: float, min_coherence: float = 0.0) -> "FrequencyResponse":
+        """Points with f_min <= f <= f_max and coherence >= min_coherence."""
+        keep = (self.frequency >= f_min) & (self.frequency <= f_max) & (self.coherence >= min_coherence)
+        return FrequencyResponse(self.frequency[keep], self.response[keep], self.coherence[keep])
+
+
+def estimate_frf(
+    u: np.ndarray,
+    y: np.ndarray,
+    sample_rate: float,
+    segment_length: int,
+    *,
+    overlap: int | None = None,
+    window: str = "hann",
+) -> FrequencyResponse:
+    """H1 estimate H = S_uy / S_uu with Welch averaging, and the coherence |S_uy|^2/(S_uu S_yy).
+
+    H1 is unbiased for noise on the output y (encoder/acceleration noise), which is the case here.
+    """
+    u = np.asarray(u, dtype=float).reshape(-1)
+    y = np.asarray(y, dtype=float).reshape(-1)
+    if u.shape != y.shape:
+        raise ValueError(f"u and y must have the same length, got {u.size} and {y.size}")
+    if segment_length > u.size:
+        raise ValueError(f"segment_length {segment_length} exceeds the record length {u.size}")
+    kw = dict(fs=sample_rate, window=window, nperseg=segment_length, noverlap=overlap, detrend="constant")
+    f, s_uy = scipy.signal.csd(u, y, **kw)
+    _, s_uu = scipy.signal.welch(u, **kw)
+    _, s_yy = scipy.signal.welch(y, **kw)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        h = s_uy / s_uu
+        coh = np.abs(s_uy) ** 2 / (s_uu * s_yy)
+    keep = s_uu > 0
+    return FrequencyResponse(f[keep], h[keep], np.clip(np.nan_to_num(coh[keep]), 0.0, 1.0))
+
+
+def acceleration_from_position(position: np.ndarray, sample_rate: float) -> np.ndarray:
+    """Centred second difference (q[n+1] - 2 q[n] + q[n-1]) fs^2; length n - 2, aligned with q[1:-1]."""
+    q = np.asarray(position, dtype=float).reshape(-1)
+    return (q[2:] - 2 * q[1:-1] + q[:-2]) * sample_rate**2
+
+
+def second_difference_response(frequency: np.ndarray, sample_rate: float) -> np.ndarray:
+    """Frequency response of the centred second difference: -4 fs^2 sin^2(pi f / fs) (vs -(2 pi f)^2)."""
+    return -4.0 * sample_rate**2 * np.sin(np.pi * np.asarray(frequency) / sample_rate) ** 2
+
+
+@dataclass(frozen=True)
+class JointModel:
+    """Cheung's joint model. gain K; alpha [rad/s]; resonances/antiresonances: ((omega [rad/s], zeta), ...)."""
+
+    gain: float
+    alpha: float
+    resonances: tuple[tuple[float, float], ...] = ()
+    antiresonances: tuple[tuple[float, float], ...] = ()
+
+    def __post_init__(self) -> None:
+        if len(self.resonances) != len(self.antiresonances):
+            raise ValueError("need one antiresonance per resonance (Cheung eq. 8)")
+
+    def position_response(self, frequency: np.ndarray) -> np.ndarray:
+        """P(j omega) at frequency [Hz]."""
+        s = 2j * np.pi * np.asarray(frequency, dtype=float)
+        p = self.gain / (s * (s + self.alpha))
+        for (wr, zr), (wa, za) in zip(self.resonances, self.antiresonances):
+            p = p * (wr**2 / wa**2) * (s**2 + 2 * za * wa * s + wa**2) / (s**2 + 2 * zr * wr * s + wr**2)
+        return p
+
+    def sampled_response(self, frequency: np.ndarray, sample_rate: float) -> np.ndarray:
+        """Exact FRF of P behind a zero-order hold, sampled at ``sample_rate`` (what a digital
+        controller sees: ZOH delay and aliasing included)."""
+        sys_d = control.c2d(control.ss(self.transfer_function()), 1.0 / sample_rate, method="zoh")
+        z = np.exp(2j * np.pi * np.asarray(frequency, dtype=float) / sample_rate)
+        a, b, c, d = (np.asarray(m) for m in (sys_d.A, sys_d.B, sys_d.C, sys_d.D))
+        eye = np.eye(a.shape[0])
+        x = np.linalg.solve(z[:, None, None] * eye - a, np.broadcast_to(b, (z.size,) + b.shape))
+        return (c @ x)[:, 0, 0] + d[0, 0]
+
+    def transfer_function(self) -> control.TransferFunction:
+        """P(s) as a python-control transfer function."""
+        p = control.tf([self.gain], [1.0, self.alpha, 0.0])
+        for (wr, zr), (wa, za) in zip(self.resonances, self.antiresonances):
+            p = p * control.tf(
+                [wr**2 / wa**2, 2 * za * wa * wr**2 / wa**2, wr**2], [1.0, 2 * zr * wr, wr**2]
+            )
+        return p
+
+    def to_vector(self) -> np.ndarray:
+        v = [self.gain, self.alpha]
+        for (wr, zr), (wa, za) in zip(self.resonances, self.antiresonances):
+            v += [wr, zr, wa, za]
+        return np.log(np.array(v))
+
+    @classmethod
+    def from_vector(cls, log_values: np.ndarray) -> "JointModel":
+        v = np.exp(np.asarray(log_values))
+        modes = v[2:].reshape(-1, 4)
+        return cls(
+            float(v[0]), float(v[1]),
+            tuple((float(m[0]), float(m[1])) for m in modes),
+            tuple((float(m[2]), float(m[3])) for m in modes),
+        )
+
+
+@dataclass(frozen=True)
+class JointModelFit:
+    """Fitted model, the data it was fitted to and the RMS of the log-ratio residual (dimensionless)."""
+
+    model: JointModel
+    data: FrequencyResponse
+    rms_log_error: float
+    optimizer_message: str = field(repr=False, default="")
+
+
+def _initial_guess(frf: FrequencyResponse, to_position: np.ndarray) -> JointModel:
+    """One resonance pair from peak picking on the acceleration FRF s^2 P."""
+    w = 2 * np.pi * frf.frequency
+    acc = frf.response * (-(w**2)) / to_position  # acceleration-like FRF ~ K s/(s+alpha) H
+    mag = scipy.ndimage.median_filter(np.abs(acc), size=7, mode="nearest")
+    i_r = int(np.argmax(mag))
+    i_a = int(np.argmin(mag[: i_r + 1])) if i_r > 0 else 0
+    w_r, w_a = w[i_r], w[max(i_a, 0)]
+    if w_a >= w_r:
+        w_a = 0.7 * w_r
+    phase = np.unwrap(np.angle(acc))
+    below = w < w_a
+    cross = np.nonzero(below & (phase < phase[0] - np.pi / 4))[0]
+    alpha = w[cross[0]] if cross.size else w[0]
+    i_k = int(np.argmin(np.abs(w - np.sqrt(max(alpha, w[0]) * w_a))))
+    gain = mag[i_k] * abs(1j * w[i_k] + alpha) / w[i_k]
+    return JointModel(gain, alpha, ((w_r, 0.05),), ((w_a, 0.05),))
+
+
+def fit_joint_frf(
+    frf: FrequencyResponse,
+    *,
+    output: str = "position",
+    sample_rate: float | None = None,
+    zero_order_hold: bool = True,
+    initial: JointModel | None = None,
+    min_coherence: float = 0.8,
+    max_evaluations: int = 300,
+) -> JointModelFit:
+    """Least-squares fit of K/(s(s+alpha)) H(s) to an FRF on log-magnitude and phase.
+
+    ``output``: 'position' (FRF of q/u) or 'acceleration' (FRF of the second difference of q over u,
+    whose exact response is included in the model). With ``zero_order_hold`` (default) the model is the
+    exact ZOH-sampled P (the input is a held controller output sampled at ``sample_rate``); otherwise the
+    continuous P(j omega). ``sample_rate`` is required for either.
+    ``initial``: starting model; default one resonance pair from peak picking. Points with coherence
+    below ``min_coherence`` are ignored; the others are weighted by sqrt(coherence / (1 - coherence)),
+    which is proportional to the inverse standard deviation of the log FRF.
+    """
+    if output not in ("position", "acceleration"):
+        raise ValueError(f"output must be 'position' or 'acceleration', got {output!r}")
+    data = frf.band(0.0, np.inf, min_coherence)
+    data = FrequencyResponse(data.frequency[data.frequency > 0], data.response[data.frequency > 0],
+                             data.coherence[data.frequency > 0])
+    if data.frequency.size < 8:
+        raise ValueError(
+            f"only {data.frequency.size} FRF points have coherence >= {min_coherence}: too little excitation"
+        )
+    if sample_rate is None and (output == "acceleration" or zero_order_hold):
+        raise ValueError("sample_rate is required for output='acceleration' or zero_order_hold=True")
+    if output == "acceleration":
+        to_output = second_difference_response(data.frequency, sample_rate)
+    else:
+        to_output = np.ones_like(data.frequency)
+    start = initial if initial is not None else _initial_guess(data, to_output)
+    coh = np.clip(data.coherence, 0.0, 1 - 1e-6)
+    weight = np.sqrt(coh / (1 - coh))
+
+    def residual(x: np.ndarray) -> np.ndarray:
+        model = JointModel.from_vector(x)
+        if zero_order_hold:
+            response = model.sampled_response(data.frequency, sample_rate)
+        else:
+            response = model.position_response(data.frequency)
+        ratio = response * to_output / data.response
+        log_ratio = np.log(np.abs(ratio)) + 1j * np.angle(ratio)
+        return np.concatenate([weight * log_ratio.real, weight * log_ratio.imag])
+
+    sol = scipy.optimize.least_squares(residual, start.to_vector(), method="trf", max_nfev=max_evaluations)
+    model = JointModel.from_vector(sol.x)
+    raw = residual(sol.x) / np.concatenate([weight, weight])
+    return JointModelFit(model, data, float(np.sqrt(np.mean(raw**2))), sol.message)
+
+
+@dataclass(frozen=True)
+class LowFrequencyFit:
+    """Output-error fit of L(s) = K/(s(s+alpha)): gain K, alpha [rad/s], their covariance
+    (Gauss-Newton, noise variance from the residuals), and the RMS output error [position unit]."""
+
+    gain: float
+    alpha: float
+    covariance: np.ndarray
+    rms_error: float
+
+
+def fit_low_frequency_model(
+    u: np.ndarray,
+    position: np.ndarray,
+    sample_rate: float,
+    *,
+    initial: tuple[float, float] = (1.0, 1.0),
+) -> LowFrequencyFit:
+    """Prediction-error (output-error) fit of L(s) = K/(s(s+alpha)) to a point-to-point move.
+
+    Cheung identifies L from low-bandwidth point-to-point moves by PEM; with white position noise the
+    PEM predictor is the simulated output, so this is an output-error fit. The plant starts at rest at
+    position[0]; the input is held (ZOH) between samples. ``initial`` = (K, alpha) starting values.
+    """
+    u = np.asarray(u, dtype=float).reshape(-1)
+    q = np.asarray(position, dtype=float).reshape(-1)
+    if u.shape != q.shape:
+        raise ValueError(f"u and position must have the same length, got {u.size} and {q.size}")
+    if not np.any(u):
+        raise ValueError("input u is identically zero: K and alpha are not identifiable")
+    dt = 1.0 / sample_rate
+
+    def simulate(x: np.ndarray) -> np.ndarray:
+        gain, alpha = np.exp(x)
+        sys_d = control.c2d(control.tf([gain], [1.0, alpha, 0.0]), dt, method="zoh")
+        num, den = np.asarray(sys_d.num[0][0]), np.asarray(sys_d.den[0][0])
+        return scipy.signal.lfilter(num, den, u) + q[0]
+
+    def residual(x: np.ndarray) -> np.ndarray:
+        return simulate(x) - q
+
+    sol = scipy.optimize.least_squares(residual, np.log(np.asarray(initial, dtype=float)), method="lm")
+    gain, alpha = np.exp(sol.x)
+    dof = max(q.size - 2, 1)
+    sigma2 = float(sol.fun @ sol.fun) / dof
+    jac = sol.jac * np.exp(sol.x)  # d residual / d (K, alpha)
+    covariance = sigma2 * np.linalg.inv(jac.T @ jac)
+    return LowFrequencyFit(float(gain), float(alpha), covariance, float(np.sqrt(np.mean(sol.fun**2))))

@@ -1,0 +1,224 @@
+"""Inverse-dynamics model of one serial joint, linear in its parameters (Bona & Curatella eqs. 2, 21-23).
+
+    tau = J*qdd + k*sin(q + q_off) + f(qd)
+
+Gravity k*sin(q + q_off) = g_sin*sin(q) + g_cos*cos(q) with g_sin = k*cos(q_off), g_cos = k*sin(q_off),
+so it is linear in (g_sin, g_cos). Friction (eq. 2) is asymmetric viscous + Coulomb:
+    f = fv_pos*qd + fc_pos   for qd > 0,
+    f = fv_neg*qd - fc_neg   for qd < 0,   0 at qd = 0.
+Eq. 2 prints "+ beta_c-" for qd < 0; Table 2 lists positive Coulomb values for both signs, so the
+Coulomb torque is read as opposing the motion (- fc_neg), which makes fc_neg > 0 physically.
+For one joint moved alone J, g_sin, g_cos and the friction coefficients are already base parameters.
+
+Units: q [rad], qd [rad/s], qdd [rad/s^2], tau [N m], J [kg m^2], g_* [N m], fv_* [N m s/rad], fc_* [N m].
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ident.leastsquares import LeastSquaresResult, gauss_markov
+from ident.signals import lowpass_differentiate, period_average, samples_per_period
+
+__all__ = [
+    "FRICTION_MODELS",
+    "joint_parameter_names",
+    "joint_regressor",
+    "joint_torque",
+    "GravityParameters",
+    "gravity_amplitude_offset",
+    "JointIdentification",
+    "identify_joint_periodic",
+    "FrictionModelComparison",
+    "compare_friction_models",
+]
+
+FRICTION_MODELS = ("asymmetric", "symmetric", "viscous", "none")
+
+_FRICTION_NAMES = {
+    "asymmetric": ["fv_pos", "fc_pos", "fv_neg", "fc_neg"],
+    "symmetric": ["fv", "fc"],
+    "viscous": ["fv"],
+    "none": [],
+}
+
+
+def joint_parameter_names(friction: str = "asymmetric", gravity: bool = True) -> list[str]:
+    """Parameter names in regressor column order."""
+    if friction not in FRICTION_MODELS:
+        raise ValueError(f"friction must be one of {FRICTION_MODELS}, got {friction!r}")
+    return ["J"] + (["g_sin", "g_cos"] if gravity else []) + _FRICTION_NAMES[friction]
+
+
+def joint_regressor(
+    q: np.ndarray,
+    qd: np.ndarray,
+    qdd: np.ndarray,
+    *,
+    friction: str = "asymmetric",
+    gravity: bool = True,
+) -> tuple[np.ndarray, list[str]]:
+    """Regressor Phi (n_samples x n_parameters) with tau = Phi @ theta, and the parameter names."""
+    q, qd, qdd = (np.asarray(a, dtype=float).reshape(-1) for a in (q, qd, qdd))
+    if not (q.shape == qd.shape == qdd.shape):
+        raise ValueError(f"q, qd, qdd must have the same length, got {q.shape}, {qd.shape}, {qdd.shape}")
+    names = joint_parameter_names(friction, gravity)
+    columns = [qdd]
+    if gravity:
+        columns += [np.sin(q), np.cos(q)]
+    positive = (qd > 0).astype(float)
+    negative = (qd < 0).astype(float)
+    if friction == "asymmetric":
+        columns += [qd * positive, positive, qd * negative, -negative]
+    elif friction == "symmetric":
+        columns += [qd, np.sign(qd)]
+    elif friction == "viscous":
+        columns += [qd]
+    return np.column_stack(columns), names
+
+
+def joint_torque(
+    parameters: dict[str, float],
+    q: np.ndarray,
+    qd: np.ndarray,
+    qdd: np.ndarray,
+    *,
+    friction: str = "asymmetric",
+    gravity: bool = True,
+) -> np.ndarray:
+    """Inverse dynamics tau(q, qd, qdd) for named parameters (missing names raise KeyError)."""
+    phi, names = joint_regressor(q, qd, qdd, friction=friction, gravity=gravity)
+    missing = [n for n in names if n not in parameters]
+    if missing:
+        raise KeyError(f"joint parameters missing: {missing}")
+    return phi @ np.array([parameters[n] for n in names])
+
+
+@dataclass(frozen=True)
+class GravityParameters:
+    """Gravity amplitude k [N m] and offset q_off [rad] with standard deviations (delta method)."""
+
+    amplitude: float
+    offset: float
+    amplitude_std: float
+    offset_std: float
+
+
+def gravity_amplitude_offset(
+    g_sin: float, g_cos: float, covariance: np.ndarray | None = None
+) -> GravityParameters:
+    """Convert (g_sin, g_cos) to Bona eq. 23's k and q_off; propagate the 2x2 covariance if given."""
+    k = float(np.hypot(g_sin, g_cos))
+    if k == 0.0:
+        raise ValueError("gravity amplitude is zero: q_off is undefined")
+    offset = float(np.arctan2(g_cos, g_sin))
+    if covariance is None:
+        return GravityParameters(k, offset, float("nan"), float("nan"))
+    jac = np.array([[g_sin / k, g_cos / k], [-g_cos / k**2, g_sin / k**2]])
+    cov = jac @ np.asarray(covariance, dtype=float) @ jac.T
+    return GravityParameters(k, offset, float(np.sqrt(cov[0, 0])), float(np.sqrt(cov[1, 1])))
+
+
+@dataclass(frozen=True)
+class JointIdentification:
+    """Result of identify_joint_periodic: the fit plus the processed signals it used.
+
+    fit: LeastSquaresResult; gravity: amplitude/offset form; mask: samples used (|qd| > v_min);
+    position, velocity, acceleration: filtered averaged period [rad, rad/s, rad/s^2];
+    torque: averaged period [N m]; torque_variance: variance of one averaged torque sample [N^2 m^2].
+    """
+
+    fit: LeastSquaresResult
+    gravity: GravityParameters | None
+    mask: np.ndarray
+    position: np.ndarray
+    velocity: np.ndarray
+    acceleration: np.ndarray
+    torque: np.ndarray
+    torque_variance: float
+
+
+def identify_joint_periodic(
+    position: np.ndarray,
+    torque: np.ndarray,
+    sample_rate: float,
+    fundamental_frequency: float,
+    cutoff_frequency: float,
+    *,
+    min_speed: float = 0.0,
+    friction: str = "asymmetric",
+    gravity: bool = True,
+) -> JointIdentification:
+    """Identify a joint from a periodic recording (whole number of periods, >= 2).
+
+    Pipeline (Abdellatif sec. 3): average the periods; estimate the torque noise variance from the
+    spread between periods; filter and differentiate the averaged position in the frequency domain at
+    ``cutoff_frequency``; drop samples slower than ``min_speed`` (where the sign of the filtered velocity,
+    and so the Coulomb term, is unreliable); weighted Gauss-Markov least squares. The torque is not
+    filtered (its noise is output-additive).
+    """
+    n_per = samples_per_period(sample_rate, fundamental_frequency)
+    q_avg = period_average(position, n_per)
+    tau_avg = period_average(torque, n_per)
+    filtered = lowpass_differentiate(q_avg.mean[:, 0], sample_rate, cutoff_frequency)
+    mask = np.abs(filtered.velocity) > min_speed
+    phi, names = joint_regressor(
+        filtered.position[mask], filtered.velocity[mask], filtered.acceleration[mask],
+        friction=friction, gravity=gravity,
+    )
+    variance = float(tau_avg.mean_covariance[0, 0])
+    tau = tau_avg.mean[:, 0]
+    fit = gauss_markov(phi, tau[mask], names=names, noise_covariance=variance if variance > 0 else None)
+    grav = None
+    if gravity:
+        i, j = names.index("g_sin"), names.index("g_cos")
+        grav = gravity_amplitude_offset(
+            fit.estimate[i], fit.estimate[j], fit.covariance[np.ix_([i, j], [i, j])]
+        )
+    return JointIdentification(
+        fit, grav, mask, filtered.position, filtered.velocity, filtered.acceleration, tau, variance
+    )
+
+
+@dataclass(frozen=True)
+class FrictionModelComparison:
+    """Statistics of one friction parametrisation fitted to the same data (Abdellatif sec. 2):
+    correlation_condition = cond(rho) (large means poorly separable parameters), residual_variance_factor
+    (about 1 when the model explains the data to the noise level), max_relative_std."""
+
+    friction: str
+    correlation_condition: float
+    residual_variance_factor: float
+    max_relative_std: float
+
+
+def compare_friction_models(
+    position: np.ndarray,
+    torque: np.ndarray,
+    sample_rate: float,
+    fundamental_frequency: float,
+    cutoff_frequency: float,
+    *,
+    min_speed: float = 0.0,
+    models: tuple[str, ...] = ("viscous", "symmetric", "asymmetric"),
+) -> list[FrictionModelComparison]:
+    """Fit each friction model with identify_joint_periodic and report the selection statistics.
+
+    Choose the simplest model whose residual_variance_factor is near 1 and whose correlation
+    condition stays moderate; an unidentifiable model is reported with infinite statistics.
+    """
+    rows = []
+    for friction in models:
+        try:
+            fit = identify_joint_periodic(
+                position, torque, sample_rate, fundamental_frequency, cutoff_frequency,
+                min_speed=min_speed, friction=friction,
+            ).fit
+        except ValueError:
+            rows.append(FrictionModelComparison(friction, np.inf, np.inf, np.inf))
+            continue
+        rows.append(FrictionModelComparison(
+            friction, fit.correlation_condition, fit.residual_variance_factor, float(np.max(fit.relative_std))
+        ))
+    return rows
