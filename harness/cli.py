@@ -96,6 +96,28 @@ def _ssp(args: argparse.Namespace) -> int:
     return 0
 
 
+def _identify_joint(args: argparse.Namespace) -> int:
+    import json
+
+    from harness import recording
+    from ident.joint import identify_joint_periodic
+
+    rec = recording.read_recording(args.recording, required=("time", args.position, args.force))
+    sample_rate = 1.0 / float(np.median(np.diff(rec.time)))
+    result = identify_joint_periodic(rec[args.position], rec[args.force], sample_rate, args.f0, args.cutoff,
+                                     min_speed=args.min_speed, friction=args.friction)
+    fit = result.fit
+    print(fit.summary())
+    if args.out:
+        doc = {"method": "inverse-dynamics Gauss-Markov least squares (Abdellatif, Bona eq. 2)",
+               "recording": str(args.recording), "parameters": fit.as_dict(),
+               "std": dict(zip(fit.names, fit.std.tolist())), "names": fit.names,
+               "covariance": fit.covariance.tolist(), "correlation_condition": fit.correlation_condition}
+        recording.atomic_write_texts({args.out: json.dumps(doc, indent=2) + "\n"})
+        print(args.out)
+    return 0
+
+
 def _parser() -> argparse.ArgumentParser:
     from fmus.build import DEFAULT_OUT, FMI_VERSIONS, MODELICA_DIR
 
@@ -138,6 +160,20 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--drop-external-in-sums", action="store_true",
                    help="drop external inputs from sum junctions (SSP 1.0 has no sum junctions)")
     p.set_defaults(func=_ssp)
+
+    p = sub.add_parser("identify", help="identify plant parameters from a recording")
+    kinds = p.add_subparsers(dest="kind", required=True)
+    q = kinds.add_parser("joint", help="serial joint (inertia, gravity, friction) from a periodic recording by "
+                                       "inverse-dynamics weighted least squares")
+    q.add_argument("recording", type=Path, help="recording CSV (whole number of periods)")
+    q.add_argument("--position", default="q", help="position column [rad or m] (default q)")
+    q.add_argument("--force", default="u", help="force/torque column [N or N.m] (default u)")
+    q.add_argument("--f0", type=float, required=True, help="fundamental frequency of the excitation [Hz]")
+    q.add_argument("--cutoff", type=float, required=True, help="low-pass cut-off of the derivatives [Hz]")
+    q.add_argument("--min-speed", type=float, default=0.0, help="drop samples slower than this (Coulomb sign)")
+    q.add_argument("--friction", default="asymmetric", help="friction parametrisation (see ident.joint)")
+    q.add_argument("--out", type=Path, default=None, help="write estimates, std and covariance as JSON")
+    q.set_defaults(func=_identify_joint)
 
     p = sub.add_parser("demo", help="build the example FMUs and run the example end to end")
     p.add_argument("--out", type=Path, default=Path("build") / "demo")

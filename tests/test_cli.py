@@ -58,3 +58,23 @@ def test_excite_writes_csv_and_mat(tmp_path):
     assert main(["excite", str(experiment), "--out", str(out), "--mat"]) == 0
     rec = recording.read_recording(out, required=("time", "value"))
     assert recording.read_mat(out.with_suffix(".mat")).columns["value"].tolist() == rec["value"].tolist()
+
+
+def test_identify_joint_recovers_the_truth_from_a_recording(tmp_path):
+    """CLI path of inverse-dynamics identification: truth ODE (tests/ident_truth.py) -> recording -> estimates."""
+    import json
+
+    from tests.test_ident_joint import NAMES, TRUTH, noisy_periods, simulate_joint_period
+
+    t, q, u = simulate_joint_period()
+    qs, us = noisy_periods(q, u, 10, 1e-4, 0.5, np.random.default_rng(3))
+    time = np.arange(qs.size) * 1e-3
+    path = tmp_path / "joint.csv"
+    recording.write_recording(path, recording.make_recording(time, {"q": qs, "u": us}, sample_time=1e-3))
+    out = tmp_path / "fit.json"
+    assert main(["identify", "joint", str(path), "--f0", "0.5", "--cutoff", "10", "--min-speed", "0.2",
+                 "--out", str(out)]) == 0
+    fit = json.loads(out.read_text())
+    estimate = np.array([fit["parameters"][n] for n in NAMES])
+    assert np.all(np.abs(estimate - TRUTH) / np.abs(TRUTH) < 0.03)
+    assert main(["identify", "joint", str(path), "--position", "nope", "--f0", "0.5", "--cutoff", "10"]) == 1
