@@ -63,9 +63,10 @@ def build_fmu(model: symbolic.SymbolicModel, out_dir: Path | str = DEFAULT_OUT, 
         codegen.generate(model, table, identifier, token, src)
         c_files = sorted(f for f in generated + runtime_files if f.endswith(".c"))
         step = float(model.parameters[model.ts_index].start) if model.sampled else 1e-3
-        xml = description.model_description(table, fmi_version=fmi_version, identifier=identifier, token=token,
+        xml = description.model_description(table, fmi_version=fmi_version, identifier=identifier,
+                                            model_name=model.name, token=token,
                                             description=description_text or model.flat.description,
-                                            step_size=step, ts_index=model.ts_index)
+                                            step_size=step)
         if fmi_version == "2.0":
             xml = description.add_source_files(xml, c_files)
         else:
@@ -79,9 +80,10 @@ def build_fmu(model: symbolic.SymbolicModel, out_dir: Path | str = DEFAULT_OUT, 
     return BuiltFmu(path, identifier, fmi_version)
 
 
-def load_model(class_name: str, modelica: Path | str = MODELICA_DIR) -> symbolic.SymbolicModel:
+def load_model(class_name: str, modelica: Path | str = MODELICA_DIR,
+               libraries: tuple[Path, ...] = ()) -> symbolic.SymbolicModel:
     """Front end + symbolic model of one class (what identification uses too)."""
-    return symbolic.build(frontend.load(modelica, class_name))
+    return symbolic.build(frontend.load(modelica, class_name, libraries))
 
 
 def exported_classes(modelica: Path | str = MODELICA_DIR) -> list[str]:

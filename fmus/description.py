@@ -101,13 +101,13 @@ def _type_attrs(v: FmuVariable) -> dict[str, str]:
     return attrs
 
 
-def model_description(layout: Layout, *, fmi_version: str, identifier: str, token: str, description: str,
-                      step_size: float, ts_index: int) -> bytes:
+def model_description(layout: Layout, *, fmi_version: str, identifier: str, model_name: str, token: str,
+                      description: str, step_size: float) -> bytes:
     """modelDescription.xml for ``fmi_version`` "2.0" or "3.0", as UTF-8 bytes."""
     fmi3 = fmi_version == "3.0"
     root = ET.Element("fmiModelDescription", {
         "fmiVersion": fmi_version,
-        "modelName": identifier,
+        "modelName": model_name,
         ("instantiationToken" if fmi3 else "guid"): token,
         "description": description or identifier,
         "generationTool": GENERATION_TOOL,

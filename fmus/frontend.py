@@ -99,13 +99,14 @@ def _mo_files(source: Path) -> list[Path]:
     return sorted(p for p in source.rglob("*.mo") if p.is_file())
 
 
-def parse_tree(source: Path) -> Any:
-    """Parse every ``.mo`` file under ``source`` (a file or a library folder) into one pymoca tree."""
+def parse_tree(source: Path, libraries: tuple[Path, ...] = ()) -> Any:
+    """Parse every ``.mo`` file under ``source`` (a file or a library folder) and ``libraries`` into one tree."""
     parser, _, _ = _import_pymoca()
     tree = None
     files = _mo_files(source)
     if not files:
         raise ModelicaError(f"{source}: no .mo files found")
+    files += [f for lib in libraries for f in _mo_files(Path(lib)) if f not in files]
     for path in files:
         text = path.read_text(encoding="utf-8")
         try:
@@ -200,11 +201,11 @@ def _number(value: Any, default: float) -> float:
     return default
 
 
-def load(source: str | os.PathLike[str], class_name: str) -> FlatModel:
-    """Translate Modelica class ``class_name`` found under ``source`` into a :class:`FlatModel`."""
+def load(source: str | os.PathLike[str], class_name: str, libraries: tuple[Path, ...] = ()) -> FlatModel:
+    """Translate Modelica class ``class_name`` found under ``source`` (using ``libraries``) into a FlatModel."""
     source = Path(source)
     _, api, _ = _import_pymoca()
-    tree = parse_tree(source)
+    tree = parse_tree(source, tuple(Path(lib) for lib in libraries))
     cls = _find_class(tree, class_name)
     if cls is None:
         raise ModelicaError(f"{source}: class {class_name!r} not found")

@@ -78,3 +78,38 @@ def test_identify_joint_recovers_the_truth_from_a_recording(tmp_path):
     estimate = np.array([fit["parameters"][n] for n in NAMES])
     assert np.all(np.abs(estimate - TRUTH) / np.abs(TRUTH) < 0.03)
     assert main(["identify", "joint", str(path), "--position", "nope", "--f0", "0.5", "--cutoff", "10"]) == 1
+
+
+def test_writeback_rebuilds_the_binary_with_the_new_defaults(built_fmus, tmp_path):
+    import hashlib
+    import json
+    import zipfile
+
+    import fmpy
+
+    from fmus import build
+    from tests.test_fmu_build import analytic_step
+
+    for version in ("2.0", "3.0"):
+        original = built_fmus["LinearMotorJoint", version]
+        before = hashlib.sha256(original.read_bytes()).hexdigest()
+        out = tmp_path / f"fitted{version[0]}.fmu"
+        values = tmp_path / "fit.json"
+        values.write_text(json.dumps({"parameters": {"J": 1.5}, "method": "test", "recording": "r.csv"}))
+        assert main(["writeback", str(original), "--values", str(values), "--rename", "J=m", "--set", "d=4.0",
+                     "--out", str(out)]) == 0
+        assert hashlib.sha256(original.read_bytes()).hexdigest() == before  # the original is untouched
+        md = fmpy.read_model_description(str(out))
+        starts = {v.name: float(v.start) for v in md.modelVariables if v.causality == "parameter"}
+        assert starts == {"m": 1.5, "d": 4.0}
+        assert md.guid != fmpy.read_model_description(str(original)).guid
+        result = fmpy.simulate_fmu(str(out), stop_time=0.5, output_interval=1e-3, start_values={"u": 3.0},
+                                   output=["q"])  # nobody sets m or d: the binary's defaults are used
+        np.testing.assert_allclose(result["q"], analytic_step(result["time"], 3.0, 1.5, 4.0), rtol=0, atol=1e-8)
+        provenance = json.loads(zipfile.ZipFile(out).read("documentation/provenance.json"))
+        assert provenance["values"] == {"m": 1.5, "d": 4.0} and provenance["method"] == "test"
+        fitted = build.load_model("LinearMotorJointFitted", out.with_suffix(".mo"), (build.MODELICA_DIR,))
+        assert {p.name: p.start for p in fitted.parameters} == {"m": 1.5, "d": 4.0}
+    assert main(["writeback", str(original), "--set", "m=-1", "--out", str(tmp_path / "bad.fmu")]) == 1
+    assert main(["writeback", str(original), "--set", "nope=1", "--out", str(tmp_path / "bad.fmu")]) == 1
+    assert not (tmp_path / "bad.fmu").exists()
