@@ -181,12 +181,20 @@ def _descriptions(tree: Any, class_name: str) -> tuple[str, dict[str, str]]:
 
 
 def _scalar_names(name: str, shape: tuple[int, ...]) -> list[str]:
-    n = int(shape[0]) * int(shape[1]) if len(shape) == 2 else int(shape[0])
-    return [name] if n == 1 else [f"{name}[{i + 1}]" for i in range(n)]
+    """Modelica names of the scalars of an array, in CasADi's column-major order: x[1], A[1,1], A[2,1], ..."""
+    rows, cols = (int(shape[0]), int(shape[1])) if len(shape) == 2 else (int(shape[0]), 1)
+    if rows * cols == 1:
+        return [name]
+    if cols == 1:
+        return [f"{name}[{i + 1}]" for i in range(rows)]
+    return [f"{name}[{i + 1},{j + 1}]" for j in range(cols) for i in range(rows)]
 
 
 def _as_list(value: Any, n: int) -> list[Any]:
+    """Attribute values of an array's scalars (column-major), broadcasting a scalar attribute."""
     if isinstance(value, (list, tuple)):
+        if value and isinstance(value[0], (list, tuple)):  # a matrix given row by row
+            return [value[i][j] for j in range(len(value[0])) for i in range(len(value))]
         return list(value)
     if isinstance(value, (ca.MX, ca.SX, ca.DM)) and value.numel() == n and n > 1:
         return [value[i] for i in range(n)]
@@ -242,9 +250,10 @@ def _to_sx(model: Any, name: str, description: str, comments: dict[str, str], so
         for var in variables:
             sym = var.symbol
             names = _scalar_names(sym.name(), sym.shape)
-            sx = ca.SX.sym(sym.name(), len(names))
+            shaped = ca.SX.sym(sym.name(), *sym.shape)
+            sx = ca.vec(shaped)
             mx_syms.append(sym)
-            sx_syms.append(sx)
+            sx_syms.append(shaped)
             base = sym.name()
             for i, scalar in enumerate(names):
                 scalars[group].append(Variable(
@@ -348,5 +357,15 @@ def _split_parameters(model: FlatModel) -> FlatModel:
             if isinstance(v.start, ca.SX):
                 v.start = ca.substitute(v.start, syms, exprs)
         model.calculated = [(p, exprs[i]) for i, p in enumerate(bound)]
-    model.parameters = free
+    model.parameters = _used(free, model)
     return model
+
+
+def _used(parameters: list[Variable], model: FlatModel) -> list[Variable]:
+    """Parameters some equation, start value or calculated parameter uses; the others only sized arrays."""
+    exprs = [model.residual] + [v.start for v in model.states + model.algebraics if isinstance(v.start, ca.SX)]
+    exprs += [expr for _, expr in model.calculated]
+    names = {str(s) for e in exprs for s in ca.symvar(e)}
+    sampled = model.annotation.get("sampled")
+    period = str(sampled.get("period", "Ts")) if isinstance(sampled, dict) else None
+    return [p for p in parameters if str(p.symbol) in names or p.name == period]

@@ -12,6 +12,9 @@ continuous law ``der(x) = A x + B u, y = C x + D u`` (A..D may depend on paramet
 sampled-data system. It is Tustin-discretised at the period ``Ts``:
 ``Phi = (I - A Ts/2)^-1, Ad = Phi (I + A Ts/2), Bd = Phi B Ts, Cd = C Phi, Dd = D + C Phi B Ts/2``
 (the realisation scipy's ``cont2discrete(method="bilinear")`` uses), the output held between samples.
+With ``method="discrete"`` the law's matrices are taken as the discrete-time ones,
+``x[k+1] = A x[k] + B u[k], y[k] = C x[k] + D u[k]`` (Modelica.Blocks.Discrete.StateSpace): the front end
+has no ``sample``/``pre``, so ``der(x)`` stands for the next sample's state in such a class.
 """
 from __future__ import annotations
 
@@ -165,8 +168,8 @@ def _solve_linear(jac: ca.SX, rhs: ca.SX) -> ca.SX:
 def _discretise(model: SymbolicModel, spec: dict, where: str) -> None:
     """Tustin discretisation of a linear continuous law (see the module docstring)."""
     method = str(spec.get("method", "tustin")).strip('"')
-    if method != "tustin":
-        raise ModelicaError(f"{where}: sampled(method={method!r}) is not supported; use \"tustin\"")
+    if method not in ("tustin", "discrete"):
+        raise ModelicaError(f"{where}: sampled(method={method!r}) is not supported; use \"tustin\" or \"discrete\"")
     period = str(spec.get("period", "Ts"))
     names = [v.name for v in model.parameters]
     if period not in names:
@@ -186,7 +189,11 @@ def _discretise(model: SymbolicModel, spec: dict, where: str) -> None:
     bias = ca.simplify(ca.substitute(ca.vertcat(model.dx, y), xu, ca.SX.zeros(xu.numel())))
     if not bias.is_zero():
         raise ModelicaError(f"{where}: a sampled model must be linear (no constant terms) in states and inputs")
-    ts = model.p[names.index(period)]
+    model.ts_index = names.index(period)
+    if method == "discrete":  # the law's matrices are the discrete ones: x[k+1] = A x[k] + B u[k]
+        model.Ad, model.Bd, model.Cd, model.Dd = A, B, C, D
+        return
+    ts = model.p[model.ts_index]
     n = x.numel()
     eye = ca.SX.eye(n)
     lhs = eye - A * ts / 2
@@ -195,4 +202,3 @@ def _discretise(model: SymbolicModel, spec: dict, where: str) -> None:
     c_phi = ca.solve(lhs.T, C.T).T if n else ca.SX(y.numel(), 0)
     model.Ad, model.Bd = phi_a, phi_b * ts
     model.Cd, model.Dd = c_phi, D + c_phi @ B * ts / 2
-    model.ts_index = names.index(period)

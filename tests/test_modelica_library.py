@@ -45,6 +45,7 @@ EXPORTED = [
     "MotionTwin.Controllers.RobustJointControllerD7",
     "MotionTwin.Controllers.ComputedTorquePID",
     "MotionTwin.Controllers.StateSpaceController",
+    "MotionTwin.Controllers.DiscreteStateSpaceController",
     "MotionTwin.Examples.JointWithRobustController",
 ]
 SAMPLED = {n for n in EXPORTED if ".Controllers." in n}
