@@ -113,3 +113,20 @@ def test_writeback_rebuilds_the_binary_with_the_new_defaults(built_fmus, tmp_pat
     assert main(["writeback", str(original), "--set", "m=-1", "--out", str(tmp_path / "bad.fmu")]) == 1
     assert main(["writeback", str(original), "--set", "nope=1", "--out", str(tmp_path / "bad.fmu")]) == 1
     assert not (tmp_path / "bad.fmu").exists()
+
+
+def test_tune_writes_its_design_and_a_controller_fmu_with_those_defaults(tmp_path):
+    import json
+
+    import fmpy
+
+    out, fmu = tmp_path / "tuned.json", tmp_path / "tuned.fmu"
+    assert main(["tune", "--popsize", "5", "--maxiter", "10", "--refine", "1", "--out", str(out),
+                 "--fmu-out", str(fmu), "--fmi", "2.0"]) == 0
+    doc = json.loads(out.read_text())
+    assert doc["violations"] == [] and all(m["stable"] and m["gm_db"] >= 7.0 for m in doc["margins"])
+    starts = {v.name: float(v.start) for v in fmpy.read_model_description(str(fmu)).modelVariables
+              if v.causality == "parameter"}
+    for name, value in doc["parameters"].items():
+        assert starts[name] == pytest.approx(value, rel=1e-12), name
+    assert main(["tune", "--plant", "K=-1", "--popsize", "5", "--maxiter", "2"]) == 1
