@@ -163,6 +163,12 @@ def _tune(args: argparse.Namespace) -> int:
     return cli_tune(args)
 
 
+def _diagnose(args: argparse.Namespace) -> int:
+    from ident import diagnosis
+
+    return diagnosis.run(str(args.bundle), str(args.out), args.quiet)
+
+
 def _parser() -> argparse.ArgumentParser:
     from fmus.build import DEFAULT_OUT, FMI_VERSIONS, MODELICA_DIR
 
@@ -261,6 +267,13 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--fmi", choices=("2.0", "3.0"), default="3.0", help="FMI version of the built controller FMU")
     p.add_argument("--fmu-out", type=Path, default=None, help="new controller FMU with the tuned start values")
     p.set_defaults(func=_tune)
+
+    p = sub.add_parser("diagnose", help="locate and name the physics a recording shows and the model lacks; "
+                                        "refit, rebuild the FMU, validate")
+    p.add_argument("bundle", type=Path, help="bundle folder with experiment.json, plant .mo, train/validation CSV")
+    p.add_argument("--out", type=Path, required=True, help="output folder (diagnosis.json, report.md, FMU, ...)")
+    p.add_argument("--quiet", action="store_true", help="do not print progress")
+    p.set_defaults(func=_diagnose)
 
     p = sub.add_parser("demo", help="build the example FMUs and run the example end to end")
     p.add_argument("--out", type=Path, default=Path("build") / "demo")

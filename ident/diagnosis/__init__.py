@@ -1,0 +1,42 @@
+"""Mismatch diagnosis (issue 7): locate where a recording disagrees with the nominal model, name the
+missing physics from a fixed vocabulary, add it to the Modelica model, refit, rebuild the FMU and show the
+validation fit improve. Entry points: :func:`diagnose` and :func:`main` (``motiontwin diagnose``)."""
+from __future__ import annotations
+
+import argparse
+import sys
+
+from ident.diagnosis.bundle import BundleError, read_bundle
+from ident.diagnosis.pipeline import diagnose
+
+__all__ = ["BundleError", "diagnose", "main", "read_bundle"]
+
+
+def run(bundle: str, out: str, quiet: bool = False) -> int:
+    """Diagnose ``bundle`` into ``out``; print a one-line summary; exit code 0, or 2 on a bad bundle."""
+    progress = None if quiet else (lambda msg: print(msg, file=sys.stderr, flush=True))
+    try:
+        doc = diagnose(bundle, out, progress=progress)
+    except BundleError as exc:
+        print(f"motiontwin diagnose: bad bundle: {exc}", file=sys.stderr)
+        return 2
+    names = ", ".join(e["name"] for e in doc["effects"]) or "none (only parameters were off)"
+    val = doc["validation"]
+    print(f"effects: {names}; validation RMS {val['nominal_rms']:.3g} m -> {val['augmented_rms']:.3g} m; "
+          f"report: {out}/report.md")
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m ident.diagnosis BUNDLE_DIR --out OUT_DIR`` (the same as ``motiontwin diagnose``)."""
+    parser = argparse.ArgumentParser(prog="motiontwin diagnose",
+                                     description="Diagnose the mismatch between a nominal model and a recording.")
+    parser.add_argument("bundle", help="bundle directory holding experiment.json")
+    parser.add_argument("--out", required=True, help="output directory")
+    parser.add_argument("--quiet", action="store_true", help="do not print progress")
+    args = parser.parse_args(argv)
+    return run(args.bundle, args.out, args.quiet)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

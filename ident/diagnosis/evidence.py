@@ -1,0 +1,161 @@
+"""Evidence for the decision: noise levels, inverse-dynamics force residuals, where the residual sits
+(time windows, velocity, position, frequency) and the noise-aware significance test.
+
+The significance test is a parametric bootstrap of the current (fitted) model: the loop is re-simulated
+with white measurement noise of the estimated level fed back through the controller, and each candidate's
+improvement of the weighted cost is read the same way it is on the data, linearised at the candidate's
+optimum (projection of the bootstrap residual onto the candidate's and the current model's Jacobians).
+A candidate is significant when its improvement exceeds the 99.9 % quantile of that null distribution.
+Units: SI (s, m, N, Hz).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import casadi as ca
+import numpy as np
+from scipy import signal as sps
+from scipy import stats
+
+from fmus import symbolic
+from harness.recording import Recording
+from ident.signals import lowpass_differentiate
+
+NULL_QUANTILE = 0.999
+
+
+def noise_level(residual: np.ndarray, ts: float) -> float:
+    """Standard deviation of the white part of ``residual``: median PSD over the upper half band."""
+    x = np.asarray(residual, float) - np.mean(residual)
+    f, pxx = sps.welch(x, fs=1 / ts, nperseg=min(1024, x.size))
+    band = pxx[f >= 0.25 / ts]
+    level = float(np.median(band)) if band.size else float(np.var(x)) * 2 * ts
+    return float(np.sqrt(max(level, 1e-300) / (2 * ts)))
+
+
+@dataclass
+class InverseDynamics:
+    """Filtered x, v, a [m, m/s, m/s^2], du/dt [N/s] and the force the nominal model leaves unexplained [N]."""
+
+    x: np.ndarray
+    v: np.ndarray
+    a: np.ndarray
+    udot: np.ndarray
+    force: np.ndarray
+    cutoff: float
+
+
+def _mirror_derivatives(signal: np.ndarray, fs: float, fc: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Zero-phase low-pass and derivatives of a non-periodic record: the even extension is periodic and
+    continuous, so the DFT filter/differentiator of Abdellatif sec. 3.3 applies to it."""
+    n = signal.size
+    ext = np.concatenate([signal, signal[::-1]])
+    d = lowpass_differentiate(ext, fs, fc)
+    return d.position[:n], d.velocity[:n], d.acceleration[:n]
+
+
+def inverse_dynamics(rec: Recording, model: symbolic.SymbolicModel, values: dict[str, float],
+                     position_state: str, velocity_state: str, ts: float) -> InverseDynamics | None:
+    """Force residual u - (force the nominal model needs for the measured motion), for two-state plants."""
+    if model.x.numel() != 2:
+        return None
+    fs = 1 / ts
+    fc = min(0.1 * fs, 150.0)
+    x, v, a = _mirror_derivatives(rec["q"], fs, fc)
+    u_f, udot, _ = _mirror_derivatives(rec["u"], fs, fc)
+    names = [s.name for s in model.states]
+    i_x, i_v = names.index(position_state), names.index(velocity_state)
+    p = np.array([values[s.name] for s in model.parameters])
+    acc = model.dx[i_v]
+    fn = ca.Function("acc", [model.x, model.u, model.p], [acc, ca.jacobian(acc, model.u)])
+    states = np.zeros((2, x.size))
+    states[i_x], states[i_v] = x, v
+    a_model, gain = (np.array(o).ravel() for o in fn.map(x.size)(states, u_f[None, :], p))
+    force = (a_model - a) / gain
+    return InverseDynamics(x, v, a, udot, force, fc)
+
+
+def flagged_windows(residual: np.ndarray, time: np.ndarray, sigma: float, ts: float,
+                    width: float = 0.1) -> list[tuple[float, float]]:
+    """Time windows where the moving RMS of the residual exceeds 3 noise levels (merged, in s)."""
+    n = max(3, int(round(width / ts)))
+    ms = np.convolve(residual ** 2, np.ones(n) / n, mode="same")
+    hot = np.sqrt(ms) > 3 * sigma
+    windows: list[tuple[float, float]] = []
+    start = None
+    for i, h in enumerate(hot):
+        if h and start is None:
+            start = i
+        if (not h or i == hot.size - 1) and start is not None:
+            windows.append((float(time[start]), float(time[i])))
+            start = None
+    return windows
+
+
+def spectrum(residual: np.ndarray, ts: float) -> tuple[np.ndarray, np.ndarray]:
+    """One-sided amplitude spectral density of a residual (Welch), frequencies in Hz."""
+    f, pxx = sps.welch(residual - np.mean(residual), fs=1 / ts, nperseg=min(2048, residual.size))
+    return f, np.sqrt(pxx)
+
+
+def resonance_guesses(residual: np.ndarray, ts: float, count: int = 3) -> list[float]:
+    """Frequencies [Hz] of the strongest narrow peaks of a residual spectrum above 20 Hz."""
+    f, asd = spectrum(residual, ts)
+    keep = (f > 20) & (f < 0.45 / ts)
+    f, asd = f[keep], asd[keep]
+    if f.size < 5:
+        return []
+    base = sps.medfilt(asd, 31 if asd.size > 31 else (asd.size // 2) * 2 - 1)
+    ratio = asd / np.maximum(base, 1e-300)
+    peaks, _ = sps.find_peaks(ratio, distance=5)
+    order = peaks[np.argsort(ratio[peaks])[::-1]]
+    return [float(f[i]) for i in order[:count]]
+
+
+def locate(residual: np.ndarray, v: np.ndarray, x: np.ndarray, ts: float) -> dict[str, object]:
+    """Where a residual concentrates: velocity and position bins with the largest mean |residual|, and
+    the frequency band holding the most residual power."""
+    out: dict[str, object] = {}
+    for name, axis in (("velocity", v), ("position", x)):
+        edges = np.quantile(axis, np.linspace(0, 1, 11))
+        idx = np.clip(np.searchsorted(edges, axis, side="right") - 1, 0, 9)
+        level = np.array([np.sqrt(np.mean(residual[idx == b] ** 2)) if np.any(idx == b) else 0 for b in range(10)])
+        b = int(np.argmax(level))
+        out[f"{name}_range"] = [float(edges[b]), float(edges[b + 1])]
+    f, asd = spectrum(residual, ts)
+    power = asd ** 2
+    i = int(np.argmax(power[1:])) + 1
+    out["frequency_peak_hz"] = float(f[i])
+    return out
+
+
+def bootstrap_residuals(simulate_noisy, q_model: np.ndarray, u_model: np.ndarray, sigma_q: float,
+                        sigma_u: float, n: int, count: int, seed: int = 0) -> np.ndarray:
+    """``count`` weighted residual vectors of the fitted model re-simulated with white measurement noise."""
+    rng = np.random.default_rng(seed)
+    out = []
+    for _ in range(count):
+        noise = rng.normal(0.0, sigma_q, n)
+        q, u = simulate_noisy(noise)
+        out.append(np.concatenate([(q + noise - q_model) / sigma_q, (u - u_model) / sigma_u]))
+    return np.array(out)
+
+
+def projected_gain(jac: np.ndarray, samples: np.ndarray) -> np.ndarray:
+    """Squared norm of each sample's projection onto the column space of ``jac``."""
+    if jac.shape[1] == 0:
+        return np.zeros(samples.shape[0])
+    scale = np.linalg.norm(jac, axis=0)
+    scale[scale == 0] = 1
+    qmat, rmat = np.linalg.qr(jac / scale)
+    keep = np.abs(np.diag(rmat)) > 1e-9 * np.max(np.abs(np.diag(rmat)))
+    proj = samples @ qmat[:, keep]
+    return np.sum(proj ** 2, axis=1)
+
+
+def null_threshold(null_gains: np.ndarray, dof: int) -> float:
+    """99.9 % quantile of the null improvement: a scaled chi-square matched to the bootstrap mean, and at
+    least the largest bootstrap value."""
+    dof = max(dof, 1)
+    mean = max(float(np.mean(null_gains)), 1e-12)
+    return float(max(mean / dof * stats.chi2.ppf(NULL_QUANTILE, dof), np.max(null_gains)))

@@ -1,0 +1,334 @@
+"""``diagnose(bundle_dir, out_dir)``: refit the nominal plant, test every candidate effect against the
+noise-aware null reference, keep those that are significant and improve validation, write the augmented
+Modelica model, its FMU and the report. Units: SI (s, m, N)."""
+from __future__ import annotations
+
+import math
+import os
+import shutil
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import casadi as ca
+import numpy as np
+
+from ident.diagnosis import effects as fx
+from ident.diagnosis import evidence as ev
+from ident.diagnosis import simulate as sim
+from ident.diagnosis.bundle import Bundle, read_bundle
+
+AUGMENTED_CLASS = "Augmented"
+VALIDATION_GAIN = 0.9        # an effect must reduce the validation RMS by at least 10 %
+MAX_EFFECTS = 3
+BOOTSTRAP_COUNT = 30
+SCREEN_NFEV = 4             # cheap fit of every candidate, to rank them
+MAX_NFEV = 15               # full fit of the best-ranked candidates
+FULL_FITS = 3
+MULTI_START = ("position_ripple", "resonance")   # nonlinear in a period/frequency: screen every start
+
+
+@dataclass
+class ModelFit:
+    """One model structure fitted on the training recording."""
+
+    effects: list[fx.Effect]
+    loop: sim.Loop
+    fit: sim.Fit
+    bounds: dict[str, tuple[float, float]]
+    folder: Path | None = None
+    val_rms: float = math.nan
+    val_q: np.ndarray | None = None
+    evidence: dict = field(default_factory=dict)
+
+    @property
+    def names(self) -> list[str]:
+        return [e.name for e in self.effects]
+
+
+def _nominal_bounds(bundle: Bundle, prefix: str = "") -> tuple[list[str], dict[str, tuple[float, float]]]:
+    free, bounds = [], {}
+    for var in bundle.plant.model.parameters:
+        value = float(var.start)
+        if value == 0:
+            continue
+        lo, hi = sorted((value / 5, value * 5))
+        lo, hi = max(lo, var.min), min(hi, var.max)
+        free.append(prefix + var.name)
+        bounds[prefix + var.name] = (lo, hi)
+    return free, bounds
+
+
+def _log(progress, message: str) -> None:
+    if progress:
+        progress(message)
+
+
+def fit_nominal(bundle: Bundle, progress=None) -> tuple[ModelFit, sim.Weights]:
+    model = bundle.plant.model
+    free, bounds = _nominal_bounds(bundle)
+    values = {v.name: float(v.start) for v in model.parameters}
+    loop = sim.build_loop(model, bundle.controller, bundle.plant.position_state, free, values, bundle.train.time.size)
+    q0, u0 = sim.simulate(loop, bundle.train)
+    ts = bundle.controller.Ts
+    weights = sim.Weights(ev.noise_level(bundle.train["q"] - q0, ts), ev.noise_level(bundle.train["u"] - u0, ts))
+    result = sim.fit(loop, bundle.train, weights, bounds, max_nfev=40)
+    weights = sim.Weights(ev.noise_level(bundle.train["q"] - result.q_sim, ts),
+                          ev.noise_level(bundle.train["u"] - result.u_sim, ts))
+    result = sim.fit(loop.with_values(result.values), bundle.train, weights, bounds, max_nfev=15)
+    _log(progress, f"nominal refit: {_fmt(result.values)}; rms q {result.rms_q:.3g} m")
+    return ModelFit([], loop.with_values(result.values), result, bounds), weights
+
+
+def _fmt(values: dict[str, float]) -> str:
+    return ", ".join(f"{k}={v:.4g}" for k, v in values.items())
+
+
+def context(bundle: Bundle, nominal: ModelFit) -> fx.Context:
+    rec, ts = bundle.train, bundle.controller.Ts
+    plant = bundle.plant
+    inv = ev.inverse_dynamics(rec, plant.model, nominal.fit.values, plant.position_state, plant.velocity_state, ts)
+    q = np.concatenate([rec["q"], bundle.validation["q"]])
+    v = inv.v if inv else np.gradient(rec["q"], ts)
+    mass = _mass_equivalent(bundle, nominal.fit.values)
+    ctx = fx.Context(ts, float(q.min()), float(q.max()), float(np.max(np.abs(v))) or 1e-3, mass)
+    if inv is not None:
+        ctx.x, ctx.v, ctx.a, ctx.force, ctx.udot = inv.x, inv.v, inv.a, inv.force, inv.udot
+    ctx.resonance_guess = ev.resonance_guesses(rec["q"] - nominal.fit.q_sim, ts)
+    return ctx
+
+
+def _mass_equivalent(bundle: Bundle, values: dict[str, float]) -> float:
+    model = bundle.plant.model
+    i_v = [s.name for s in model.states].index(bundle.plant.velocity_state)
+    gain = ca.Function("g", [model.x, model.u, model.p], [ca.jacobian(model.dx[i_v], model.u)])
+    p = np.array([values[s.name] for s in model.parameters])
+    return float(1 / np.array(gain(np.zeros(model.x.numel()), 0.0, p)).item())
+
+
+def build_structure(bundle: Bundle, effects: list[fx.Effect], values: dict[str, float], folder: Path,
+                    n_samples: int, with_jacobian: bool = True,
+                    min_substeps: int = 1) -> tuple[sim.Loop, dict[str, tuple[float, float]]]:
+    """Write and load the augmented model with ``effects`` and compile its loop (at least ``min_substeps``
+    RK4 steps per sample, so that structures compared with each other share the integration accuracy)."""
+    plant_values = {k[len("plant."):]: v for k, v in values.items() if k.startswith("plant.")}
+    fx.write_model(folder, bundle.plant.text, bundle.plant.class_name, effects, values, plant_values,
+                   AUGMENTED_CLASS)
+    model = fx.load_augmented(folder, AUGMENTED_CLASS)
+    free, bounds = _nominal_bounds(bundle, "plant.")
+    for effect in effects:
+        for p in effect.params:
+            if p.fitted:
+                free.append(p.name)
+                bounds[p.name] = p.bounds
+    all_values = {v.name: float(v.start) for v in model.parameters}
+    all_values.update({k: v for k, v in values.items() if k in all_values})
+    tracking = {s: "q" for e in effects for s in e.tracks_position}
+    tracking.update({s: "u" for e in effects for s in e.tracks_force})
+    loop = sim.build_loop(model, bundle.controller, "plant." + bundle.plant.position_state, free, all_values,
+                          n_samples, tracking=tracking, with_jacobian=with_jacobian, min_substeps=min_substeps)
+    return loop, bounds
+
+
+def fit_structure(bundle: Bundle, current: ModelFit, candidate: fx.Effect, ctx: fx.Context,
+                  weights: sim.Weights, folder: Path, max_nfev: int = MAX_NFEV) -> ModelFit:
+    """Fit the current structure plus ``candidate`` from each of the candidate's starting points."""
+    effects = current.effects + [candidate]
+    base = dict(current.fit.values) if current.effects else {"plant." + k: v for k, v in current.fit.values.items()}
+    starts = candidate.initial(ctx)
+    if max_nfev <= SCREEN_NFEV and candidate.name not in MULTI_START:
+        starts = starts[:1]
+    values = {**base, **{p.name: float(np.mean(p.bounds)) for p in candidate.params if not p.fitted}, **starts[0]}
+    loop, bounds = build_structure(bundle, effects, values, folder, bundle.train.time.size,
+                                   min_substeps=current.loop.substeps)
+    best = None
+    for start in starts:
+        clipped = {k: float(np.clip(v, *bounds[k])) for k, v in start.items() if k in bounds}
+        result = sim.fit(loop, bundle.train, weights, bounds, start={**base, **clipped}, max_nfev=max_nfev)
+        if best is None or result.cost < best.cost:
+            best = result
+    return ModelFit(effects, loop.with_values(best.values), best, bounds, folder)
+
+
+def refine(bundle: Bundle, structure: ModelFit, weights: sim.Weights, max_nfev: int = MAX_NFEV) -> ModelFit:
+    """Continue the fit of an already compiled structure from its current values."""
+    result = sim.fit(structure.loop, bundle.train, weights, structure.bounds, start=structure.fit.values,
+                     max_nfev=max_nfev)
+    if result.cost >= structure.fit.cost:
+        return structure
+    return ModelFit(structure.effects, structure.loop.with_values(result.values), result, structure.bounds,
+                    structure.folder, evidence=structure.evidence)
+
+
+def validate(bundle: Bundle, structure: ModelFit, folder: Path) -> None:
+    """Free-run the fitted structure on the validation recording; sets ``val_rms`` and ``val_q``."""
+    rec = bundle.validation
+    if structure.effects or structure.folder is not None:
+        loop, _ = build_structure(bundle, structure.effects, structure.fit.values, folder, rec.time.size,
+                                  with_jacobian=False, min_substeps=structure.loop.substeps)
+    else:
+        model = bundle.plant.model
+        loop = sim.build_loop(model, bundle.controller, bundle.plant.position_state, structure.loop.free,
+                              structure.fit.values, rec.time.size, with_jacobian=False,
+                              min_substeps=structure.loop.substeps)
+    q, _ = sim.simulate(loop, rec, structure.fit.values)
+    structure.val_q = q
+    structure.val_rms = float(np.sqrt(np.mean((rec["q"] - q) ** 2))) if np.all(np.isfinite(q)) else math.inf
+
+
+def select(bundle: Bundle, nominal: ModelFit, weights: sim.Weights, ctx: fx.Context, work: Path,
+           progress=None) -> tuple[ModelFit, list[dict]]:
+    """Greedy forward selection of effects with the bootstrap null reference and the validation check."""
+    current = nominal
+    log: list[dict] = []
+    used_families: set[str] = set()
+    rounds = 0
+    shortlist = list(fx.VOCABULARY)
+    while len(current.effects) < MAX_EFFECTS:
+        rounds += 1
+        if rounds > 1:  # recompile at the fitted values (integration accuracy) and converge the accepted
+            # structure, so that no candidate is credited with leftover fit slack or integration error
+            loop, bounds = build_structure(bundle, current.effects, current.fit.values, work / f"c{rounds}",
+                                           bundle.train.time.size, min_substeps=current.loop.substeps)
+            result = sim.fit(loop, bundle.train, weights, bounds, start=current.fit.values, max_nfev=4 * MAX_NFEV)
+            current = ModelFit(current.effects, loop.with_values(result.values), result, bounds,
+                               work / f"c{rounds}", evidence=current.evidence)
+            validate(bundle, current, work / f"v{rounds}_refined")
+        noisy = lambda n, c=current: sim.simulate(c.loop, bundle.train, c.fit.values, noise=n)  # noqa: E731
+        null = ev.bootstrap_residuals(noisy, current.fit.q_sim, current.fit.u_sim, weights.sigma_q,
+                                      weights.sigma_u, bundle.train.time.size, BOOTSTRAP_COUNT, seed=rounds)
+        base_gain = ev.projected_gain(current.fit.jacobian, null)
+        screened: dict[str, ModelFit] = {}
+        for name, factory in fx.VOCABULARY.items():
+            candidate = factory(ctx)
+            if candidate.family in used_families or name not in shortlist:
+                continue
+            t0 = time.perf_counter()
+            try:
+                screened[name] = fit_structure(bundle, current, candidate, ctx, weights,
+                                               work / f"r{rounds}_{name}", SCREEN_NFEV)
+            except (RuntimeError, ValueError, np.linalg.LinAlgError) as exc:
+                _log(progress, f"  {name}: fit failed ({exc})")
+                continue
+            _log(progress, f"  round {rounds} screen {name}: cost -{current.fit.cost - screened[name].fit.cost:.4g}"
+                           f" ({time.perf_counter() - t0:.1f} s)")
+        order = sorted(screened, key=lambda n: screened[n].fit.cost)
+        shortlist = order[:FULL_FITS + 2]     # later rounds screen only the effects that ranked high here
+        ranked = order[:FULL_FITS]
+        for name in list(ranked):
+            if fx.NESTED.get(name) in screened and fx.NESTED[name] not in ranked:
+                ranked.append(fx.NESTED[name])
+        trials: dict[str, tuple[ModelFit, float, float, np.ndarray]] = {}
+        for name in ranked:
+            t0 = time.perf_counter()
+            trial = refine(bundle, screened[name], weights)
+            candidate = trial.effects[-1]
+            gain = current.fit.cost - trial.fit.cost
+            null_gain = ev.projected_gain(trial.fit.jacobian, null) - base_gain
+            dof = sum(p.fitted for p in candidate.params)
+            threshold = ev.null_threshold(null_gain, dof)
+            trials[name] = (trial, gain, threshold, null_gain)
+            log.append({"round": rounds, "effect": name, "cost_reduction": gain, "null_threshold": threshold,
+                        "evidence_ratio": gain / threshold, "parameters": _effect_values(trial, candidate),
+                        "seconds": round(time.perf_counter() - t0, 2)})
+            _log(progress, f"  round {rounds} {name}: cost -{gain:.4g}, null {threshold:.4g} "
+                           f"(x{gain / threshold:.2f}), {time.perf_counter() - t0:.1f} s")
+        significant = sorted((n for n, t in trials.items() if t[1] > t[2]), key=lambda n: -trials[n][1])
+        chosen = None
+        for name in significant:
+            name = _simplest(name, trials, null, bundle, work, progress)
+            trial = trials[name][0]
+            validate(bundle, trial, work / f"v{rounds}_{name}")
+            if np.isnan(current.val_rms):
+                validate(bundle, current, work / f"v{rounds}_current")
+            ok = trial.val_rms < VALIDATION_GAIN * current.val_rms
+            _log(progress, f"  {name}: validation rms {current.val_rms:.4g} -> {trial.val_rms:.4g} "
+                           f"({'kept' if ok else 'rejected'})")
+            for entry in log:
+                if entry["round"] == rounds and entry["effect"] == name:
+                    entry["validation_rms_before"], entry["validation_rms_after"] = current.val_rms, trial.val_rms
+            if ok:
+                chosen = trial
+                break
+        if chosen is None:
+            break
+        gain, threshold = trials[chosen.effects[-1].name][1:3]
+        chosen.evidence = {**current.evidence, chosen.effects[-1].name: {
+            "cost_reduction": gain, "null_threshold": threshold, "validation_rms_before": current.val_rms,
+            "validation_rms_after": chosen.val_rms, "previous": current}}
+        used_families.add(chosen.effects[-1].family)
+        current = chosen
+    return current, log
+
+
+def _simplest(name: str, trials: dict, null: np.ndarray, bundle: Bundle, work: Path, progress) -> str:
+    """Prefer the nested simpler effect (coulomb in stribeck/asymmetric) unless the extra parameters beat
+    their own null reference and improve the validation fit by the same margin as any effect."""
+    simple = fx.NESTED.get(name)
+    if simple not in trials or trials[simple][1] <= trials[simple][2]:
+        return name
+    rich, small = trials[name], trials[simple]
+    extra = rich[1] - small[1]
+    null_extra = ev.projected_gain(rich[0].fit.jacobian, null) - ev.projected_gain(small[0].fit.jacobian, null)
+    dof = sum(p.fitted for p in rich[0].effects[-1].params) - sum(p.fitted for p in small[0].effects[-1].params)
+    threshold = ev.null_threshold(null_extra, dof)
+    if extra <= threshold:
+        return simple
+    validate(bundle, rich[0], work / f"n_{name}")
+    validate(bundle, small[0], work / f"n_{simple}")
+    _log(progress, f"  {name} vs {simple}: extra -{extra:.4g}, null {threshold:.4g}, validation "
+                   f"{rich[0].val_rms:.4g} vs {small[0].val_rms:.4g}")
+    return name if rich[0].val_rms < VALIDATION_GAIN * small[0].val_rms else simple
+
+
+def _effect_values(structure: ModelFit, effect: fx.Effect) -> dict[str, float]:
+    return {p.name: structure.fit.values[p.name] for p in effect.params}
+
+
+def run(bundle: Bundle, work: Path, progress=None) -> dict:
+    """The whole diagnosis in ``work``; returns what the report needs."""
+    t0 = time.perf_counter()
+    nominal, weights = fit_nominal(bundle, progress)
+    validate(bundle, nominal, work / "v_nominal")
+    ctx = context(bundle, nominal)
+    final, log = select(bundle, nominal, weights, ctx, work / "trials", progress)
+    model_dir = work / "out" / "augmented_model"
+    values = dict(final.fit.values)
+    if not final.effects:
+        values = {"plant." + k: v for k, v in values.items()}
+    loop, _ = build_structure(bundle, final.effects, values, model_dir, bundle.validation.time.size,
+                              with_jacobian=False, min_substeps=final.loop.substeps)
+    q_aug, _ = sim.simulate(loop, bundle.validation, values)
+    return {"bundle": bundle, "nominal": nominal, "final": final, "weights": weights, "context": ctx,
+            "log": log, "model_dir": model_dir, "augmented_values": values, "q_augmented": q_aug,
+            "augmented_model": loop.model, "seconds": time.perf_counter() - t0}
+
+
+def diagnose(bundle_dir: str | os.PathLike, out_dir: str | os.PathLike, progress=None) -> dict:
+    """Diagnose a bundle and write diagnosis.json, validation_prediction.csv, report.md (+ PNGs), the
+    augmented Modelica model and its FMU into ``out_dir``. Nothing is written when the input is bad."""
+    from ident.diagnosis import report
+
+    bundle = read_bundle(bundle_dir)
+    out = Path(out_dir)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory(dir=out.parent, prefix=f".{out.name}.work-") as tmp:
+        work = Path(tmp)
+        result = run(bundle, work, progress)
+        staging = work / "out"
+        document = report.write_all(result, staging, out)
+        _publish(staging, out)
+    return document
+
+
+def _publish(staging: Path, out: Path) -> None:
+    """Move every staged file into ``out`` (created if needed) with os.replace."""
+    out.mkdir(parents=True, exist_ok=True)
+    for src in sorted(staging.rglob("*")):
+        if src.is_dir():
+            continue
+        target = out / src.relative_to(staging)
+        target.parent.mkdir(parents=True, exist_ok=True)
+        os.replace(src, target)
+    shutil.rmtree(staging, ignore_errors=True)
