@@ -96,9 +96,23 @@ def _ssp(args: argparse.Namespace) -> int:
     return 0
 
 
-def _identify_joint(args: argparse.Namespace) -> int:
+def _report_fit(fit: object, args: argparse.Namespace, method: str) -> int:
+    """Print a least-squares fit and, with ``--out``, write estimates, std and covariance as JSON."""
     import json
 
+    from harness import recording
+
+    print(fit.summary())
+    if args.out:
+        doc = {"method": method, "recording": str(args.recording), "parameters": fit.as_dict(),
+               "std": dict(zip(fit.names, fit.std.tolist())), "names": fit.names,
+               "covariance": fit.covariance.tolist(), "correlation_condition": fit.correlation_condition}
+        recording.atomic_write_texts({args.out: json.dumps(doc, indent=2) + "\n"})
+        print(args.out)
+    return 0
+
+
+def _identify_joint(args: argparse.Namespace) -> int:
     from harness import recording
     from ident.joint import identify_joint_periodic
 
@@ -106,16 +120,21 @@ def _identify_joint(args: argparse.Namespace) -> int:
     sample_rate = 1.0 / float(np.median(np.diff(rec.time)))
     result = identify_joint_periodic(rec[args.position], rec[args.force], sample_rate, args.f0, args.cutoff,
                                      min_speed=args.min_speed, friction=args.friction)
-    fit = result.fit
-    print(fit.summary())
-    if args.out:
-        doc = {"method": "inverse-dynamics Gauss-Markov least squares (Abdellatif, Bona eq. 2)",
-               "recording": str(args.recording), "parameters": fit.as_dict(),
-               "std": dict(zip(fit.names, fit.std.tolist())), "names": fit.names,
-               "covariance": fit.covariance.tolist(), "correlation_condition": fit.correlation_condition}
-        recording.atomic_write_texts({args.out: json.dumps(doc, indent=2) + "\n"})
-        print(args.out)
-    return 0
+    return _report_fit(result.fit, args, "inverse-dynamics Gauss-Markov least squares (Abdellatif, Bona eq. 2)")
+
+
+def _identify_hexapod(args: argparse.Namespace) -> int:
+    from harness import recording
+    from ident.hexapod import identify_hexapod_periodic
+
+    lengths = [f"L{i}" for i in range(1, 7)]
+    forces = [f"tau{i}" for i in range(1, 7)]
+    rec = recording.read_recording(args.recording, required=("time", *lengths, *forces))
+    sample_rate = 1.0 / float(np.median(np.diff(rec.time)))
+    result = identify_hexapod_periodic(np.column_stack([rec[c] for c in lengths]),
+                                       np.column_stack([rec[c] for c in forces]), sample_rate, args.f0,
+                                       args.cutoff, min_leg_speed=args.min_speed)
+    return _report_fit(result.fit, args, "hexapod base parameters, Gauss-Markov least squares (Abdellatif)")
 
 
 def _writeback(args: argparse.Namespace) -> int:
@@ -225,6 +244,14 @@ def _parser() -> argparse.ArgumentParser:
     q.add_argument("--friction", default="asymmetric", help="friction parametrisation (see ident.joint)")
     q.add_argument("--out", type=Path, default=None, help="write estimates, std and covariance as JSON")
     q.set_defaults(func=_identify_joint)
+    q = kinds.add_parser("hexapod", help="hexapod base parameters from a periodic recording of leg lengths "
+                                         "L1..L6 [m] and leg forces tau1..tau6 [N]")
+    q.add_argument("recording", type=Path, help="recording CSV (whole number of periods)")
+    q.add_argument("--f0", type=float, required=True, help="fundamental frequency of the excitation [Hz]")
+    q.add_argument("--cutoff", type=float, required=True, help="low-pass cut-off of the derivatives [Hz]")
+    q.add_argument("--min-speed", type=float, default=0.0, help="drop samples where a leg is slower [m/s]")
+    q.add_argument("--out", type=Path, default=None, help="write estimates, std and covariance as JSON")
+    q.set_defaults(func=_identify_hexapod)
 
     p = sub.add_parser("writeback", help="write fitted values into a new FMU's start values (rebuilt binary)")
     p.add_argument("fmu", type=Path, help="an FMU built by motiontwin (it carries its sources)")

@@ -130,3 +130,23 @@ def test_tune_writes_its_design_and_a_controller_fmu_with_those_defaults(tmp_pat
     for name, value in doc["parameters"].items():
         assert starts[name] == pytest.approx(value, rel=1e-12), name
     assert main(["tune", "--plant", "K=-1", "--popsize", "5", "--maxiter", "2"]) == 1
+
+
+def test_identify_hexapod_from_a_recording_recovers_the_base_parameters(tmp_path):
+    import json
+
+    from ident.hexapod import measure_periods
+    from tests.test_ident_hexapod import F0, FS, N_PERIODS, NH, NOISE, _period, base, truth
+
+    _, _, lengths, forces = _period()
+    measured_lengths, measured_forces = measure_periods(lengths, forces, N_PERIODS, NOISE, np.random.default_rng(5))
+    columns = {f"L{i + 1}": measured_lengths[:, i] for i in range(6)}
+    columns.update({f"tau{i + 1}": measured_forces[:, i] for i in range(6)})
+    path = tmp_path / "hexapod.csv"
+    recording.write_recording(path, recording.make_recording(np.arange(len(measured_lengths)) / FS, columns))
+    out = tmp_path / "fit.json"
+    assert main(["identify", "hexapod", str(path), "--f0", str(F0), "--cutoff", str(NH * F0), "--out", str(out)]) == 0
+    fit = json.loads(out.read_text())
+    truth_base = base().from_full(truth().theta())
+    estimate = np.array([fit["parameters"][n] for n in base().names])
+    assert np.all(np.abs(estimate - truth_base) <= 5 * np.array([fit["std"][n] for n in base().names]))
