@@ -123,6 +123,32 @@ def _identify_joint(args: argparse.Namespace) -> int:
     return _report_fit(result.fit, args, "inverse-dynamics Gauss-Markov least squares (Abdellatif, Bona eq. 2)")
 
 
+def _identify_frf(args: argparse.Namespace) -> int:
+    import json
+
+    from harness import recording
+    from ident.frf import acceleration_from_position, estimate_frf, fit_joint_frf
+
+    rec = recording.read_recording(args.recording, required=("time", args.input, args.position))
+    fs = 1.0 / float(np.median(np.diff(rec.time)))
+    frf = estimate_frf(rec[args.input][1:-1], acceleration_from_position(rec[args.position], fs), fs, args.segment)
+    fit = fit_joint_frf(frf, output="acceleration", sample_rate=fs, min_coherence=args.min_coherence)
+    model = fit.model
+    values = {"K": model.gain, "alpha": model.alpha}
+    for k, ((wr, zr), (wa, za)) in enumerate(zip(model.resonances, model.antiresonances)):
+        suffix = "" if k == 0 else str(k + 1)
+        values.update({f"omega{suffix}": wr, f"zeta{suffix}": zr, f"omega_bar{suffix}": wa, f"zeta_bar{suffix}": za})
+    for name, value in values.items():
+        print(f"{name:>12} {value:13.6g}")
+    print(f"rms log-magnitude error {fit.rms_log_error:.3g}")
+    if args.out:
+        doc = {"method": "H1 FRF from swept sine + fit of K/(s(s+alpha)) and resonance/antiresonance pairs "
+                         "(Cheung eqs. 6-8), rad/s", "recording": str(args.recording), "parameters": values}
+        recording.atomic_write_texts({args.out: json.dumps(doc, indent=2) + "\n"})
+        print(args.out)
+    return 0
+
+
 def _identify_hexapod(args: argparse.Namespace) -> int:
     from harness import recording
     from ident.hexapod import identify_hexapod_periodic
@@ -244,6 +270,15 @@ def _parser() -> argparse.ArgumentParser:
     q.add_argument("--friction", default="asymmetric", help="friction parametrisation (see ident.joint)")
     q.add_argument("--out", type=Path, default=None, help="write estimates, std and covariance as JSON")
     q.set_defaults(func=_identify_joint)
+    q = kinds.add_parser("frf", help="joint model K/(s(s+alpha)) x resonance/antiresonance pairs (Cheung eqs. 6-8) "
+                                     "from a swept-sine recording")
+    q.add_argument("recording", type=Path, help="recording CSV with the force and the encoder position")
+    q.add_argument("--input", default="u", help="force column [N] (default u)")
+    q.add_argument("--position", default="q", help="position column [m] (default q)")
+    q.add_argument("--segment", type=int, default=4096, help="Welch segment length [samples]")
+    q.add_argument("--min-coherence", type=float, default=0.9, help="use FRF points above this coherence")
+    q.add_argument("--out", type=Path, default=None, help="JSON in the CheungJoint FMU's parameter names")
+    q.set_defaults(func=_identify_frf)
     q = kinds.add_parser("hexapod", help="hexapod base parameters from a periodic recording of leg lengths "
                                          "L1..L6 [m] and leg forces tau1..tau6 [N]")
     q.add_argument("recording", type=Path, help="recording CSV (whole number of periods)")

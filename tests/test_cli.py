@@ -150,3 +150,24 @@ def test_identify_hexapod_from_a_recording_recovers_the_base_parameters(tmp_path
     truth_base = base().from_full(truth().theta())
     estimate = np.array([fit["parameters"][n] for n in base().names])
     assert np.all(np.abs(estimate - truth_base) <= 5 * np.array([fit["std"][n] for n in base().names]))
+
+
+def test_identify_frf_recovers_the_joint_model_from_a_swept_sine_recording(tmp_path):
+    import json
+
+    import scipy.signal
+
+    from tests.test_ident_frf import FS, TRUTH, _simulate
+
+    t = np.arange(int(60 * FS)) / FS
+    u = 0.1 * scipy.signal.chirp(t, f0=0.5, f1=500, t1=t[-1], method="logarithmic")
+    q = _simulate(u, np.random.default_rng(0))
+    path = tmp_path / "sweep.csv"
+    recording.write_recording(path, recording.make_recording(t, {"u": u, "q": q}, sample_time=1 / FS))
+    out = tmp_path / "frf.json"
+    assert main(["identify", "frf", str(path), "--out", str(out)]) == 0
+    fit = json.loads(out.read_text())["parameters"]
+    assert fit["K"] == pytest.approx(TRUTH.gain, rel=0.02)
+    assert fit["alpha"] == pytest.approx(TRUTH.alpha, rel=0.02)
+    assert fit["omega"] == pytest.approx(TRUTH.resonances[0][0], rel=0.02)
+    assert fit["omega_bar"] == pytest.approx(TRUTH.antiresonances[0][0], rel=0.02)
