@@ -6,11 +6,9 @@ Pipeline: :mod:`fmus.frontend` (pymoca) -> :mod:`fmus.symbolic` (explicit CasADi
 """
 from __future__ import annotations
 
-import hashlib
 import multiprocessing
 import os
 import tempfile
-import uuid
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
@@ -53,15 +51,9 @@ def build_fmu(model: symbolic.SymbolicModel, out_dir: Path | str = DEFAULT_OUT, 
         src = staging / "sources"
         src.mkdir(parents=True)
         runtime_files = package.copy_sources(package.runtime_sources(fmi_version), src)
-        token = "{" + str(uuid.UUID(bytes=bytes(16))) + "}"  # placeholder; replaced by a content hash below
-        generated = codegen.generate(model, table, identifier, token, src)
-        digest = hashlib.sha256()
-        for name in sorted(generated + runtime_files):
-            digest.update((src / name).read_bytes())
-        digest.update(fmi_version.encode())
-        token = "{" + str(uuid.UUID(bytes=digest.digest()[:16], version=4)) + "}"
-        codegen.generate(model, table, identifier, token, src)
-        c_files = sorted(f for f in generated + runtime_files if f.endswith(".c"))
+        salt = fmi_version.encode() + b"".join((src / name).read_bytes() for name in runtime_files)
+        token = codegen.generate(model, table, identifier, src, salt)
+        c_files = sorted(f for f in [codegen.MODEL_FILE, codegen.CASADI_FILE, *runtime_files] if f.endswith(".c"))
         step = float(model.parameters[model.ts_index].start) if model.sampled else 1e-3
         xml = description.model_description(table, fmi_version=fmi_version, identifier=identifier,
                                             model_name=model.name, token=token,

@@ -246,45 +246,41 @@ def _to_sx(model: Any, name: str, description: str, comments: dict[str, str], so
     mx_syms: list[ca.MX] = []
     sx_syms: list[ca.SX] = []
     scalars: dict[str, list[Variable]] = {g: [] for g in groups}
+    first: dict[int, int] = {}  # id(pymoca variable) -> index of its first scalar in its group
     for group, variables in groups.items():
         for var in variables:
             sym = var.symbol
             names = _scalar_names(sym.name(), sym.shape)
             shaped = ca.SX.sym(sym.name(), *sym.shape)
-            sx = ca.vec(shaped)
             mx_syms.append(sym)
             sx_syms.append(shaped)
-            base = sym.name()
-            for i, scalar in enumerate(names):
+            first[id(var)] = len(scalars[group])
+            for i, (scalar, symbol) in enumerate(zip(names, ca.vertsplit(ca.vec(shaped)))):
                 scalars[group].append(Variable(
-                    name=scalar if group != "der_states" else f"der({scalars['states'][len(scalars[group])].name})",
-                    symbol=sx[i],
-                    description=comments.get(base, ""),
+                    name=scalar,
+                    symbol=symbol,
+                    description=comments.get(sym.name(), ""),
                     unit=getattr(var, "unit", "") or "",
-                    start=_as_list(var.start, len(names))[i],
                     min=_number(_as_list(var.min, len(names))[i], -math.inf),
                     max=_number(_as_list(var.max, len(names))[i], math.inf),
                     nominal=(_number(_as_list(var.nominal, len(names))[i], 0.0) or None),
                 ))
-                if group == "parameters":
-                    scalars[group][-1].start = _as_list(var.value, len(names))[i]
-    time_mx = model.time
+    for der, state in zip(scalars["der_states"], scalars["states"]):
+        der.name = f"der({state.name})"
     time_sx = ca.SX.sym("time")
     residual_mx = ca.vertcat(*[ca.vec(e) for e in model.equations]) if model.equations else ca.MX(0, 1)
-    to_sx = ca.Function("to_sx", [time_mx, *mx_syms], [residual_mx] + _start_exprs(groups), {"allow_free": True})
+    to_sx = ca.Function("to_sx", [model.time, *mx_syms], [residual_mx] + _start_exprs(groups), {"allow_free": True})
     if to_sx.has_free():
         raise ModelicaError(f"{source}: class {name}: equations use undeclared symbols {to_sx.get_free()}")
     out = to_sx.expand()(time_sx, *sx_syms)
     residual = ca.simplify(out[0])
-    starts = iter(out[1:])
+    starts = iter(out[1:])  # start values (values for parameters), in the order of _start_exprs
     for group in ("states", "alg_states", "inputs", "parameters"):
         for var in groups[group]:
             expr = next(starts)
-            n = expr.numel()
-            first = next(i for i, v in enumerate(scalars[group]) if v.name == _scalar_names(var.symbol.name(), var.symbol.shape)[0])
-            for i in range(n):
+            for i in range(expr.numel()):
                 e = expr[i]
-                scalars[group][first + i].start = float(ca.DM(e)) if e.is_constant() else e
+                scalars[group][first[id(var)] + i].start = float(ca.DM(e)) if e.is_constant() else e
     return _split_parameters(FlatModel(
         name=name,
         description=description,

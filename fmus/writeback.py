@@ -66,7 +66,7 @@ def write_back(fmu: Path | str, values: dict[str, float], out: Path | str,
         if not (math.isfinite(value) and lo <= value <= hi):
             raise WriteBackError(f"{fmu}: {name} = {value!r} is outside [{lo}, {hi}]")
         holder.set("start", repr(value))
-        starts[int(el.get("valueReference"))] = codegen._c_double(value)
+        starts[int(el.get("valueReference"))] = codegen.c_double(value)
     token_key = "instantiationToken" if fmi3 else "guid"
     old_token = root.get(token_key)
     digest = hashlib.sha256((old_token + json.dumps(values, sort_keys=True)).encode()).digest()

@@ -96,6 +96,11 @@ def _ssp(args: argparse.Namespace) -> int:
     return 0
 
 
+def _sample_rate(rec: object) -> float:
+    """[Hz] of a recording sampled at a constant rate."""
+    return 1.0 / float(np.median(np.diff(rec.time)))
+
+
 def _report_fit(fit: object, args: argparse.Namespace, method: str) -> int:
     """Print a least-squares fit and, with ``--out``, write estimates, std and covariance as JSON."""
     import json
@@ -117,7 +122,7 @@ def _identify_joint(args: argparse.Namespace) -> int:
     from ident.joint import identify_joint_periodic
 
     rec = recording.read_recording(args.recording, required=("time", args.position, args.force))
-    sample_rate = 1.0 / float(np.median(np.diff(rec.time)))
+    sample_rate = _sample_rate(rec)
     result = identify_joint_periodic(rec[args.position], rec[args.force], sample_rate, args.f0, args.cutoff,
                                      min_speed=args.min_speed, friction=args.friction)
     return _report_fit(result.fit, args, "inverse-dynamics Gauss-Markov least squares (Abdellatif, Bona eq. 2)")
@@ -130,7 +135,7 @@ def _identify_frf(args: argparse.Namespace) -> int:
     from ident.frf import acceleration_from_position, estimate_frf, fit_joint_frf
 
     rec = recording.read_recording(args.recording, required=("time", args.input, args.position))
-    fs = 1.0 / float(np.median(np.diff(rec.time)))
+    fs = _sample_rate(rec)
     frf = estimate_frf(rec[args.input][1:-1], acceleration_from_position(rec[args.position], fs), fs, args.segment)
     fit = fit_joint_frf(frf, output="acceleration", sample_rate=fs, min_coherence=args.min_coherence)
     model = fit.model
@@ -156,7 +161,7 @@ def _identify_hexapod(args: argparse.Namespace) -> int:
     lengths = [f"L{i}" for i in range(1, 7)]
     forces = [f"tau{i}" for i in range(1, 7)]
     rec = recording.read_recording(args.recording, required=("time", *lengths, *forces))
-    sample_rate = 1.0 / float(np.median(np.diff(rec.time)))
+    sample_rate = _sample_rate(rec)
     result = identify_hexapod_periodic(np.column_stack([rec[c] for c in lengths]),
                                        np.column_stack([rec[c] for c in forces]), sample_rate, args.f0,
                                        args.cutoff, min_leg_speed=args.min_speed)

@@ -8,7 +8,6 @@ import zipfile
 from pathlib import Path
 
 import fmpy
-import numpy as np
 import pytest
 
 from fmus import package

@@ -151,7 +151,7 @@ def print_design_table(results) -> None:
         print(f"[{label:>9}] cond(Psi) = {metrics.condition_number:8.1f}  log det(Psi^T S^-1 Psi) = "
               f"{metrics.log_det_information:7.2f}  limit use = {metrics.max_limit_ratio:.3f}  "
               f"max |err| = {100 * np.abs(rel).mean(axis=0).max():.3f} %  coverage = {100 * cov.mean():.1f} %")
-    print(f"\nspread (std of the relative error, %) per base parameter:")
+    print("\nspread (std of the relative error, %) per base parameter:")
     print(f"{'base parameter':>18} " + " ".join(f"{label:>10}" for label in results))
     spreads = {label: 100 * ((est - truth) / np.abs(truth)).std(axis=0)
                for label, (_, _, _, est, _, _) in results.items()}
