@@ -351,7 +351,7 @@ def _parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     from fmus.frontend import ModelicaError
     from fmus.package import BuildError
-    from harness.master import FMUCallError
+    from harness.fmu_instance import FMUCallError
 
     args = _parser().parse_args(argv)
     func: Callable[[argparse.Namespace], int] = args.func

@@ -8,7 +8,7 @@ Mapping from the system file:
 * each external input ``input.NAME`` -> a system input connector ``NAME``;
 * a single-source connection -> an ``ssd:Connection`` (a gain other than 1 becomes an
   ``ssc:LinearTransformation``);
-* units that parse as SI (see :func:`harness.master.canonical_unit`) -> ``ssc:Unit`` definitions;
+* units that parse as SI (see :func:`harness.units.canonical_unit`) -> ``ssc:Unit`` definitions;
 * ``start_time``/``stop_time`` -> ``ssd:DefaultExperiment``.
 
 SSP 1.0 has no sum junction (an input takes one connection). A connection with several sources is
@@ -28,7 +28,7 @@ from pathlib import Path
 
 from fmpy import read_model_description
 
-from .master import canonical_unit
+from .units import canonical_unit
 from .system import INPUT_NAMESPACE, System, load_system, split_port
 
 SSD = "http://ssp-standard.org/SSP1/SystemStructureDescription"

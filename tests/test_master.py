@@ -9,8 +9,9 @@ import pytest
 from scipy.integrate import solve_ivp
 from scipy.linalg import expm
 
-from harness import master as master_module
-from harness.master import FMUCallError, Master, PortError, StepError, UnitMismatchError
+from harness import fmu_instance
+from harness.fmu_instance import FMUCallError, PortError
+from harness.master import Master, StepError, UnitMismatchError
 from harness.system import SystemFileError, load_system, system_from_dict
 
 def write(tmp_path: Path, text: str, name: str = "system.toml") -> Path:
@@ -164,12 +165,12 @@ def test_reset_between_runs_reuses_instances(gemseo_fmus: Path, tmp_path: Path) 
     path = write(tmp_path, P_LOOP.format(fmus=gemseo_fmus).replace("stop_time = 0.2", "stop_time = 0.02"))
     with Master(path) as m:
         slaves = {n: f.slave for n, f in m.instances.items()}
-        extracted = len(master_module._EXTRACTED)
+        extracted = len(fmu_instance._EXTRACTED)
         first = m.run(inputs={"r": -0.4, "u_ext": 0.0})
         other = m.run(inputs={"r": 0.3, "u_ext": 10.0}, parameters={"ctrl.add.k1": 100.0})
         repeat = m.run(inputs={"r": -0.4, "u_ext": 0.0})
         assert {n: f.slave for n, f in m.instances.items()} == slaves
-        assert len(master_module._EXTRACTED) == extracted
+        assert len(fmu_instance._EXTRACTED) == extracted
     with Master(path) as fresh:
         reference = fresh.run(inputs={"r": -0.4, "u_ext": 0.0})
     assert not np.array_equal(first["slow"], other["slow"])
