@@ -1,0 +1,214 @@
+"""Benchmark (not a test): real-time factor of the 4-DOF closed loop at 2 kHz through the harness, beside a
+raw fmpy set/doStep/get loop on the same FMUs, and where the time goes.
+
+Loop: four ``RobustJointController`` channels (FMI 2.0, Ts = 5e-4 s, Table 2 designs rescaled as in
+harness.comparison) around ``CheungManipulator`` (FMI 2.0, 5e-4 s steps), the paper's substrate move
+repeated back and forth. Real-time factor = simulated time / wall time (target >= 50x on this 2-core machine).
+
+Run: /work/venv/bin/python tests/benchmarks/bench_manipulator.py [SIMULATED_SECONDS]
+"""
+from __future__ import annotations
+
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import fmpy
+import numpy as np
+from fmpy.fmi2 import FMU2Slave
+
+ROOT = Path(__file__).resolve().parents[2]
+sys.path.insert(0, str(ROOT))
+
+from harness import comparison  # noqa: E402
+from harness.excitation import end_effector_point_to_point  # noqa: E402
+from harness.kinematics import CHEUNG_END_POSE, CHEUNG_START_POSE  # noqa: E402
+from harness.master import Master  # noqa: E402
+
+TS = comparison.TS
+TARGET = 50.0
+
+
+def reference(n: int) -> np.ndarray:
+    """(n + 1, 4, 4) array: per sample, [position, velocity, acceleration, jerk] x joint; moves every 0.25 s."""
+    t = np.arange(n + 1) * TS
+    period = 0.25
+    phase = t % (2 * period)
+    there = end_effector_point_to_point(phase, CHEUNG_START_POSE, CHEUNG_END_POSE, comparison.MOVE_TIME, 0.01)
+    back = end_effector_point_to_point(phase - period, CHEUNG_END_POSE, CHEUNG_START_POSE, comparison.MOVE_TIME, 0.01)
+    first = (phase < period)[:, None]
+    fields = ("position", "velocity", "acceleration", "jerk")
+    return np.stack([np.where(first, getattr(there, f), getattr(back, f)) for f in fields], axis=1)
+
+
+def raw_loop(fmus: dict[str, Path], designs: list[dict[str, float]], holding: np.ndarray, ref: np.ndarray,
+             time_split: bool = False) -> tuple[float, np.ndarray, dict[str, float]]:
+    """The same loop with fmpy's FMU2Slave setReal/doStep/getReal only; optionally timing doStep per FMU."""
+    def slave(path: Path, name: str) -> tuple[FMU2Slave, dict[str, int]]:
+        md = fmpy.read_model_description(str(path))
+        s = FMU2Slave(guid=md.guid, unzipDirectory=fmpy.extract(str(path)),
+                      modelIdentifier=md.coSimulation.modelIdentifier, instanceName=name)
+        s.instantiate()
+        s.setupExperiment(startTime=0.0)
+        return s, {v.name: v.valueReference for v in md.modelVariables}
+
+    plant, pv = slave(fmus["plant"], "plant")
+    ctrls = [slave(fmus["robust"], f"c{p}") for p in comparison.PORTS]
+    for (c, cv), design in zip(ctrls, designs):
+        names = [k for k in design if k in cv and k != "Ts"]
+        c.setReal([cv[k] for k in names], [design[k] for k in names])
+    for s in [plant] + [c for c, _ in ctrls]:
+        s.enterInitializationMode()
+        s.exitInitializationMode()
+    q_vr = [pv[f"q{p}"] for p in comparison.PORTS]
+    u_vr = [pv[f"u{p}"] for p in comparison.PORTS]
+    c_in = [[cv[k] for k in ("r", "q", "r_dot", "r_ddot", "r_dddot")] for _, cv in ctrls]
+    c_out = [[cv["u"]] for _, cv in ctrls]
+    n = ref.shape[0] - 1
+    out = np.empty((n + 1, 4))
+    q = plant.getReal(q_vr)
+    split = {"plant doStep": 0.0, "controller doStep": 0.0}
+    clock = time.perf_counter
+    t0 = clock()
+    for k in range(n):
+        t = k * TS
+        out[k] = q
+        u = [0.0] * 4
+        for j, (c, _) in enumerate(ctrls):
+            p, v, a, jerk = ref[k, :, j]
+            c.setReal(c_in[j], [p, q[j], v, a, jerk])
+            if time_split:
+                s0 = clock()
+                c.doStep(t, TS)
+                split["controller doStep"] += clock() - s0
+            else:
+                c.doStep(t, TS)
+            u[j] = c.getReal(c_out[j])[0] + holding[j]
+        plant.setReal(u_vr, u)
+        if time_split:
+            s0 = clock()
+            plant.doStep(t, TS)
+            split["plant doStep"] += clock() - s0
+        else:
+            plant.doStep(t, TS)
+        q = plant.getReal(q_vr)
+    elapsed = clock() - t0
+    out[n] = q
+    for s in [plant] + [c for c, _ in ctrls]:
+        s.terminate()
+        s.freeInstance()
+    return elapsed, out, split
+
+
+def direct_loop(fmus: dict[str, Path], designs: list[dict[str, float]], holding: np.ndarray,
+                ref: np.ndarray) -> tuple[float, np.ndarray]:
+    """Lower bound of a Python loop: the FMI C functions called through ctypes directly (fmpy's loaded
+    function table, bypassing its per-call Python wrappers), status checked inline, buffers preallocated."""
+    import ctypes
+
+    def slave(path: Path, name: str) -> tuple[FMU2Slave, dict[str, int]]:
+        md = fmpy.read_model_description(str(path))
+        s = FMU2Slave(guid=md.guid, unzipDirectory=fmpy.extract(str(path)),
+                      modelIdentifier=md.coSimulation.modelIdentifier, instanceName=name)
+        s.instantiate()
+        s.setupExperiment(startTime=0.0)
+        return s, {v.name: v.valueReference for v in md.modelVariables}
+
+    plant, pv = slave(fmus["plant"], "plant")
+    ctrls = [slave(fmus["robust"], f"c{p}") for p in comparison.PORTS]
+    for (c, cv), design in zip(ctrls, designs):
+        names = [k for k in design if k in cv and k != "Ts"]
+        c.setReal([cv[k] for k in names], [design[k] for k in names])
+    for s in [plant] + [c for c, _ in ctrls]:
+        s.enterInitializationMode()
+        s.exitInitializationMode()
+    uint, dbl = ctypes.c_uint, ctypes.c_double
+    q_vr = (uint * 4)(*[pv[f"q{p}"] for p in comparison.PORTS])
+    u_vr = (uint * 4)(*[pv[f"u{p}"] for p in comparison.PORTS])
+    q_buf, u_buf = (dbl * 4)(), (dbl * 4)()
+    c_in = [(uint * 5)(*[cv[k] for k in ("r", "q", "r_dot", "r_ddot", "r_dddot")]) for _, cv in ctrls]
+    c_out = [(uint * 1)(cv["u"]) for _, cv in ctrls]
+    in_buf, out_buf = (dbl * 5)(), (dbl * 1)()
+    fn = plant._functions
+    get, put, step = fn["fmi2GetReal"], fn["fmi2SetReal"], fn["fmi2DoStep"]
+    comps = [c.component for c, _ in ctrls]
+    pc = plant.component
+    n = ref.shape[0] - 1
+    out = np.empty((n + 1, 4))
+    get(pc, q_vr, 4, q_buf)
+    t0 = time.perf_counter()
+    for k in range(n):
+        t = k * TS
+        out[k] = q_buf
+        for j in range(4):
+            p, v, a, jerk = ref[k, :, j]
+            in_buf[:] = (p, q_buf[j], v, a, jerk)
+            status = put(comps[j], c_in[j], 5, in_buf) | step(comps[j], t, TS, 1) | get(comps[j], c_out[j], 1, out_buf)
+            u_buf[j] = out_buf[0] + holding[j]
+            if status > 1:
+                raise RuntimeError(f"controller {j} failed at t = {t}")
+        if put(pc, u_vr, 4, u_buf) | step(pc, t, TS, 1) | get(pc, q_vr, 4, q_buf) > 1:
+            raise RuntimeError(f"plant failed at t = {t}")
+    elapsed = time.perf_counter() - t0
+    out[n] = q_buf
+    for s in [plant] + [c for c, _ in ctrls]:
+        s.terminate()
+        s.freeInstance()
+    return elapsed, out
+
+
+def main() -> None:
+    simulated = float(sys.argv[1]) if len(sys.argv) > 1 else 4.0
+    n = round(simulated / TS)
+    with tempfile.TemporaryDirectory() as tmp:
+        fmus = comparison.build_fmus(tmp)
+        ref = reference(n)
+        start = ref[0, 0]
+        with comparison.PlantDynamics(fmus["plant"]) as dyn:
+            masses = np.diag(dyn.mass_matrix(start)).copy()
+            holding = dyn.inverse(start, np.zeros(4), np.zeros(4))
+        designs = comparison.table2_designs(masses, 5.0)
+        system = comparison.closed_loop_system(fmus, "robust")
+        inputs = {}
+        for j, p in enumerate(comparison.PORTS):
+            for i, prefix in enumerate(("r", "rd", "rdd", "rddd")):
+                inputs[f"{prefix}{p}"] = ref[:, i, j]
+            inputs[f"ff{p}"] = np.full(n + 1, holding[j])
+        overrides = {f"c{p}.{k}": v for p, d in zip(comparison.PORTS, designs) for k, v in d.items()
+                     if k not in ("Ts", "table2_scale")}
+        with Master(system, progress=False) as master:
+            warm = round(0.1 / TS) + 1
+            master.run(inputs={k: v[:warm] for k, v in inputs.items()}, parameters=overrides, stop_time=0.1)
+            harness_s, raw_s, direct_s = [], [], []
+            for _ in range(3):
+                t0 = time.perf_counter()
+                log = master.run(inputs=inputs, parameters=overrides, stop_time=n * TS)["log"]
+                harness_s.append(time.perf_counter() - t0)
+                elapsed, raw, _ = raw_loop(fmus, designs, holding, ref)
+                raw_s.append(elapsed)
+                elapsed, direct = direct_loop(fmus, designs, holding, ref)
+                direct_s.append(elapsed)
+        _, _, split = raw_loop(fmus, designs, holding, ref, time_split=True)
+        h, r = min(harness_s), min(raw_s)
+        q = np.column_stack([log[f"plant.q{p}"] for p in comparison.PORTS])
+        deviation = float(np.max(np.abs(q - raw)))
+        print(f"4-DOF closed loop: 4 x RobustJointController + CheungManipulator (FMI 2.0), 2 kHz, "
+              f"{simulated:g} s simulated ({n} steps)")
+        print(f"  harness run   : {h:7.3f} s wall  real-time factor {simulated / h:6.1f}x  (target >= {TARGET:g}x)  "
+              f"{h / n * 1e6:6.1f} us/step")
+        print(f"  raw fmpy loop : {r:7.3f} s wall  real-time factor {simulated / r:6.1f}x  "
+              f"{r / n * 1e6:6.1f} us/step")
+        d = min(direct_s)
+        print(f"  direct ctypes : {d:7.3f} s wall  real-time factor {simulated / d:6.1f}x  "
+              f"{d / n * 1e6:6.1f} us/step  (max |q - q_raw| = {np.max(np.abs(direct - raw)):.1e} m)")
+        print(f"  harness / raw = {h / r:.2f};  max |q_harness - q_raw| = {deviation:.2e} m")
+        total = sum(split.values())
+        print(f"  raw loop, time inside doStep: plant {split['plant doStep'] / n * 1e6:.1f} us/step, "
+              f"4 controllers {split['controller doStep'] / n * 1e6:.1f} us/step "
+              f"({total / r * 100:.0f}% of the raw loop; the rest is fmpy set/get and Python)")
+        print(f"  the FMUs alone allow at most {simulated / total:.1f}x real time on this machine")
+
+
+if __name__ == "__main__":
+    main()
