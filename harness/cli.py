@@ -339,6 +339,15 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--fmu", type=Path, default=None, help="controller FMU to write into (default: build one)")
     p.add_argument("--fmi", choices=("2.0", "3.0"), default="3.0", help="FMI version of the built controller FMU")
     p.add_argument("--fmu-out", type=Path, default=None, help="new controller FMU with the tuned start values")
+    p.add_argument("--plots", type=Path, default=None,
+                   help="folder for Bode/Nyquist/sensitivity PNGs (tuning_joint.png or tuning_manipulator_d1..d7.png)")
+    p.add_argument("--manipulator", action="store_true",
+                   help="per-actuator design on the CheungManipulator FMU linearised at --poses poses "
+                        "(--plant: eq. (8) flexible mode; --plant-fmu: a manipulator FMU)")
+    p.add_argument("--poses", type=int, default=5, help="with --manipulator: poses along the workspace segment")
+    p.add_argument("--rigid", action="store_true", help="with --manipulator: no eq. (8) flexible mode on the channels")
+    p.add_argument("--no-feedforward", action="store_true", help="keep Kv, Ka, Kj at the FMU defaults")
+    p.add_argument("--no-jerk", action="store_true", help="fit Kv, Ka only (Kj = 0)")
     p.set_defaults(func=_tune)
 
     p = sub.add_parser("compare", help="Cheung & Hung's point-to-point comparison on the coupled 4-DOF plant: "

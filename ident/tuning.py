@@ -23,6 +23,12 @@ violating design and an ``InfeasibleSpecError`` naming each constraint missed an
 The search evaluates margins on a 1200-point grid with numpy (about 1 ms per plant set) against a spec
 tightened by 0.2 dB / 0.3 deg / 0.01, and every reported figure is re-computed with python-control.
 
+Feedforward (eq. 12): the tracking error is E = S (1 - F_L F_N G_f P) R, so Kv, Ka, Kj are fitted after the
+feedback design by linear least squares of |1 - F_L F_N G_f P_zoh z^-d| over 0.1 Hz .. CLBW/2 and all plant
+sets (``feedforward_gains``): in the narrow-band limit the inverse of K/(s(s+alpha)) through the lag's DC gain,
+plus a jerk term for the lag, notch, hold and delay phase. Figures: ``ident.tuning_plots``; per-actuator design
+of the coupled manipulator FMU: ``ident.tuning_manipulator``.
+
 Table 2 comparison: the paper's gains are in its own (unknown) units, so on an SI plant only the controller
 shape is comparable; Kp, Ki, Kd are scaled by one factor g chosen so that the CLBW on our plant equals the
 paper's CLBW for that column, and the GM, PM, max |S| reached are printed beside the paper's.
@@ -37,6 +43,7 @@ import functools
 import math
 import warnings
 from dataclasses import asdict, dataclass, field, replace
+from pathlib import Path
 from typing import Callable, Iterable, Sequence
 
 import casadi as ca
@@ -51,7 +58,8 @@ __all__ = [
     "DESIGN_BOUNDS", "TABLE2", "controller_defaults", "controller_matrices", "controller_system", "check_plant",
     "discrete_plant", "loop_system", "margins_from_response", "loop_margins", "position_sets", "tune",
     "rescale_to_bandwidth", "table2_comparison", "format_comparison", "format_margins", "violations",
-    "frequency_grid", "DESIGN_NAMES", "parse_plant", "cli_tune",
+    "frequency_grid", "DESIGN_NAMES", "parse_plant", "cli_tune", "FeedforwardFit", "feedforward_gains",
+    "feedforward_path_response", "comparison_markdown",
 ]
 
 CONTROLLER_CLASS = "MotionTwin.Controllers.RobustJointController"
@@ -59,7 +67,11 @@ DESIGN_NAMES = ("Kp", "Ki", "Kd", "KL", "fp", "fc", "sigma", "wl", "wh")
 
 # Search space (the optimiser's coordinates; each maps to a controller parameter):
 #   log10(Kp*K)  in [2, 6]    Kp*K in 1/s^2: crossover of the P part sqrt(Kp K) from 1.6 to 160 Hz
-#   log10(Ki*K)  in [0, 7]    Ki*K in 1/s^3 (integral zero far below to near crossover)
+#   log10(rho)   in [-3, 0]   rho = 4 Ki Kd/Kp^2: the PID zeros of eq. (9) stay real (rho <= 1, as in every
+#                             Table 2 column), the integral zero Ki/Kp from Kp/(4000 Kd) to Kp/(2 Kd) (lower,
+#                             the closed-loop pole it attracts sits within 1e-8 of z = 1: stability is noise); a
+#                             free Ki let the search place a lightly damped zero pair at a few Hz, whose
+#                             closed-loop poles ring for seconds while GM, PM and Ms stay fine
 #   log10(Kd*K)  in [0, 3.5]  Kd*K in 1/s: crossover of the D part from 0.16 to 500 Hz
 #   KL           in [1, 10]   lag high-frequency gain (Table 2 uses 10)
 #   fp [Hz]      in [50, 900] lag pole
@@ -69,7 +81,7 @@ DESIGN_NAMES = ("Kp", "Ki", "Kd", "KL", "fp", "fc", "sigma", "wl", "wh")
 #   width        in [0.05, 1] (wh - wl)/f0
 # K is the lowest low-frequency gain over the plant sets, so the gain bounds follow the moving mass.
 DESIGN_BOUNDS: tuple[tuple[float, float], ...] = (
-    (2.0, 6.0), (0.0, 7.0), (0.0, 3.5), (1.0, 10.0), (50.0, 900.0), (1.0, 4.0), (0.0, 1.7), (150.0, 950.0),
+    (2.0, 6.0), (-3.0, 0.0), (0.0, 3.5), (1.0, 10.0), (50.0, 900.0), (1.0, 4.0), (0.0, 1.7), (150.0, 950.0),
     (0.05, 1.0))
 
 # Cheung & Hung Table 2 (gains in the paper's own units; fp, fc, wl = omega_r, wh = omega_b in Hz) and the
@@ -147,13 +159,16 @@ class TuningResult:
     sample_period: float
     delay_samples: int
     violations: list[tuple[str, float, float, str]] = field(default_factory=list)
+    feedforward: FeedforwardFit | None = None
 
     def as_dict(self) -> dict:
-        """JSON-ready: ``{"parameters": ...}`` is what ``motiontwin writeback --values`` reads."""
+        """JSON-ready: ``{"parameters": ...}`` is what ``motiontwin writeback --values`` reads (with Kv, Ka, Kj
+        when the feedforward was fitted; ``feedforward`` then holds the band and residual of the fit)."""
         return {"method": "differential evolution + Nelder-Mead on the discrete loop (Cheung eqs. 14-18)",
                 "parameters": self.parameters, "spec": asdict(self.spec), "sample_period": self.sample_period,
                 "delay_samples": self.delay_samples, "margins": [asdict(m) for m in self.margins],
-                "violations": [list(v) for v in self.violations]}
+                "violations": [list(v) for v in self.violations],
+                "feedforward": None if self.feedforward is None else asdict(self.feedforward)}
 
 
 # ---------------------------------------------------------------- controller law (the FMU's own matrices)
@@ -170,6 +185,18 @@ def _law() -> tuple[ca.Function, tuple[str, ...], dict[str, float]]:
     fn = ca.Function("robust_joint_law", [model.p],
                      [model.Ad, model.Bd[:, r], model.Cd[u, :], model.Dd[u, r]])
     return fn, names, dict(zip(names, model.parameter_values()))
+
+
+@functools.lru_cache(maxsize=1)
+def _feedforward_law() -> ca.Function:
+    """casadi Function p -> Tustin matrices of the feedforward path r_dot -> u (F_L F_N times Kv)."""
+    from fmus import build
+
+    model = build.load_model(CONTROLLER_CLASS)
+    r_dot = [v.name for v in model.inputs].index("r_dot")
+    u = [c.var.name for c in model.computed].index("u")
+    return ca.Function("robust_joint_feedforward", [model.p],
+                       [model.Ad, model.Bd[:, r_dot], model.Cd[u, :], model.Dd[u, r_dot]])
 
 
 def controller_defaults() -> dict[str, float]:
@@ -342,6 +369,71 @@ def position_sets(nominal: JointModel, gain_spread: float = 0.3, resonance_sprea
     return out
 
 
+# ---------------------------------------------------------------- feedforward (eq. 12)
+
+@dataclass(frozen=True)
+class FeedforwardFit:
+    """Feedforward gains of eq. (12) [N s/m, N s^2/m, N s^3/m], the band they were fitted on [Hz] and the
+    largest relative tracking residual |1 - F_L F_N G_f P| over the band and the plant sets."""
+
+    Kv: float
+    Ka: float
+    Kj: float
+    band_hz: tuple[float, float]
+    residual: float
+
+    def gains(self) -> dict[str, float]:
+        return {"Kv": self.Kv, "Ka": self.Ka, "Kj": self.Kj}
+
+
+def feedforward_path_response(parameters: dict[str, float], f: np.ndarray) -> np.ndarray:
+    """F_L(z) F_N(z) on the grid ``f`` [Hz]: the FMU's Tustin path r_dot -> u with Kv = 1, Ka = Kj = 0."""
+    _, names, defaults = _law()
+    values = {**defaults, **parameters, "Kv": 1.0, "Ka": 0.0, "Kj": 0.0}
+    ts = float(values["Ts"])
+    a, b, c, d = (np.array(m, dtype=float) for m in _feedforward_law()([float(values[n]) for n in names]))
+    z = np.exp(2j * np.pi * f * ts)
+    x = np.linalg.solve(z[:, None, None] * np.eye(a.shape[0]) - a, np.broadcast_to(b, (z.size,) + b.shape))
+    return (c @ x)[:, 0, 0] + d[0, 0]
+
+
+def feedforward_gains(parameters: dict[str, float], plants: Sequence[JointModel | control.LTI],
+                      delay_samples: int = 1, band_hz: tuple[float, float] = (0.1, 20.0), jerk: bool = True,
+                      points: int = 200) -> FeedforwardFit:
+    """Kv, Ka (and Kj) of eq. (12) that invert the sampled loop path from the reference derivatives to q.
+
+    The tracking error is E = S (1 - F_L F_N G_f P) R (eq. 13 with G_f = Kj s^3 + Ka s^2 + Kv s fed by the
+    analytic reference derivatives), so the gains minimise sum |1 - F_L F_N G_f P_zoh z^-d|^2 over a log grid
+    of ``band_hz`` and all plant sets (linear least squares). For P = K/(s(s+alpha)) and a narrow band this is
+    the inverse of the low-frequency model through the lag's DC gain g_L = KL fc/fp: Kv = alpha/(K g_L),
+    Ka = 1/(K g_L); Kj takes up the lag, notch, resonance, hold and delay phase (first Taylor term)."""
+    if not plants:
+        raise TuningError("feedforward_gains: give at least one plant set")
+    lo, hi = band_hz
+    if not 0 < lo < hi:
+        raise TuningError(f"feedforward_gains: band_hz {band_hz} must satisfy 0 < low < high")
+    ts = float(parameters.get("Ts", controller_defaults()["Ts"]))
+    f = np.logspace(np.log10(lo), np.log10(min(hi, 0.45 / ts)), points)
+    s = 2j * np.pi * f
+    path = feedforward_path_response(parameters, f)
+    z = np.exp(s * ts)
+    orders = (1, 2, 3) if jerk else (1, 2)
+    blocks = []
+    for k, plant in enumerate(plants):
+        pz = np.asarray(discrete_plant(plant, ts, delay_samples, where=f"plant set {k}")(z)).reshape(-1)
+        blocks.append(np.column_stack([path * pz * s ** n for n in orders]))
+    columns = np.vstack(blocks)
+    scale = np.max(np.abs(columns), axis=0)
+    a = columns / scale
+    target = np.ones(columns.shape[0], dtype=complex)
+    solution, *_ = np.linalg.lstsq(np.vstack([a.real, a.imag]), np.concatenate([target.real, target.imag]),
+                                   rcond=None)
+    gains = solution / scale
+    residual = float(np.max(np.abs(1 - columns @ gains)))
+    kv, ka = float(gains[0]), float(gains[1])
+    return FeedforwardFit(kv, ka, float(gains[2]) if jerk else 0.0, (float(lo), float(f[-1])), residual)
+
+
 # ---------------------------------------------------------------- fast evaluation for the search
 
 class _LoopEvaluator:
@@ -388,7 +480,8 @@ def _decode(x: np.ndarray, k_min: float, fixed: dict[str, float]) -> dict[str, f
     """Optimiser coordinates -> controller parameters (see DESIGN_BOUNDS; fc kept below Nyquist)."""
     f0, width = x[7], x[8]
     half = width / 2
-    return {**fixed, "Kp": 10 ** x[0] / k_min, "Ki": 10 ** x[1] / k_min, "Kd": 10 ** x[2] / k_min, "KL": x[3],
+    kp, kd = 10 ** x[0] / k_min, 10 ** x[2] / k_min
+    return {**fixed, "Kp": kp, "Ki": 10 ** x[1] * kp ** 2 / (4 * kd), "Kd": kd, "KL": x[3],
             "fp": x[4], "fc": min(x[4] * x[5], 0.95 / (2 * fixed["Ts"])), "sigma": 10 ** x[6],
             "wl": f0 * (math.sqrt(1 + half ** 2) - half), "wh": f0 * (math.sqrt(1 + half ** 2) + half)}
 
@@ -440,18 +533,23 @@ def _cost(margins: list[LoopMargins], spec: TuningSpec, bw_scale: float) -> floa
 
 
 def _format_violations(found: list[tuple[str, float, float, str]]) -> str:
-    return "; ".join(f"{name} infeasible: best design reaches {value:.3g}{' ' + unit if unit else ''}"
-                     f" (short by {abs(limit - value):.3g}{' ' + unit if unit else ''})"
-                     for name, value, limit, unit in found)
+    """'NAME infeasible: best design reaches V (short by / over by D)' for each missed constraint."""
+    def one(name: str, value: float, limit: float, unit: str) -> str:
+        u = f" {unit}" if unit else ""
+        side = "over" if value > limit else "short"
+        return f"{name} infeasible: best design reaches {value:.3g}{u} ({side} by {abs(limit - value):.3g}{u})"
+    return "; ".join(one(*v) for v in found)
 
 
 def tune(plants: Sequence[JointModel | control.LTI], ts: float = 5e-4, spec: TuningSpec = TuningSpec(),
          delay_samples: int = 1, tau: float | None = None, seed: int = 0, popsize: int = 12, maxiter: int = 80,
          refine: int = 3, refine_evaluations: int = 2000, progress: bool = True,
-         points: int = 1200) -> TuningResult:
+         points: int = 1200, feedforward: bool = True, jerk: bool = True) -> TuningResult:
     """Design Kp, Ki, Kd, KL, fp, fc, sigma, wl, wh for all ``plants`` at once (see the module docstring).
 
-    ``tau`` (derivative filter, not in Table 2) defaults to 2 ts; feedforward gains stay at the FMU defaults.
+    ``tau`` (derivative filter, not in Table 2) defaults to 2 ts. With ``feedforward`` the gains Kv, Ka (and
+    Kj with ``jerk``) of eq. (12) are then fitted on all plant sets by :func:`feedforward_gains` over
+    0.1 Hz .. half the worst-case CLBW; without it they stay at the FMU defaults.
     Raises InfeasibleSpecError (with the best design attached) when a constraint cannot be met.
     """
     if not plants:
@@ -495,7 +593,12 @@ def tune(plants: Sequence[JointModel | control.LTI], ts: float = 5e-4, spec: Tun
     parameters = {k: float(v) for k, v in _decode(np.clip(best_x, *zip(*bounds)), k_min, fixed).items()}
     margins = [loop_margins(parameters, p, delay_samples) for p in plants]
     found = violations(margins, spec)
-    result = TuningResult(parameters, margins, spec, ts, delay_samples, found)
+    fit = None
+    if feedforward and all(m.stable for m in margins):
+        fit = feedforward_gains(parameters, plants, delay_samples,
+                                (0.1, max(0.2, 0.5 * min(m.bandwidth_hz for m in margins))), jerk)
+        parameters |= fit.gains()
+    result = TuningResult(parameters, margins, spec, ts, delay_samples, found, fit)
     if found:
         raise InfeasibleSpecError(_format_violations(found), found, result)
     return result
@@ -576,6 +679,21 @@ def format_comparison(rows: list[dict[str, float | str]]) -> str:
     return "\n".join(lines)
 
 
+def comparison_markdown(rows: list[dict[str, float | str]]) -> str:
+    """README table of ``table2_comparison`` rows: paper figure / ours for GM, PM, CLBW and max |S| < CLBW."""
+    def pair(r: dict, key: str, fmt: str) -> str:
+        paper = r[f"paper {key}"]
+        ours = format(r[key], fmt)
+        return ours if isinstance(paper, float) and math.isnan(paper) else f"{format(paper, fmt)} / {ours}"
+    lines = ["| design | Kp,Ki,Kd scale | GM [dB] paper / ours | PM [deg] paper / ours | CLBW [Hz] paper / ours "
+             "| max\\|S\\| below CLBW paper / ours | Ms | disk margin |",
+             "|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        lines.append(f"| {r['design']} | {r['scale']:.3g} | {pair(r, 'GM', '.2f')} | {pair(r, 'PM', '.1f')} | "
+                     f"{pair(r, 'CLBW', '.1f')} | {pair(r, 'S', '.2f')} | {r['Ms']:.2f} | {r['DM']:.2f} |")
+    return "\n".join(lines)
+
+
 def format_margins(result: TuningResult, plants: Sequence[JointModel | control.LTI]) -> str:
     """Plain-text table of the achieved figures on every plant set."""
     head = f"{'plant set':<28} {'GM [dB]':>8} {'PM [deg]':>9} {'CLBW [Hz]':>10} {'Ms':>5} {'S<CLBW':>7} {'disk':>5}"
@@ -625,14 +743,105 @@ def _start_values(text: str, index: int) -> dict[str, float]:
     return out
 
 
-def cli_tune(args) -> int:
-    """Handler of ``motiontwin tune`` (arguments: see the report / harness.cli). Exit code 2 if infeasible."""
-    import json
-    from pathlib import Path
+def _write_controller_fmu(args, parameters: dict[str, float], provenance: dict, out: Path) -> Path:
+    """A new controller FMU (``args.fmu`` or one built now) with ``parameters`` as start values."""
+    import tempfile
+
+    import fmpy
 
     from fmus import build, writeback
+
+    values = {k: v for k, v in parameters.items() if k != "Ts"}  # Ts is fixed by the FMU's build
+    with tempfile.TemporaryDirectory(prefix="motiontwin-tune-") as tmp:
+        source = args.fmu or build.build_fmu(build.load_model(CONTROLLER_CLASS), tmp, args.fmi).path
+        fmu_ts = next(float(v.start) for v in fmpy.read_model_description(str(source)).modelVariables
+                      if v.name == "Ts")
+        if not math.isclose(fmu_ts, args.ts, rel_tol=1e-12):
+            raise TuningError(f"{source}: the controller FMU samples at Ts = {fmu_ts} s but the design used "
+                              f"--ts {args.ts} s; rebuild the controller with that period")
+        return writeback.write_back(source, values, out, provenance)
+
+
+def _suffixed(path: Path, suffix: str) -> Path:
+    """build/x.json, "d1" -> build/x_d1.json."""
+    return path.with_name(f"{path.stem}_{suffix}{path.suffix}")
+
+
+def _tune_options(args) -> dict:
+    """Keyword arguments of :func:`tune` from the parsed command line (new options read with defaults)."""
+    return dict(tau=args.tau, seed=args.seed, popsize=args.popsize, maxiter=args.maxiter, refine=args.refine,
+                progress=True, feedforward=not args.no_feedforward,
+                jerk=not args.no_jerk)
+
+
+def _cli_manipulator(args, spec: TuningSpec) -> int:
+    """``motiontwin tune --manipulator``: per-actuator design on the CheungManipulator FMU at --poses poses."""
+    import json
+    import tempfile
+
+    from fmus import build
+    from harness.recording import atomic_write_texts
+    from ident import tuning_manipulator as tm
+
+    plant_model = build.load_model(PLANT_CLASS)
+    defaults = {v.name: float(v.start) for v in plant_model.parameters if v.name in _PLANT_KEYS}
+    flexible = None if args.rigid else parse_plant((args.plant or [""])[0], defaults,
+                                                                      "--plant #1")
+    poses = tm.workspace_poses(args.poses)
+    with tempfile.TemporaryDirectory(prefix="motiontwin-tune-") as tmp:
+        fmu = args.plant_fmu or build.build_fmu(build.load_model(tm.MANIPULATOR_CLASS), tmp, "3.0").path
+        design = tm.tune_manipulator(fmu, poses, flexible, args.ts, spec, args.delay, **_tune_options(args))
+    labels = [f"pose {k}: x={p[0] * 1e3:.1f} y={p[1] * 1e3:.1f} z={p[2] * 1e3:.1f} mm" for k, p in enumerate(poses)]
+    for name, result, plants in zip(tm.ACTUATORS, design.results, design.plants):
+        print(f"actuator {name}")
+        print(format_margins(result, plants))
+        print("parameters: " + ", ".join(f"{k}={v:.6g}" for k, v in result.parameters.items()))
+    print("coupled closed loop, 1 - spectral radius per pose (> 0 is stable): without gravity "
+          + ", ".join(f"{1 - r:.2e}" for r in design.radius_without_gravity) + "; with gravity "
+          + ", ".join(f"{1 - r:.2e}" for r in design.radius_with_gravity))
+    for line in design.infeasible:
+        print(f"infeasible spec: {line}")
+    doc = design.as_dict()
+    if args.out:
+        out = Path(args.out)
+        out.parent.mkdir(parents=True, exist_ok=True)
+        files = {out: json.dumps(doc, indent=2) + "\n"}
+        files |= {_suffixed(out, a): json.dumps(d, indent=2) + "\n" for a, d in doc["joints"].items()}
+        atomic_write_texts(files)
+        print("\n".join(str(p) for p in files))
+    plots = args.plots
+    if plots:
+        from ident.tuning_plots import write_loop_figure
+
+        for name, result, plants in zip(tm.ACTUATORS, design.results, design.plants):
+            print(write_loop_figure(Path(plots) / f"tuning_manipulator_{name}.png", result.parameters, plants,
+                                    args.delay, labels, f"CheungManipulator actuator {name} (FMU linearised, "
+                                    f"{'rigid' if flexible is None else 'times eq. (8) H(s)'})", spec,
+                                    result.margins))
+    stable = max(design.radius_without_gravity + design.radius_with_gravity) < 1
+    if args.fmu_out and not design.infeasible and stable:
+        for name, result in zip(tm.ACTUATORS, design.results):
+            print(_write_controller_fmu(args, result.parameters, {"method": doc["method"], "actuator": name,
+                                                                   "poses": doc["poses"], "spec": asdict(spec),
+                                                                   "margins": doc["joints"][name]["margins"]},
+                                        _suffixed(Path(args.fmu_out), name)))
+    return 0 if not design.infeasible and stable else 2
+
+
+def cli_tune(args) -> int:
+    """Handler of ``motiontwin tune`` (arguments: see the report / harness.cli). Exit code 2 if infeasible.
+
+    Options added after the first parser (read with defaults): ``--manipulator`` with ``--poses N`` and
+    ``--rigid`` (per-actuator design on the CheungManipulator FMU), ``--plots DIR`` (Bode/Nyquist/sensitivity
+    PNG per joint), ``--no-feedforward`` and ``--no-jerk`` (keep Kv, Ka, Kj at the FMU defaults / Kj = 0)."""
+    import json
+
+    from fmus import build
     from harness.recording import atomic_write_texts
 
+    spec = TuningSpec(args.gm, args.pm_min, args.pm_max, args.ms, args.s_below_bw, args.bw_min)
+    if args.manipulator:
+        return _cli_manipulator(args, spec)
     if args.plant_fmu:  # each --plant gives start values of the FMU, linearised from its directional derivatives
         from harness.linearize import linearize
 
@@ -644,10 +853,8 @@ def cli_tune(args) -> int:
         plants = [parse_plant(t, defaults, f"--plant #{k + 1}") for k, t in enumerate(args.plant or [""])]
         if len(plants) == 1 and (args.gain_spread or args.resonance_spread):
             plants = position_sets(plants[0], args.gain_spread, args.resonance_spread)
-    spec = TuningSpec(args.gm, args.pm_min, args.pm_max, args.ms, args.s_below_bw, args.bw_min)
     try:
-        result = tune(plants, args.ts, spec, args.delay, args.tau, args.seed, args.popsize, args.maxiter,
-                      args.refine, progress=True)
+        result = tune(plants, args.ts, spec, args.delay, **_tune_options(args))
         feasible = True
     except InfeasibleSpecError as err:
         print(f"infeasible spec: {err}")
@@ -655,27 +862,25 @@ def cli_tune(args) -> int:
     print(format_margins(result, plants))
     print("parameters: " + ", ".join(f"{k}={v:.6g}" for k, v in result.parameters.items()))
     if args.compare_table2:
-        print(format_comparison(table2_comparison(plants[len(plants) // 2], args.ts, args.delay, result)))
+        rows = table2_comparison(plants[len(plants) // 2], args.ts, args.delay, result)
+        print(format_comparison(rows))
+        print(comparison_markdown(rows))
     doc = result.as_dict() | {"plants": [asdict(p) if isinstance(p, JointModel) else str(p) for p in plants]}
     if args.out:
         Path(args.out).parent.mkdir(parents=True, exist_ok=True)
         atomic_write_texts({Path(args.out): json.dumps(doc, indent=2) + "\n"})
         print(args.out)
+    plots = args.plots
+    if plots:
+        from ident.tuning_plots import write_loop_figure
+
+        labels = [f"set {k}: K={p.gain:.3g}" if isinstance(p, JointModel) else f"set {k}"
+                  for k, p in enumerate(plants)]
+        print(write_loop_figure(Path(plots) / "tuning_joint.png", result.parameters, plants, args.delay, labels,
+                                "CheungJoint (eqs. 6-8) at the actuator-position sets", spec, result.margins))
     if args.fmu_out and feasible:
-        import tempfile
-
-        import fmpy
-
-        values = {k: v for k, v in result.parameters.items() if k != "Ts"}  # Ts is fixed by the FMU's build
-        with tempfile.TemporaryDirectory(prefix="motiontwin-tune-") as tmp:
-            source = args.fmu or build.build_fmu(build.load_model(CONTROLLER_CLASS), tmp, args.fmi).path
-            fmu_ts = next(float(v.start) for v in fmpy.read_model_description(str(source)).modelVariables
-                          if v.name == "Ts")
-            if not math.isclose(fmu_ts, args.ts, rel_tol=1e-12):
-                raise TuningError(f"{source}: the controller FMU samples at Ts = {fmu_ts} s but the design used "
-                                  f"--ts {args.ts} s; rebuild the controller with that period")
-            out = writeback.write_back(source, values, args.fmu_out,
-                                       {"method": doc["method"], "spec": doc["spec"], "plants": doc["plants"],
-                                        "margins": doc["margins"]})
+        out = _write_controller_fmu(args, result.parameters, {"method": doc["method"], "spec": doc["spec"],
+                                                              "plants": doc["plants"], "margins": doc["margins"]},
+                                    args.fmu_out)
         print(out)
     return 0 if feasible else 2

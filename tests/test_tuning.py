@@ -163,7 +163,8 @@ def test_bad_plant_is_rejected_with_field(plant: JointModel, field: str) -> None
 
 
 def test_unstable_lti_plant_is_rejected() -> None:
-    with pytest.raises(tuning.TuningError, match="plant set 0: open-loop unstable poles"):
+    """s^2 - 3 s: the message names the set and the unstable pole at +3 rad/s."""
+    with pytest.raises(tuning.TuningError, match=r"plant set 0: open-loop unstable poles \[\(3(\.0)?\+0j\)\] rad/s"):
         tuning.tune([control.tf([1.0], [1.0, -3.0, 0.0])], TS, SPEC, popsize=2, maxiter=1, progress=False)
 
 
@@ -226,3 +227,38 @@ def test_plant_from_linearised_fmu_gives_same_margins(tmp_path) -> None:
     assert from_fmu.gm_db == pytest.approx(from_tf.gm_db, abs=1e-3)
     assert from_fmu.pm_deg == pytest.approx(from_tf.pm_deg, abs=1e-3)
     assert from_fmu.bandwidth_hz == pytest.approx(from_tf.bandwidth_hz, rel=1e-4)
+
+
+def test_infeasible_upper_and_lower_bounds_say_over_or_short_by_how_much() -> None:
+    """Ms <= 1.05 with CLBW >= 150 Hz on the 390 Hz resonance: every missed constraint is named with the worst
+    value over the sets (recomputed here from the attached design's margins) and 'over by' / 'short by' it."""
+    spec = tuning.TuningSpec(ms_max=1.05, bandwidth_min_hz=150.0)
+    plants = tuning.position_sets(NOMINAL)
+    with pytest.raises(tuning.InfeasibleSpecError) as info:
+        tuning.tune(plants, TS, spec, popsize=4, maxiter=4, refine=1, refine_evaluations=50, progress=False,
+                    points=400)
+    err = info.value
+    assert err.violations
+    margins = [tuning.loop_margins(err.result.parameters, p) for p in plants]
+    worst = {"Ms": max(m.ms for m in margins), "CLBW": min(m.bandwidth_hz for m in margins)}
+    for name, value, limit, unit in err.violations:
+        side = "over" if value > limit else "short"
+        u = f" {unit}" if unit else ""
+        assert f"{name} infeasible: best design reaches {value:.3g}{u} ({side} by {abs(limit - value):.3g}{u})" \
+            in str(err)
+        key = next((k for k in worst if name.startswith(k)), None)
+        if key:
+            assert value == pytest.approx(worst[key], rel=1e-3)
+    assert any(v[0].startswith("Ms") and "over by" in str(err) for v in err.violations)
+
+
+def test_tuned_document_keeps_old_fields_and_adds_feedforward(tuned: tuning.TuningResult) -> None:
+    """--out JSON stays backward compatible; Kv, Ka, Kj are the least-squares inverse of the sampled path."""
+    doc = tuned.as_dict()
+    assert {"method", "parameters", "spec", "sample_period", "delay_samples", "margins", "violations"} <= set(doc)
+    fit = tuning.feedforward_gains(tuned.parameters, tuning.position_sets(NOMINAL), 1, tuple(doc["feedforward"]
+                                                                                               ["band_hz"]))
+    assert {k: doc["parameters"][k] for k in ("Kv", "Ka", "Kj")} == pytest.approx(fit.gains(), rel=1e-9)
+    # the inverse of K/(s(s + alpha)) through the lag's DC gain, to within the +-30 % spread of K over the sets
+    g_l = tuned.parameters["KL"] * tuned.parameters["fc"] / tuned.parameters["fp"]
+    assert doc["parameters"]["Ka"] * g_l * NOMINAL.gain == pytest.approx(1.0, rel=0.3)
