@@ -39,9 +39,14 @@ How a run works
   multiples of the base step or of an FMU's Ts raise before anything runs; an FMU call that
   fails raises :class:`FMUCallError` with the FMU, the call, the time and the messages the FMU
   passed to the logger callback (kept per instance).
-* Speed: value references are ctypes arrays built once; fmpy's low-level ``fmi2GetReal`` /
+* Speed: value references are ctypes arrays built once; the FMUs' ``fmi2GetReal`` /
   ``fmi3GetFloat64`` write straight into one preallocated float64 buffer that inputs, outputs,
-  external signals and the logs are numpy views of.
+  external signals and the logs are numpy views of. The ticks run in a compiled loop
+  (``native_loop.c``, built with the C compiler ``$CC``/gcc on first use and cached by source hash,
+  see :mod:`harness.native`) that calls the FMUs' functions directly and returns to Python between
+  chunks of ticks (progress bar) or at the first failing call. Without a C compiler, or with
+  ``native=False``, the same plan runs in Python through fmpy's ctypes functions; both give
+  bit-identical logs (sums are added in source order, without fused multiply-add).
 """
 
 from __future__ import annotations
@@ -58,6 +63,7 @@ from fmpy.fmi1 import FMICallException
 from fmpy.fmi3 import fmi3Boolean, fmi3Float64
 from tqdm import tqdm
 
+from . import native
 from .fmu_instance import REAL_TYPES, FMUCallError, FMUInstance, PortError
 from .system import INPUT_NAMESPACE, System, load_system, split_port
 from .units import units_compatible, variable_unit
@@ -109,18 +115,55 @@ class _Slot:
     after_step: bool
 
 
+class _Gather:
+    """How an FMU's inputs are formed from the flat value buffer: input ``i`` is the sum over its
+    sources ``j`` (``port_start[i] <= j < port_start[i + 1]``) of ``gains[j] * values[slots[j]]``,
+    added in source order. The compiled loop does the same operations in the same order, so both
+    give bit-identical results."""
+
+    def __init__(self, port_start: np.ndarray, slots: np.ndarray, gains: np.ndarray):
+        self.port_start, self.slots, self.gains = port_start, slots, gains
+        counts = np.diff(port_start)
+        self.plain = bool(np.all(counts == 1) and np.all(gains == 1.0))  # every input a copy of one source
+        # pass p adds the p-th source of every input having more than p sources
+        self.passes = []
+        for p in range(int(counts.max()) if counts.size else 0):
+            rows = np.flatnonzero(counts > p)
+            j = port_start[rows] + p
+            self.passes.append((rows, slots[j], gains[j]))
+
+    def into(self, values: np.ndarray, lo: int, hi: int) -> None:
+        """Write the FMU's inputs into ``values[lo:hi]``."""
+        if hi == lo:
+            return
+        if self.plain:
+            values[lo:hi] = values[self.slots]
+            return
+        rows, slots, gains = self.passes[0]
+        values[lo:hi] = gains * values[slots]
+        for rows, slots, gains in self.passes[1:]:
+            values[lo + rows] = values[lo + rows] + gains * values[slots]
+
+
 class Master:
     """Runs a :class:`~harness.system.System` repeatedly; FMUs are instantiated once.
 
     >>> master = Master(load_system("loop.toml"))
     >>> logs = master.run(inputs={"r": r_on_base_grid}, stop_time=0.5)
     >>> logs["log"]["plant.x"]
+
+    ``native=False`` runs the ticks in Python instead of the compiled loop (same results, slower);
+    ``profile=True`` makes the compiled loop measure the wall time (s) inside each FMU's doStep,
+    available after a run as ``step_seconds[name]``.
     """
 
     def __init__(self, system: System | str | Path, progress: bool | None = None, reuse_state: bool = True,
-                 debug_logging: bool = False):
+                 debug_logging: bool = False, native: bool = True, profile: bool = False):
         self.system = system if isinstance(system, System) else load_system(system)
         self.progress = progress
+        self.native = native
+        self.profile = profile
+        self.step_seconds: dict[str, float] = {}
         self.reuse_state = reuse_state
         self.debug_logging = debug_logging
         sys_ = self.system
@@ -267,25 +310,20 @@ class Master:
         self._reads = reads
         self._targets = targets
 
-        # gather plan per FMU: input slots <- sum of gain * source slots
-        self._gather: dict[str, tuple[np.ndarray, np.ndarray | None]] = {}
+        # gather plan per FMU: input i <- sum over its sources j (in order) of gain_j * value[slot_j]
+        self._gather: dict[str, _Gather] = {}
         for n in names:
-            ports = self._input_ports[n]
-            src_slots: list[int] = []
-            for port in ports:
-                for (inst, var), _ in targets[port]:
+            port_start, source_slots, source_gains = [0], [], []
+            for port in self._input_ports[n]:
+                merged: dict[int, float] = {}
+                for (inst, var), gain in targets[port]:
                     s = slot[f"{inst}.{var}"]
-                    if s not in src_slots:
-                        src_slots.append(s)
-            if all(len(targets[p]) == 1 and targets[p][0][1] == 1.0 for p in ports):
-                idx = np.array([slot["{}.{}".format(*targets[p][0][0])] for p in ports], dtype=np.intp)
-                self._gather[n] = (idx, None)
-            else:
-                gains = np.zeros((len(ports), len(src_slots)))
-                for i, port in enumerate(ports):
-                    for (inst, var), gain in targets[port]:
-                        gains[i, src_slots.index(slot[f"{inst}.{var}"])] += gain
-                self._gather[n] = (np.array(src_slots, dtype=np.intp), gains)
+                    merged[s] = merged.get(s, 0.0) + gain
+                source_slots += merged
+                source_gains += merged.values()
+                port_start.append(len(source_slots))
+            self._gather[n] = _Gather(np.array(port_start, dtype=np.intp), np.array(source_slots, dtype=np.intp),
+                                      np.array(source_gains, dtype=float))
 
         # log plan
         self._logs = []
@@ -310,6 +348,7 @@ class Master:
     def _fast_paths(self) -> None:
         """Bind the low-level fmpy calls with ctypes pointers into the flat buffer, once."""
         self._bound: dict[str, tuple[Callable, Callable, Callable]] = {}
+        self._native_fmus: dict[str, dict[str, Any]] = {}
         double_p = ctypes.POINTER(ctypes.c_double)
         for n, fmu in self.instances.items():
             s = fmu.slave
@@ -326,6 +365,16 @@ class Master:
             ivr = (ctypes.c_uint * max(len(in_vrs), 1))(*in_vrs)
             rptr, iptr = pointer(rlo), pointer(ilo)
             nr, ni, nrv, niv = len(read_vrs), len(in_vrs), rhi - rlo, ihi - ilo
+            prefix, names = ("fmi3", ("GetFloat64", "SetFloat64", "DoStep")) if fmu.fmi3 else \
+                ("fmi2", ("GetReal", "SetReal", "DoStep"))
+            gather = self._gather[n]
+            self._native_fmus[n] = {
+                "fmi3": fmu.fmi3, "component": comp,
+                **{key: native.function_address(s, prefix + f) for key, f in zip(("get", "set", "step"), names)},
+                "read_vrs": read_vrs, "read_values": rptr, "n_read_values": nrv,
+                "input_vrs": in_vrs, "input_values": iptr, "port_start": gather.port_start,
+                "source_slots": gather.slots, "source_gains": None if gather.plain else gather.gains,
+            }
             if fmu.fmi3:
                 get_f, set_f, step_f = s.fmi3GetFloat64, s.fmi3SetFloat64, s.fmi3DoStep
                 flags = [fmi3Boolean() for _ in range(3)]
@@ -469,10 +518,7 @@ class Master:
             get()
 
     def _gather_inputs(self, n: str) -> None:
-        idx, gains = self._gather[n]
-        lo, hi = self._input_ranges[n]
-        if hi > lo:
-            self.values[lo:hi] = self.values[idx] if gains is None else gains @ self.values[idx]
+        self._gather[n].into(self.values, *self._input_ranges[n])
 
     def run(self, inputs: Mapping[str, Any] | None = None, parameters: Mapping[str, Any] | None = None,
             stop_time: float | None = None, progress: bool | None = None) -> dict[str, np.ndarray]:
@@ -525,55 +571,98 @@ class Master:
 
     def _loop(self, n_steps: int, ext: np.ndarray, logs: list, base: float, t0: float,
               multiples: Mapping[str, int], progress: bool | None) -> None:
+        show = self.progress if progress is None else progress
+        bar = tqdm(total=n_steps, unit="step", delay=3.0, disable=(show is False), leave=False,
+                   desc="co-simulation")
+        chunk = max(1000, n_steps // 100)
+        run_ticks = self._native_ticks if self.uses_native else self._python_ticks
+        try:
+            ticks = run_ticks(n_steps, ext, logs, base, t0, multiples)
+            for k_start in range(0, n_steps, chunk):
+                k_end = min(k_start + chunk, n_steps)
+                ticks(k_start, k_end)
+                bar.update(k_end - k_start)
+            # final point: inputs as they would be set at t_N, no step
+            elo, ehi = self._ext_range
+            self.values[elo:ehi] = ext[n_steps]
+            self._time = t0 + n_steps * base
+            for n in self.order:
+                self._gather_inputs(n)
+            for m, data, pre, post, pre_cols, post_cols in logs:
+                if n_steps % m == 0:
+                    data[n_steps // m, pre_cols] = self.values[pre]
+                    data[n_steps // m, post_cols] = self.values[post]
+        finally:
+            bar.close()
+
+    @property
+    def uses_native(self) -> bool:
+        """True when runs use the compiled inner loop (``native=True`` and a C compiler is available)."""
+        return self.native and native.library() is not None
+
+    def _native_ticks(self, n_steps: int, ext: np.ndarray, logs: list, base: float, t0: float,
+                      multiples: Mapping[str, int]) -> Callable[[int, int], None]:
+        """Ticks k_start..k_end-1 in C (native_loop.c): the plan of :meth:`_python_ticks`."""
+        plan = native.NativePlan([dict(self._native_fmus[n], m=multiples[n]) for n in self.order], logs,
+                                 self.profile)
+        external = np.ascontiguousarray(ext, dtype=np.float64)
+        elo = self._ext_range[0]
+
+        def ticks(k_start: int, k_end: int) -> None:
+            failure = plan.run_ticks(self._cbuffer, external, elo, k_start, k_end, n_steps, t0, base)
+            if self.profile:
+                self.step_seconds = dict(zip(self.order, plan.step_seconds()))
+            if failure is None:
+                return
+            name = self.order[failure.fmu]
+            self._current = (name, "")
+            self._time = t0 + failure.tick * base
+            call = native.CALLS[failure.call]
+            if call == "terminate":
+                raise FMUCallError(name, "fmi3DoStep (terminateSimulation requested)", 0, self._time,
+                                   list(self.instances[name].messages))
+            fmi3 = self.instances[name].fmi3
+            function = {"get": "GetFloat64" if fmi3 else "GetReal", "set": "SetFloat64" if fmi3 else "SetReal",
+                        "step": "DoStep"}[call]
+            raise FMICallException(function=("fmi3" if fmi3 else "fmi2") + function, status=failure.status)
+
+        return ticks
+
+    def _python_ticks(self, n_steps: int, ext: np.ndarray, logs: list, base: float, t0: float,
+                      multiples: Mapping[str, int]) -> Callable[[int, int], None]:
+        """Ticks k_start..k_end-1 through fmpy's ctypes functions (the reference for the C loop)."""
         values = self.values
         elo, ehi = self._ext_range
         has_ext = ehi > elo
         plan = []
         for n in self.order:
             get, put, step = self._bound[n]
-            idx, gains = self._gather[n]
             lo, hi = self._input_ranges[n]
-            plan.append((n, multiples[n], get, put, step, idx, gains, lo, hi, hi > lo))
-        show = self.progress if progress is None else progress
-        bar = tqdm(total=n_steps, unit="step", delay=3.0, disable=(show is False), leave=False,
-                   desc="co-simulation")
-        chunk = max(1000, n_steps // 100)
-        try:
-            for k_start in range(0, n_steps, chunk):
-                k_end = min(k_start + chunk, n_steps)
-                for k in range(k_start, k_end):
-                    if has_ext:
-                        values[elo:ehi] = ext[k]
-                    for m, data, pre, post, pre_cols, post_cols in logs:
-                        if k % m == 0 and len(pre):
-                            data[k // m, pre_cols] = values[pre]
-                    t = t0 + k * base
-                    self._time = t
-                    for n, m, get, put, step, idx, gains, lo, hi, has_in in plan:
-                        if k % m:
-                            continue
-                        self._current = (n, "")
-                        if has_in:
-                            values[lo:hi] = values[idx] if gains is None else gains @ values[idx]
-                            put()
-                        step(t, (m if k + m <= n_steps else n_steps - k) * base)
-                        get()
-                    for m, data, pre, post, pre_cols, post_cols in logs:
-                        if k % m == 0 and len(post):
-                            data[k // m, post_cols] = values[post]
-                bar.update(k_end - k_start)
-            # final point: inputs as they would be set at t_N, no step
-            if has_ext:
-                values[elo:ehi] = ext[n_steps]
-            self._time = t0 + n_steps * base
-            for n in self.order:
-                self._gather_inputs(n)
-            for m, data, pre, post, pre_cols, post_cols in logs:
-                if n_steps % m == 0:
-                    data[n_steps // m, pre_cols] = values[pre]
-                    data[n_steps // m, post_cols] = values[post]
-        finally:
-            bar.close()
+            plan.append((n, multiples[n], get, put, step, self._gather[n].into, lo, hi, hi > lo))
+
+        def ticks(k_start: int, k_end: int) -> None:
+            for k in range(k_start, k_end):
+                if has_ext:
+                    values[elo:ehi] = ext[k]
+                for m, data, pre, post, pre_cols, post_cols in logs:
+                    if k % m == 0 and len(pre):
+                        data[k // m, pre_cols] = values[pre]
+                t = t0 + k * base
+                self._time = t
+                for n, m, get, put, step, gather, lo, hi, has_in in plan:
+                    if k % m:
+                        continue
+                    self._current = (n, "")
+                    if has_in:
+                        gather(values, lo, hi)
+                        put()
+                    step(t, (m if k + m <= n_steps else n_steps - k) * base)
+                    get()
+                for m, data, pre, post, pre_cols, post_cols in logs:
+                    if k % m == 0 and len(post):
+                        data[k // m, post_cols] = values[post]
+
+        return ticks
 
     def _reinstantiate(self, name: str) -> None:
         """After a fatal error only freeInstance is allowed: free and make a fresh instance."""

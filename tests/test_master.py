@@ -345,3 +345,114 @@ def test_project_fmus_closed_loop_matches_tustin_and_zoh_reference(
     np.testing.assert_array_equal(first["plant.u"], first["pi.y"] + u_ext)
     np.testing.assert_array_equal(first, second)
     np.testing.assert_array_equal(first, by_reset)
+
+
+# -- compiled inner loop (harness/native_loop.c) against the Python loop ---------------------------
+
+
+def run_both(path: Path | dict, **run_kwargs) -> tuple[dict, dict]:
+    """Logs of the same runs through the compiled loop and through the Python (fmpy ctypes) loop."""
+    system = system_from_dict(path) if isinstance(path, dict) else path
+    with Master(system, native=True) as compiled, Master(system, native=False) as python:
+        assert compiled.uses_native and not python.uses_native
+        return compiled.run(**run_kwargs), python.run(**run_kwargs)
+
+
+def assert_bit_identical(a: dict, b: dict) -> None:
+    assert a.keys() == b.keys()
+    for name in a:
+        assert a[name].dtype == b[name].dtype
+        for column in a[name].dtype.names:  # byte equality: also NaN payloads and the sign of zeros
+            assert a[name][column].tobytes() == b[name][column].tobytes(), (name, column)
+
+
+@pytest.mark.parametrize("pi_version, plant_version", [("3.0", "2.0"), ("2.0", "3.0"), ("3.0", "3.0")])
+def test_compiled_loop_bit_identical_on_project_pi_loops(built_fmus: dict, tmp_path: Path,
+                                                         pi_version: str, plant_version: str) -> None:
+    text = PI_LOOP.format(pi=built_fmus["SampledPI", pi_version], plant=built_fmus["LinearMotorJoint", plant_version])
+    u_ext = np.where(np.arange(3001) >= 1500, 5.0, 0.0)
+    compiled, python = run_both(write(tmp_path, text), inputs={"r": 1e-3, "u_ext": u_ext})
+    assert_bit_identical(compiled, python)
+    np.testing.assert_allclose(compiled["log"]["plant.q"], pi_loop_reference(1e-3, u_ext)[0], rtol=0, atol=1e-12)
+
+
+def test_compiled_loop_bit_identical_multirate_gains_and_short_last_step(built_fmus: dict, tmp_path: Path) -> None:
+    # base 50 us; PI at Ts = 1 ms (20 base steps), plant at Ts/4 (5 base steps); the run ends one base step
+    # after a plant step, so both FMUs shorten their last step; the sum junctions have non-trivial gains
+    text = PI_LOOP.format(pi=built_fmus["SampledPI", "2.0"], plant=built_fmus["LinearMotorJoint", "3.0"])
+    text = (text.replace("base_step = 1e-4", "base_step = 5e-5").replace("stop_time = 0.3", "stop_time = 0.30005")
+            .replace('path = "{}"\n[inputs.r]'.format(built_fmus["LinearMotorJoint", "3.0"]),
+                     'path = "{}"\nstep = 2.5e-4\n[inputs.r]'.format(built_fmus["LinearMotorJoint", "3.0"]))
+            .replace('from = ["pi.y", "input.u_ext"]', 'from = ["pi.y", "input.u_ext"]\ngains = [0.7, -1.3]')
+            .replace('signals = ["plant.q", "pi.y", "plant.u"]', 'signals = ["plant.q", "pi.y", "plant.u", "input.u_ext"]'))
+    text += '[[log]]\nname = "slow"\nstep = 1.5e-4\nsignals = ["plant.q", "pi.e"]\n'
+    rng = np.random.default_rng(3)
+    u_ext = rng.normal(size=6002) * 3.0
+    with Master(write(tmp_path, text)) as m:
+        assert m.multiples == {"pi": 20, "plant": 5} and m.grid_size() == 6001
+    compiled, python = run_both(write(tmp_path, text), inputs={"r": 1e-3, "u_ext": u_ext})
+    assert_bit_identical(compiled, python)
+    log = compiled["log"]
+    # u = 0.7 y + (-1.3) u_ext, summed in that order at the plant's steps and held over them
+    held = (np.arange(6002) // 5) * 5
+    u = 0.7 * log["pi.y"][held] + -1.3 * log["input.u_ext"][held]
+    np.testing.assert_array_equal(log["plant.u"][:-1], u[:-1])
+    assert log["plant.q"][-1] != log["plant.q"][-2]  # the shortened last step was taken
+    np.testing.assert_array_equal(compiled["slow"]["plant.q"], log["plant.q"][::3])
+
+
+def test_compiled_loop_bit_identical_on_fmi3_and_third_party_fmus(gemseo_fmus: Path, tmp_path: Path) -> None:
+    compiled, python = run_both(write(tmp_path, F3.format(fmus=gemseo_fmus)),
+                                inputs={"a": 2.0, "u_ext": np.arange(11) * 10.0})
+    assert_bit_identical(compiled, python)
+    np.testing.assert_array_equal(compiled["log"]["f3.output"], 5.0 + np.arange(11))
+    compiled, python = run_both(write(tmp_path, P_LOOP.format(fmus=gemseo_fmus)),
+                                inputs={"r": -0.4, "u_ext": (np.array([0.0, 0.05]), np.array([0.0, 50.0]))})
+    assert_bit_identical(compiled, python)
+    assert np.abs(compiled["slow"]["plant.y"] - sampled_loop_reference(delay=False)).max() < 5e-3
+
+
+def test_compiled_loop_reports_failing_fmu_like_python_loop(built_fmus: dict, tmp_path: Path) -> None:
+    # a destabilising gain: the PI output overflows to inf at its second sample (t = 1 ms), which the
+    # project runtime refuses in fmi2DoStep with an error message
+    text = PI_LOOP.format(pi=built_fmus["SampledPI", "2.0"], plant=built_fmus["LinearMotorJoint", "2.0"])
+    text = text.replace("Kp = 2000.0", "Kp = 1e300")
+    errors = []
+    for native_loop in (True, False):
+        with Master(write(tmp_path, text), native=native_loop) as m:
+            with pytest.raises(FMUCallError) as info:
+                m.run(inputs={"r": 1e-3})
+            errors.append(info.value)
+            again = m.run(inputs={"r": 1e-3}, parameters={"pi.Kp": 2000.0})["log"]  # the instance is usable
+            np.testing.assert_allclose(again["plant.q"], pi_loop_reference(1e-3, np.zeros(3001))[0], atol=1e-12)
+    compiled, python = errors
+    assert (compiled.instance, compiled.function, compiled.status, compiled.time) == ("pi", "fmi2DoStep", 3, 1e-3)
+    assert any("not finite" in message for message in compiled.messages)
+    assert str(compiled) == str(python)
+    assert "FMU 'pi': fmi2DoStep returned ERROR at t = 0.001 s" in str(compiled)
+
+
+def test_without_c_compiler_the_python_loop_runs(built_fmus: dict, tmp_path: Path, monkeypatch) -> None:
+    from harness import native
+
+    monkeypatch.setenv("CC", "no-such-compiler-motiontwin")
+    monkeypatch.setattr(native, "_LIBRARY", [])
+    text = PI_LOOP.format(pi=built_fmus["SampledPI", "2.0"], plant=built_fmus["LinearMotorJoint", "2.0"])
+    with Master(write(tmp_path, text)) as m:
+        assert not m.uses_native
+        log = m.run(inputs={"r": 1e-3})["log"]
+    np.testing.assert_allclose(log["plant.q"], pi_loop_reference(1e-3, np.zeros(3001))[0], rtol=0, atol=1e-12)
+
+
+def test_profile_measures_time_inside_do_step(built_fmus: dict, tmp_path: Path) -> None:
+    import time
+
+    text = PI_LOOP.format(pi=built_fmus["SampledPI", "3.0"], plant=built_fmus["LinearMotorJoint", "2.0"])
+    with Master(write(tmp_path, text), profile=True) as m, Master(write(tmp_path, text)) as plain:
+        started = time.perf_counter()
+        log = m.run(inputs={"r": 1e-3})["log"]
+        wall = time.perf_counter() - started
+        assert_bit_identical({"log": log}, {"log": plain.run(inputs={"r": 1e-3})["log"]})
+    assert set(m.step_seconds) == {"pi", "plant"}
+    assert 0.0 < m.step_seconds["pi"] and 0.0 < m.step_seconds["plant"]
+    assert sum(m.step_seconds.values()) < wall
