@@ -126,6 +126,40 @@ def test_cosimulation_of_a_nine_state_closed_loop_matches_cvode(tmp_path):
         assert np.max(np.abs(cs[name] - me[name])) <= 1e-6 * np.max(np.abs(me[name])), name
 
 
+def test_hot_path_functions_match_finite_differences_and_the_sample_function():
+    """fmus.codegen.runtime_functions: ode_jac = (ode, central differences of ode in x) on the coupled
+    4-DOF plant; sample_matrix S(p) reproduces sample(z, u, p) on random z, u; dfdt dropped (autonomous)."""
+    from fmus import codegen
+    from tests.conftest import TEST_MODELS
+
+    model = build.load_model("MotionTwin.Plants.CheungManipulator")
+    plant = codegen.runtime_functions(model.functions())
+    assert "dfdt" not in plant
+    rng = np.random.default_rng(11)
+    ode, ode_jac = plant["ode"], plant["ode_jac"]
+    nx, nu = ode.size1_in(1), ode.size1_in(2)
+    start = np.array(model.parameter_values())
+    x = np.array(plant["x0"](start)).ravel() + np.r_[np.zeros(nx // 2), rng.normal(scale=0.05, size=nx - nx // 2)]
+    u = rng.normal(scale=0.1, size=nu)
+    dx, jac = (np.array(v) for v in ode_jac(0.0, x, u, start))
+    assert np.allclose(dx.ravel(), np.array(ode(0.0, x, u, start)).ravel(), rtol=1e-14, atol=1e-14)
+    step = 1e-6
+    fd = np.column_stack([(np.array(ode(0.0, x + step * e, u, start)) - np.array(ode(0.0, x - step * e, u, start)))
+                          .ravel() / (2 * step) for e in np.eye(nx)])
+    assert np.allclose(jac, fd, rtol=1e-6, atol=1e-6 * np.max(np.abs(fd)))
+
+    name, source = TEST_MODELS["SampledPI"]
+    sampled = codegen.runtime_functions(build.load_model(name, source).functions())
+    sample, matrix = sampled["sample"], sampled["sample_matrix"]
+    nz, nu = sample.size1_in(0), sample.size1_in(1)
+    pars = rng.uniform(0.5, 2.0, size=sample.size1_in(2))
+    S = np.array(matrix(pars))
+    for _ in range(3):
+        z, e = rng.normal(size=nz), rng.normal(size=nu)
+        expected = np.concatenate([np.array(v).ravel() for v in sample(z, e, pars)])
+        assert np.allclose(S @ np.r_[z, e], expected, rtol=1e-12, atol=1e-12 * np.max(np.abs(expected)))
+
+
 # ---------------------------------------------------------------------------------------------
 # Sampled part
 
@@ -168,6 +202,56 @@ def test_sampled_part_semantics_in_cosimulation(built_fmus, opened, version, ste
         got.append(fu.get(ld, "y")[0])
         expected.append(held[int(math.ceil((i + 1) * h / ts - 1e-9)) - 1])  # last sample strictly before t+h
     assert np.allclose(got, expected, rtol=1e-10, atol=1e-12 * np.max(np.abs(expected)))
+
+
+def _sampled_pi_run(ld: fu.Loaded, inputs: np.ndarray, ts: float) -> np.ndarray:
+    """Held output after each of len(inputs) steps of one sample period, the input set before each step."""
+    out = []
+    for i, e in enumerate(inputs):
+        fu.set_(ld, {"e": e})
+        fu.step(ld, i * ts, ts)
+        out.append(fu.get(ld, "y")[0])
+    return np.array(out)
+
+
+def _sampled_pi_expected(inputs: np.ndarray, kp: float, ki: float, kd: float, tau: float, ts: float) -> np.ndarray:
+    """Output held after each one-period step from z = 0 with e = 0 at t0 (see _sampled_pi_run)."""
+    Ad, Bd, Cd, Dd = _sampled_pi_reference(kp, ki, kd, tau, ts)
+    z = Bd[:, 0] * 0.0
+    out = []
+    for e in inputs:
+        y = (Cd @ z + Dd[:, 0] * e)[0]
+        z = Ad @ z + Bd[:, 0] * e
+        out.append(y)
+    return np.array(out)
+
+
+@pytest.mark.parametrize("version", VERSIONS)
+def test_sampled_part_follows_parameter_changes_after_reset_and_state_restore(built_fmus, opened, version):
+    """The runtime evaluates the sample matrix S(p) once and reuses it: a new gain after reset, and the old
+    gain again after restoring an FMU state taken before, must both reach the output (scipy Tustin reference)."""
+    ld = _open(opened, built_fmus["SampledPI", version])
+    f, v2 = ld.fmu, version == "2.0"
+    kp, ki, kd, tau, ts = fu.get(ld, "Kp", "Ki", "Kd", "tau", "Ts")
+    inputs = np.random.default_rng(3).normal(size=12)
+    _enter_init(ld)
+    f.exitInitializationMode()
+    saved = f.getFMUstate() if v2 else f.getFMUState()  # at t0 with the default gains
+    default = _sampled_pi_run(ld, inputs, ts)
+    f.reset()
+    _enter_init(ld)
+    fu.set_(ld, {"Kp": 3.0 * kp, "Ki": 0.5 * ki})
+    f.exitInitializationMode()
+    changed = _sampled_pi_run(ld, inputs, ts)
+    f.setFMUstate(saved) if v2 else f.setFMUState(saved)
+    restored = _sampled_pi_run(ld, inputs, ts)
+    (f.freeFMUstate if v2 else f.freeFMUState)(saved)
+    scale = np.max(np.abs(default))
+    assert np.allclose(default, _sampled_pi_expected(inputs, kp, ki, kd, tau, ts), rtol=1e-10, atol=1e-12 * scale)
+    assert np.allclose(changed, _sampled_pi_expected(inputs, 3.0 * kp, 0.5 * ki, kd, tau, ts), rtol=1e-10,
+                       atol=1e-12 * scale)
+    assert np.allclose(restored, default, rtol=1e-12, atol=0.0)
+    assert np.max(np.abs(changed - default)) > 0.1 * scale
 
 
 @pytest.mark.parametrize("version", VERSIONS)

@@ -51,10 +51,15 @@ typedef struct {
     mt_function out;   /* (t, x, u, p) -> y[ny] */
     mt_function jac;   /* (t, x, u, p) -> J[(nx+ny) x (nx+nu)], dense, column-major:
                           d[dx; y] / d[x; u], for directional derivatives and the implicit solver */
-    mt_function dfdt;  /* (t, x, u, p) -> d(dx)/dt [nx], explicit time derivative (zero for autonomous models) */
+    mt_function dfdt;  /* (t, x, u, p) -> d(dx)/dt [nx], explicit time derivative; eval == 0 when dx does
+                          not depend on t (zero) */
+    mt_function ode_jac; /* (t, x, u, p) -> (dx[nx], d(dx)/dx [nx x nx] dense, column-major): what the solver
+                            needs at each accepted point, in one evaluation; eval == 0: use ode and jac */
 
     /* Sampled part; eval == 0 when nz + nyd == 0. */
     mt_function sample; /* (z, u, p) -> (z_next[nz], yd[nyd]) */
+    mt_function sample_matrix; /* (p) -> S [(nz+nyd) x (nz+nu)] dense, column-major, with [z_next; yd] = S [z; u]
+                                  when the sampled part is linear in z and u; eval == 0 otherwise */
 } mt_model;
 
 extern const mt_model MT_MODEL;

@@ -190,6 +190,20 @@ static int solver_jac(void *ctx, double t, const double *x, double *J, double *d
     return call(inst, &m->dfdt, &t, x, inst->u, inst->p, dfdt, NULL);
 }
 
+/* dx, d(dx)/dx and dfdt in one generated function (mt_model.ode_jac). */
+static int solver_fjac(void *ctx, double t, const double *x, double *f, double *J, double *dfdt)
+{
+    mt_instance *inst = ctx;
+    const mt_model *m = inst->m;
+    int r;
+    if (call(inst, &m->ode_jac, &t, x, inst->u, inst->p, f, J)) return -1;
+    if (!m->dfdt.eval) {
+        for (r = 0; r < m->nx; r++) dfdt[r] = 0.0;
+        return 0;
+    }
+    return call(inst, &m->dfdt, &t, x, inst->u, inst->p, dfdt, NULL);
+}
+
 /* ------------------------------------------------------------------------------------------ */
 /* Lifecycle                                                                                   */
 
@@ -244,6 +258,8 @@ mt_instance *mt_instantiate(const char *name, const char *token, int co_simulati
     max_work(&m->jac, &sa, &sr, &si, &sw);
     max_work(&m->dfdt, &sa, &sr, &si, &sw);
     max_work(&m->sample, &sa, &sr, &si, &sw);
+    max_work(&m->ode_jac, &sa, &sr, &si, &sw);
+    max_work(&m->sample_matrix, &sa, &sr, &si, &sw);
     nscratch = (size_t)m->nx;
     if ((size_t)m->nyd > nscratch) nscratch = (size_t)m->nyd;
     inst->x = zalloc((size_t)m->nx, sizeof(double));
@@ -258,18 +274,21 @@ mt_instance *mt_instantiate(const char *name, const char *token, int co_simulati
     inst->J = zalloc(nr * nc, sizeof(double));
     inst->znext = zalloc((size_t)m->nz, sizeof(double));
     inst->scratch = zalloc(nscratch, sizeof(double));
+    inst->S = zalloc((size_t)(m->nz + m->nyd) * (size_t)(m->nz + m->nu), sizeof(double));
+    inst->zu = zalloc((size_t)(m->nz + m->nu), sizeof(double));
     inst->arg = zalloc((size_t)sa, sizeof(double *));
     inst->res = zalloc((size_t)sr, sizeof(double *));
     inst->iw = zalloc((size_t)si, sizeof(mt_int));
     inst->w = zalloc((size_t)sw, sizeof(double));
     if (!inst->name || !inst->x || !inst->u || !inst->p || !inst->z || !inst->z_pre || !inst->yd || !inst->x_set ||
-        !inst->dx || !inst->y || !inst->J || !inst->znext || !inst->scratch || !inst->arg || !inst->res ||
+        !inst->dx || !inst->y || !inst->J || !inst->znext || !inst->scratch || !inst->S || !inst->zu || !inst->arg || !inst->res ||
         !inst->iw || !inst->w || mt_solver_init(&inst->solver, m->nx) != 0) {
         LOG_ERROR(inst, "Instantiate: out of memory");
         mt_free(inst);
         return NULL;
     }
     inst->solver.scale = m->nominal ? m->nominal + vr_of(m, B_X, 0) : NULL;
+    if (m->ode_jac.eval) inst->solver.fjac = solver_fjac;
     mt_reset(inst);
     return inst;
 }
@@ -290,6 +309,8 @@ void mt_free(mt_instance *inst)
     free(inst->J);
     free(inst->znext);
     free(inst->scratch);
+    free(inst->S);
+    free(inst->zu);
     free(inst->arg);
     free(inst->res);
     free(inst->iw);
@@ -315,6 +336,7 @@ void mt_reset(mt_instance *inst)
     for (i = 0; i < m->nyd; i++) inst->yd[i] = 0.0;
     inst->k_next = 0;
     inst->at_sample = 0;
+    inst->S_valid = 0;
     inst->solver.h = 0.0;
     inst->solver.n_accepted = inst->solver.n_rejected = inst->solver.n_rhs = inst->solver.n_jac = 0;
 }
@@ -343,12 +365,35 @@ static double sample_eps(const mt_instance *inst)
     return 1e-9 * sample_period(inst) + 8.0 * DBL_EPSILON * fabs(inst->t);
 }
 
+/* [z_next; yd] = S [z_from; u] with S = sample_matrix(p), evaluated again only after p changed. */
+static int sample_linear(mt_instance *inst, const double *z_from)
+{
+    const mt_model *m = inst->m;
+    int nz = m->nz, nr = m->nz + m->nyd, nc = m->nz + m->nu, r, c;
+    if (!inst->S_valid) {
+        if (call(inst, &m->sample_matrix, inst->p, NULL, NULL, NULL, inst->S, NULL)) return -1;
+        inst->S_valid = 1;
+    }
+    memcpy(inst->zu, z_from, (size_t)nz * sizeof(double));
+    memcpy(inst->zu + nz, inst->u, (size_t)m->nu * sizeof(double));
+    for (r = 0; r < nr; r++) {
+        double acc = 0.0;
+        for (c = 0; c < nc; c++) acc += inst->S[r + (size_t)c * nr] * inst->zu[c];
+        if (r < nz)
+            inst->znext[r] = acc;
+        else
+            inst->scratch[r - nz] = acc;
+    }
+    return 0;
+}
+
 /* z <- sample(z_from, u, p), yd <- its output; checks the results. */
 static int run_sample(mt_instance *inst, const double *z_from, const char *fn)
 {
     const mt_model *m = inst->m;
     int i;
-    if (call(inst, &m->sample, z_from, inst->u, inst->p, NULL, inst->znext, inst->scratch)) {
+    if (m->sample_matrix.eval ? sample_linear(inst, z_from)
+                              : call(inst, &m->sample, z_from, inst->u, inst->p, NULL, inst->znext, inst->scratch)) {
         LOG_ERROR(inst, "%s: evaluation of the sampled part failed at t = %.17g", fn, inst->t);
         return MT_ERROR;
     }
@@ -502,7 +547,10 @@ int mt_set_float64(mt_instance *inst, const unsigned int *vr, size_t n, const do
             inst->u[i] = v;
             break;
         case B_Z: inst->z[i] = v; break;
-        default: inst->p[i] = v; break;
+        default:
+            inst->p[i] = v;
+            inst->S_valid = 0;
+            break;
         }
     }
     if (inputs_changed && inst->at_sample && sampled(inst) && !(inst->mode & start_modes)) {
@@ -920,6 +968,7 @@ int mt_snapshot_restore(mt_instance *inst, const unsigned char *data, size_t siz
     }
     get(&c, inst->u, (size_t)m->nu * sizeof(double));
     get(&c, inst->p, (size_t)m->np * sizeof(double));
+    inst->S_valid = 0;
     get(&c, inst->z, (size_t)m->nz * sizeof(double));
     get(&c, inst->z_pre, (size_t)m->nz * sizeof(double));
     get(&c, inst->yd, (size_t)m->nyd * sizeof(double));

@@ -54,6 +54,8 @@ typedef struct mt_instance {
     int at_sample;            /* 1 while the time equals the instant of the last executed sample */
     /* scratch */
     double *dx, *y, *J, *znext, *scratch;
+    double *S, *zu;           /* sample_matrix(p) and [z; u] for a linear sampled part */
+    int S_valid;              /* 0 when p changed since S was evaluated */
     const double **arg;
     double **res;
     mt_int *iw;

@@ -109,11 +109,16 @@ void mt_lu_solve(const double *A, int n, const int *pivot, double *b)
             b[pivot[k]] = tmp;
         }
     }
-    for (k = 0; k < n; k++)
-        for (i = k + 1; i < n; i++) b[i] -= A[i + k * n] * b[k];
+    for (k = 0; k < n; k++) { /* bk and col in locals: b[i] = ... could alias them for the compiler */
+        const double *col = A + (size_t)k * n;
+        double bk = b[k];
+        for (i = k + 1; i < n; i++) b[i] -= col[i] * bk;
+    }
     for (k = n - 1; k >= 0; k--) {
-        b[k] /= A[k + k * n];
-        for (i = 0; i < k; i++) b[i] -= A[i + k * n] * b[k];
+        const double *col = A + (size_t)k * n;
+        double bk = b[k] / col[k];
+        b[k] = bk;
+        for (i = 0; i < k; i++) b[i] -= col[i] * bk;
     }
 }
 
@@ -190,11 +195,18 @@ static int eval_point(mt_solver *s, mt_rhs_fn f, mt_jac_fn jac, void *ctx, doubl
 {
     int n = s->n, bad;
     s->n_rhs++;
-    if (f(ctx, t, x, W_F0(s)) != 0) return MT_SOLVER_EVAL;
+    if (s->fjac) {
+        s->n_jac++;
+        if (s->fjac(ctx, t, x, W_F0(s), W_J(s), W_DFDT(s)) != 0) return MT_SOLVER_EVAL;
+    } else if (f(ctx, t, x, W_F0(s)) != 0) {
+        return MT_SOLVER_EVAL;
+    }
     bad = first_nonfinite(W_F0(s), n);
     if (bad < 0) {
-        s->n_jac++;
-        if (jac(ctx, t, x, W_J(s), W_DFDT(s)) != 0) return MT_SOLVER_EVAL;
+        if (!s->fjac) {
+            s->n_jac++;
+            if (jac(ctx, t, x, W_J(s), W_DFDT(s)) != 0) return MT_SOLVER_EVAL;
+        }
         bad = first_nonfinite(W_DFDT(s), n);
         if (bad < 0) {
             int k = first_nonfinite(W_J(s), n * n);

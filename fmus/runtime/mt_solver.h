@@ -18,6 +18,8 @@
 typedef int (*mt_rhs_fn)(void *ctx, double t, const double *x, double *dx);
 /* J = df/dx (n x n, column-major) and dfdt = df/dt at (t, x). Returns 0 on success. */
 typedef int (*mt_jac_fn)(void *ctx, double t, const double *x, double *J, double *dfdt);
+/* Optional: f(t, x), J and dfdt at one point in one call (cheaper when they share work). */
+typedef int (*mt_fjac_fn)(void *ctx, double t, const double *x, double *f, double *J, double *dfdt);
 
 enum {
     MT_SOLVER_OK = 0,
@@ -33,6 +35,7 @@ typedef struct {
     const double *scale;  /* per-state nominal values; absolute tolerance = rtol * scale[i] */
     double h;             /* step size proposal carried from call to call; 0: choose one */
     long max_steps;       /* bound on steps per mt_solver_integrate call */
+    mt_fjac_fn fjac;      /* when set, used instead of f and jac at the start of each step (NULL after init) */
     long n_accepted, n_rejected, n_rhs, n_jac;  /* statistics since mt_solver_init */
     int fail_index;       /* state index responsible for a failure, -1 if none */
     int worst_index;      /* state with the largest weighted error in the last rejected step */
