@@ -154,6 +154,12 @@ def _identify_frf(args: argparse.Namespace) -> int:
     return 0
 
 
+def _identify_oe(args: argparse.Namespace) -> int:
+    from ident.outputerror import cli_identify_oe
+
+    return cli_identify_oe(args)
+
+
 def _identify_hexapod(args: argparse.Namespace) -> int:
     from harness import recording
     from ident.hexapod import identify_hexapod_periodic
@@ -290,6 +296,21 @@ def _parser() -> argparse.ArgumentParser:
     q.add_argument("--min-coherence", type=float, default=0.9, help="use FRF points above this coherence")
     q.add_argument("--out", type=Path, default=None, help="JSON in the CheungJoint FMU's parameter names")
     q.set_defaults(func=_identify_frf)
+    q = kinds.add_parser("oe", help="output-error refit of any Modelica plant's parameters (CasADi free run of the "
+                                    "equations the FMU is built from; closed loop with --controller)")
+    q.add_argument("recording", type=Path, help="recording CSV, uniformly sampled")
+    q.add_argument("--modelica", type=Path, default=MODELICA_DIR, help="Modelica library folder or .mo file")
+    q.add_argument("--class", dest="class_name", required=True,
+                   help="plant class, e.g. MotionTwin.Plants.LinearMotorJoint")
+    q.add_argument("--free", required=True, help="comma-separated parameters to fit, e.g. m,d")
+    q.add_argument("--input", default="u", help="plant input = recording column (default u)")
+    q.add_argument("--output", default="q", help="plant output/state = recording column (default q)")
+    q.add_argument("--controller", type=Path, default=None,
+                   help="controller JSON (discrete_state_space, or an experiment.json); the recording then needs r")
+    q.add_argument("--max-nfev", type=int, default=50, help="residual evaluations per fit")
+    q.add_argument("--out", type=Path, default=None, help="JSON for writeback --values")
+    q.set_defaults(func=_identify_oe)
+
     q = kinds.add_parser("hexapod", help="hexapod base parameters from a periodic recording of leg lengths "
                                          "L1..L6 [m] and leg forces tau1..tau6 [N]")
     q.add_argument("recording", type=Path, help="recording CSV (whole number of periods)")

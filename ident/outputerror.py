@@ -1,0 +1,568 @@
+"""Output-error (simulation-error) refit of a Modelica plant's parameters against a recording, in CasADi.
+
+The plant is the :class:`fmus.symbolic.SymbolicModel` the FMU is generated from, so the refit and the
+FMU share one set of equations. Two set-ups:
+
+* open loop: the plant input is the recorded input column, held over each sample (ZOH, as a
+  co-simulation master sets it); the residual is measured minus simulated output;
+* closed loop: a sampled linear controller (:class:`ident.controller.Controller`) reads r_k and the
+  simulated output q_k (+ a measurement-noise input n_k, zero in a free run), applies
+  u_k = C z_k + D [r_k; q_k + n_k] + u_ext_k over [t_k, t_k + Ts) and updates z_{k+1} = A z_k + B [r_k; q_k + n_k];
+  the residual stacks the output and the force channels, each weighted by its noise level.
+
+The plant is integrated over one sample by RK4 with ``substeps`` steps. One step function is built once and
+chained with ``mapaccum`` over the recording, so the residual Jacobian with respect to the free parameters
+comes from algorithmic differentiation (forward mode, one sweep per parameter) instead of finite differences.
+
+Shooting: single shooting is the method. For the stable or marginally stable loops of motion systems
+(a joint is an integrator with damping; in closed loop the controller stabilises it) the free run stays
+bounded for any parameter value inside the bounds, the Gauss-Newton iteration with exact AD Jacobians
+converges in a few steps, and there are only n_free unknowns. Multiple shooting would add n_x unknowns and
+n_x continuity constraints per node and needs a constrained solver; it pays off for unstable or chaotic
+plants, which this module rejects implicitly by reporting a non-finite free run.
+
+Parameter statistics: covariance = s^2 (J^T J)^-1 with J the weighted residual Jacobian at the optimum and
+s^2 = weighted RSS / (rows - free parameters); exact for white output noise in open loop, approximate in
+closed loop (the residual there is coloured by the loop).
+
+Units: SI (s, m, N), those of the Modelica model.
+"""
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable
+
+import casadi as ca
+import numpy as np
+from scipy.optimize import least_squares
+
+from fmus import symbolic
+from harness.recording import Recording
+from ident.controller import Controller
+from ident.leastsquares import LeastSquaresResult, UnidentifiableError, check_identifiability
+
+__all__ = ["Signals", "Loop", "Weights", "Fit", "OutputErrorResult", "build_loop", "default_bounds",
+           "simulate", "residuals", "fit", "statistics", "identify", "cli_identify_oe"]
+
+
+JIT_OPTIONS = {"jit": True, "compiler": "shell", "jit_options": {"flags": ["-O2"]}}
+
+
+@dataclass(frozen=True)
+class Signals:
+    """Recording column names: plant output, plant input (the controller's output in closed loop),
+    reference and additive input disturbance (closed loop; absent disturbance = zero)."""
+
+    output: str = "q"
+    input: str = "u"
+    reference: str = "r"
+    disturbance: str = "u_ext"
+
+
+@dataclass
+class Loop:
+    """A compiled free-run simulation (open loop, or closed with ``controller``) whose parameters ``free``
+    are symbolic; the others are fixed values."""
+
+    model: symbolic.SymbolicModel
+    controller: Controller | None
+    position_state: str                 # the plant output compared with the recording (a state or an output)
+    free: list[str]
+    values: dict[str, float]            # every plant parameter's current value (free ones: starting point)
+    substeps: int
+    n_samples: int
+    sim: Callable = field(repr=False)   # (s0, W[3xN], theta, pfix) -> (Q[1xN], U[1xN])
+    jac: Callable | None = field(repr=False)   # (s0, W, theta, pfix) -> (dQ/dtheta, dU/dtheta, dQ/ds0, dU/ds0)
+    tracking: dict[str, str] = field(default_factory=dict)  # state -> "q" or "u": starts at q_0 or u_0
+    signals: Signals = field(default_factory=Signals)
+    ts: float = 0.0                     # sample period [s]
+
+    @property
+    def closed(self) -> bool:
+        return self.controller is not None
+
+    @property
+    def fixed(self) -> list[str]:
+        return [v.name for v in self.model.parameters if v.name not in self.free]
+
+    def theta(self, values: dict[str, float] | None = None) -> np.ndarray:
+        values = values or self.values
+        return np.array([values[n] for n in self.free], dtype=float)
+
+    def pfix(self) -> np.ndarray:
+        return np.array([self.values[n] for n in self.fixed], dtype=float)
+
+    def with_values(self, values: dict[str, float]) -> "Loop":
+        merged = dict(self.values)
+        merged.update(values)
+        return Loop(self.model, self.controller, self.position_state, self.free, merged, self.substeps,
+                    self.n_samples, self.sim, self.jac, self.tracking, self.signals, self.ts)
+
+
+def stable_substeps(model: symbolic.SymbolicModel, values: dict[str, float], ts: float,
+                    minimum: int = 1, maximum: int = 64) -> int:
+    """RK4 substeps per sample so that the fastest linearised plant mode stays well inside RK4's stability
+    region (|lambda| h <= 1) at rest and at a moderate speed."""
+    p = np.array([values[v.name] for v in model.parameters])
+    jac_fn = ca.Function("a", [model.x, model.u, model.p], [ca.jacobian(model.dx, model.x)])
+    worst = 0.0
+    u0 = np.zeros(model.u.numel())
+    for speed in (0.0, 1e-3, 0.05):
+        x = np.zeros(model.x.numel())
+        a = np.array(jac_fn(x + speed, u0, p))
+        if np.all(np.isfinite(a)) and a.size:
+            worst = max(worst, float(np.max(np.abs(np.linalg.eigvals(a)))))
+    return int(min(maximum, max(minimum, math.ceil(worst * ts / 1.0))))
+
+
+def default_bounds(model: symbolic.SymbolicModel, free: list[str]) -> dict[str, tuple[float, float]]:
+    """Bounds of the free parameters from their Modelica ``min``/``max`` attributes (infinite when absent)."""
+    by_name = {v.name: v for v in model.parameters}
+    _check_names(model, free)
+    return {n: (float(by_name[n].min), float(by_name[n].max)) for n in free}
+
+
+def _check_names(model: symbolic.SymbolicModel, free: list[str]) -> None:
+    names = [v.name for v in model.parameters]
+    unknown = [n for n in free if n not in names]
+    if unknown:
+        calculated = {var.name for var, _ in model.flat.calculated}
+        hint = [n for n in unknown if n in calculated]
+        extra = f" ({', '.join(hint)}: calculated from other parameters, not free)" if hint else ""
+        raise KeyError(f"{model.flat.source}: class {model.name} has no free parameter "
+                       f"{', '.join(repr(n) for n in unknown)}{extra}; its parameters are {', '.join(names)}")
+
+
+def _output_expression(model: symbolic.SymbolicModel, name: str) -> ca.SX:
+    states = [v.name for v in model.states]
+    if name in states:
+        return model.x[states.index(name)]
+    found = [c.expr for c in model.computed if c.var.name == name and c.causality != "calculatedParameter"]
+    if not found:
+        outputs = model.state_outputs + [c.var.name for c in model.computed if c.causality == "output"]
+        raise KeyError(f"{model.flat.source}: class {model.name} has no state or output {name!r}; "
+                       f"outputs: {', '.join(outputs)}; states: {', '.join(states)}")
+    return found[0]
+
+
+def build_loop(model: symbolic.SymbolicModel, controller: Controller | None, position_state: str, free: list[str],
+               values: dict[str, float], n_samples: int, substeps: int | None = None,
+               tracking: dict[str, str] | None = None, with_jacobian: bool = True, min_substeps: int = 1,
+               ts: float | None = None, input_name: str | None = None, signals: Signals = Signals(),
+               jit: bool = False) -> Loop:
+    """Compile the free-run simulation of ``n_samples`` samples with the parameters ``free`` symbolic.
+
+    controller: None for open loop (then ``ts`` [s] is required); position_state: the state or output
+    compared with the recording; input_name: the plant input that is driven (default: the only one; other
+    inputs stay at their start values); jit: compile the step functions to C (gcc) first, which pays
+    off on long recordings (the chain then runs at C speed, minus CasADi's per-call overhead).
+    """
+    if ca.depends_on(model.dx, model.t):
+        raise ValueError(f"{model.name}: time-varying plants are not supported by the output-error refit")
+    if model.sampled:
+        raise ValueError(f"{model.name} is a sampled model; the plant must be continuous")
+    _check_names(model, free)
+    if controller is None and not (ts and ts > 0):
+        raise ValueError("open-loop simulation needs the sample period ts [s]")
+    ts = float(controller.Ts if controller is not None else ts)
+    names = [v.name for v in model.parameters]
+    inputs = [v.name for v in model.inputs]
+    if input_name is None:
+        if len(inputs) != 1:
+            raise ValueError(f"{model.name} has inputs {inputs}; name the driven one (input_name)")
+        input_name = inputs[0]
+    if input_name not in inputs:
+        raise KeyError(f"{model.flat.source}: class {model.name} has no input {input_name!r}; inputs: {inputs}")
+    values = {n: float(values.get(n, model.parameters[i].start)) for i, n in enumerate(names)}
+    substeps = substeps or max(min_substeps, stable_substeps(model, values, ts))
+    fixed = [n for n in names if n not in free]
+    theta = ca.SX.sym("theta", len(free))
+    pfix = ca.SX.sym("pfix", len(fixed))
+    p_full = ca.vertcat(*[theta[free.index(n)] if n in free else pfix[fixed.index(n)] for n in names])
+    f = ca.Function("f", [model.x, model.u, model.p], [model.dx])
+    q_expr = _output_expression(model, position_state)
+    h_out = ca.Function("h", [model.x, model.u, model.p], [q_expr])
+    nx = model.x.numel()
+    nz = controller.n_states if controller is not None else 0
+    s = ca.SX.sym("s", nx + nz)
+    w = ca.SX.sym("w", 3)  # closed loop: r, u_ext, measurement noise; open loop: -, input, -
+    x, z = s[:nx], s[nx:]
+    held = [0.0 if v.start is None or not isinstance(v.start, (int, float)) else float(v.start) for v in model.inputs]
+    k_in = inputs.index(input_name)
+
+    def plant_input(u_scalar: ca.SX) -> ca.SX:
+        return ca.vertcat(*[u_scalar if i == k_in else held[i] for i in range(len(inputs))])
+
+    if controller is None:
+        u = w[1]
+        q = h_out(x, plant_input(u), p_full)
+        z_next = z
+    else:
+        if ca.depends_on(q_expr, model.u):
+            raise ValueError(f"{model.name}: output {position_state!r} depends on the input directly; "
+                             "closing a sampled loop around it is an algebraic loop")
+        q = h_out(x, plant_input(0.0), p_full)
+        y = ca.vertcat(w[0], q + w[2])
+        A, B, C, D = (ca.DM(m) for m in (controller.A, controller.B, controller.C, controller.D))
+        u = (C @ z if nz else 0) + D @ y + w[1]
+        z_next = A @ z + B @ y if nz else z
+    uvec = plant_input(u)
+    h = ts / substeps
+    xk = x
+    for _ in range(substeps):
+        k1 = f(xk, uvec, p_full)
+        k2 = f(xk + h / 2 * k1, uvec, p_full)
+        k3 = f(xk + h / 2 * k2, uvec, p_full)
+        k4 = f(xk + h * k3, uvec, p_full)
+        xk = xk + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+    s_next, out_k = ca.vertcat(xk, z_next), ca.vertcat(q, u)
+    opts = JIT_OPTIONS if jit else {}
+    step = ca.Function("step", [s, w, theta, pfix], [s_next, q, u], opts)
+    s0 = ca.MX.sym("s0", nx + nz)
+    W = ca.MX.sym("W", 3, n_samples)
+    th = ca.MX.sym("th", len(free))
+    pf = ca.MX.sym("pf", len(fixed))
+    _, q_all, u_all = _chain(step, n_samples, s0, W, th, pf)
+    # the output at sample k is read from the state at t_k, which the chain's output k holds
+    sim = ca.Function("sim", [s0, W, th, pf], [q_all, u_all])
+    jac = _sensitivity_chain(s, w, theta, pfix, s_next, out_k, n_samples, opts) if with_jacobian else None
+    return Loop(model, controller, position_state, list(free), values, substeps, n_samples, sim, jac,
+                dict(tracking or {}), signals, ts)
+
+
+def _chain(step: ca.Function, n_samples: int, s0: ca.MX, W: ca.MX, th: ca.MX, pf: ca.MX) -> list[ca.MX]:
+    """``step`` applied ``n_samples`` times, the state accumulated, one column of W per sample."""
+    return step.mapaccum("chain", n_samples, [0], [0])(s0, W, th, pf)
+
+
+def _sensitivity_chain(s: ca.SX, w: ca.SX, theta: ca.SX, pfix: ca.SX, s_next: ca.SX, out_k: ca.SX,
+                       n_samples: int, opts: dict) -> Callable:
+    """Forward sensitivities of the chained step w.r.t. [theta; s0], propagated sample by sample with the
+    step's AD Jacobians (S+ = ds+/ds S + [ds+/dtheta, 0]): one pass over the recording gives the whole
+    residual Jacobian, at a cost of about (1 + n_theta + n_s) free runs."""
+    ns, nth = s.numel(), theta.numel()
+    sens = ca.SX.sym("S", ns, nth + ns)
+    pad = ca.SX.zeros(ns, ns)
+    s_sens = ca.jacobian(s_next, s) @ sens + ca.horzcat(ca.jacobian(s_next, theta), pad)
+    o_sens = ca.jacobian(out_k, s) @ sens + ca.horzcat(ca.jacobian(out_k, theta), ca.SX.zeros(2, ns))
+    aug = ca.Function("sstep", [ca.vertcat(s, ca.vec(sens)), w, theta, pfix],
+                      [ca.vertcat(s_next, ca.vec(s_sens)), o_sens[0, :nth].T, o_sens[1, :nth].T,
+                       o_sens[0, nth:].T, o_sens[1, nth:].T], opts)
+    s0 = ca.MX.sym("s0", ns)
+    W = ca.MX.sym("W", 3, n_samples)
+    th = ca.MX.sym("th", nth)
+    pf = ca.MX.sym("pf", pfix.numel())
+    seed = ca.vec(ca.DM(np.hstack([np.zeros((ns, nth)), np.eye(ns)])))
+    _, dq, du, dq0, du0 = _chain(aug, n_samples, ca.vertcat(s0, seed), W, th, pf)
+    return ca.Function("simjac", [s0, W, th, pf], [dq.T, du.T, dq0.T, du0.T])
+
+
+def _column(rec: Recording, name: str, optional: bool = False) -> np.ndarray:
+    if name in rec.columns:
+        return rec[name]
+    if optional:
+        return np.zeros_like(rec.time)
+    raise KeyError(f"recording has no column {name!r}; columns: {', '.join(rec.columns)}")
+
+
+def initial_state(loop: Loop, rec: Recording, values: dict[str, float] | None = None,
+                  initial: dict[str, float] | None = None) -> np.ndarray:
+    """Start from the first recorded sample at rest: the output state (when the output is a state) = q_0,
+    other plant states at their start values, tracked states at q_0 or u_0, states in ``initial`` at those
+    values, and in closed loop the controller state giving the recorded force u_0 (least-norm solution of
+    C z = u_0 - u_ext_0 - D y_0)."""
+    values = values or loop.values
+    model, ctrl, sig = loop.model, loop.controller, loop.signals
+    p = np.array([values[v.name] for v in model.parameters])
+    x0 = np.array(ca.Function("x0", [model.p], [model.x0()])(p)).ravel()
+    names = [v.name for v in model.states]
+    q_rec = _column(rec, sig.output)
+    if loop.position_state in names:
+        x0[names.index(loop.position_state)] = q_rec[0]
+    for state, signal in loop.tracking.items():
+        x0[names.index(state)] = q_rec[0] if signal == "q" else _column(rec, sig.input)[0]
+    for state, value in (initial or {}).items():
+        x0[names.index(state)] = value
+    if ctrl is None or not ctrl.n_states:
+        return np.concatenate([x0, np.zeros(ctrl.n_states if ctrl is not None else 0)])
+    y0 = np.array([_column(rec, sig.reference)[0], q_rec[0]])
+    target = _column(rec, sig.input)[0] - _column(rec, sig.disturbance, True)[0] - float((ctrl.D @ y0)[0])
+    z0 = np.linalg.pinv(ctrl.C) @ np.atleast_1d(target)
+    return np.concatenate([x0, z0])
+
+
+def drive(rec: Recording, noise: np.ndarray | None = None, signals: Signals = Signals(),
+          closed: bool = True) -> np.ndarray:
+    """The 3 x N input matrix of a recording: closed loop [r; u_ext; measurement noise], open loop
+    [0; input; 0]."""
+    n = rec.time.size
+    zeros = np.zeros(n)
+    if not closed:
+        return np.vstack([zeros, _column(rec, signals.input), zeros])
+    return np.vstack([_column(rec, signals.reference), _column(rec, signals.disturbance, True),
+                      zeros if noise is None else noise])
+
+
+def simulate(loop: Loop, rec: Recording, values: dict[str, float] | None = None,
+             noise: np.ndarray | None = None,
+             initial: dict[str, float] | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Free-run simulation along ``rec`` (plant states in ``initial`` start there); returns simulated
+    (output, input) at the sample instants."""
+    values = {**loop.values, **(values or {})}
+    if rec.time.size != loop.n_samples:
+        raise ValueError(f"loop compiled for {loop.n_samples} samples, recording has {rec.time.size}")
+    pf = np.array([values[n] for n in loop.fixed])
+    q, u = loop.sim(initial_state(loop, rec, values, initial), drive(rec, noise, loop.signals, loop.closed),
+                    loop.theta(values), pf)
+    return np.array(q).ravel(), np.array(u).ravel()
+
+
+@dataclass
+class Fit:
+    """Result of an output-error refit."""
+
+    values: dict[str, float]     # all plant parameters after the fit
+    cost: float                  # weighted sum of squares (output channel, and force channel in closed loop)
+    rms_q: float                 # RMS of measured minus simulated output
+    q_sim: np.ndarray
+    u_sim: np.ndarray
+    jacobian: np.ndarray         # weighted residual Jacobian w.r.t. the free parameters (then the estimated
+                                 # initial states) at the optimum
+    success: bool
+    nfev: int = 0                # residual evaluations (free runs) of the optimiser
+    initial: dict[str, float] = field(default_factory=dict)   # estimated initial plant states
+
+
+@dataclass
+class Weights:
+    """Noise levels used to weight the residual channels: sigma_q [output unit], sigma_u [N]
+    (sigma_u is unused in open loop, where the input is given)."""
+
+    sigma_q: float
+    sigma_u: float = 1.0
+
+
+def residuals(loop: Loop, rec: Recording, values: dict[str, float], weights: Weights,
+              noise: np.ndarray | None = None, q_meas: np.ndarray | None = None,
+              u_meas: np.ndarray | None = None,
+              initial: dict[str, float] | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Weighted residual vector [(q_meas - q_sim)/sigma_q; (u_meas - u_sim)/sigma_u (closed loop only)] and
+    the simulation."""
+    q, u = simulate(loop, rec, values, noise, initial)
+    qm = _column(rec, loop.signals.output) if q_meas is None else q_meas
+    if not loop.closed:
+        return (qm - q) / weights.sigma_q, q, u
+    um = _column(rec, loop.signals.input) if u_meas is None else u_meas
+    return np.concatenate([(qm - q) / weights.sigma_q, (um - u) / weights.sigma_u]), q, u
+
+
+def _interior(theta: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """``theta`` clipped strictly inside [lo, hi] (scipy's TRF starts from an interior point)."""
+    eps = 1e-9 * np.maximum(np.abs(theta), 1e-12)
+    lo_f, hi_f = np.where(np.isfinite(lo), lo, 0.0), np.where(np.isfinite(hi), hi, 0.0)
+    lo_in = np.where(np.isfinite(lo), lo_f + np.maximum(eps, 1e-12 * np.abs(lo_f)), -np.inf)
+    hi_in = np.where(np.isfinite(hi), hi_f - np.maximum(eps, 1e-12 * np.abs(hi_f)), np.inf)
+    return np.minimum(np.maximum(theta, lo_in), hi_in)
+
+
+def fit(loop: Loop, rec: Recording, weights: Weights, bounds: dict[str, tuple[float, float]] | None = None,
+        start: dict[str, float] | None = None, max_nfev: int = 40,
+        q_meas: np.ndarray | None = None, u_meas: np.ndarray | None = None,
+        estimate_initial: list[str] | tuple[str, ...] = (), initial: dict[str, float] | None = None) -> Fit:
+    """Output-error least squares of ``loop.free`` within ``bounds`` (default: the Modelica min/max), by
+    scipy's trust-region reflective method with the CasADi Jacobian. The initial values of the plant states
+    ``estimate_initial`` are estimated too (unbounded), e.g. the position, which the first noisy sample
+    would otherwise fix with an error that the integrator carries through the whole run. ``initial``: known
+    initial values of plant states (e.g. a run that starts at rest at a known position)."""
+    known = dict(initial or {})
+    values = {**loop.values, **(start or {})}
+    names = loop.free
+    bounds = {**default_bounds(loop.model, names), **(bounds or {})}
+    lo = np.array([bounds[n][0] for n in names], dtype=float)
+    hi = np.array([bounds[n][1] for n in names], dtype=float)
+    bad = [n for n, a, b in zip(names, lo, hi) if not a < b]
+    if bad:
+        raise ValueError(f"empty bounds for {', '.join(f'{n} {bounds[n]}' for n in bad)}")
+    state_names = [v.name for v in loop.model.states]
+    unknown = [n for n in estimate_initial if n not in state_names]
+    if unknown:
+        raise KeyError(f"{loop.model.name} has no state {unknown}; states: {', '.join(state_names)}")
+    idx = [state_names.index(n) for n in estimate_initial]
+    n_th = len(names)
+    theta0 = _interior(loop.theta(values), lo, hi)
+    base = initial_state(loop, rec, values, known)
+    x_init0 = base[idx]
+    scale = np.concatenate([np.maximum(np.abs(theta0), 1e-12), np.ones(len(idx))])
+    lo_all = np.concatenate([lo, np.full(len(idx), -np.inf)])
+    hi_all = np.concatenate([hi, np.full(len(idx), np.inf)])
+    s0_cache: dict[bytes, np.ndarray] = {}
+    sig = loop.signals
+    qm = _column(rec, sig.output) if q_meas is None else q_meas
+    um = (_column(rec, sig.input) if u_meas is None else u_meas) if loop.closed else None
+    W = drive(rec, signals=sig, closed=loop.closed)
+    pf = np.array([values[n] for n in loop.fixed])
+
+    def split(xs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        full = xs * scale
+        return full[:n_th], full[n_th:]
+
+    def state(theta: np.ndarray, x_init: np.ndarray) -> np.ndarray:
+        key = theta.tobytes() + x_init.tobytes()
+        if key not in s0_cache:
+            s0_cache.clear()
+            s0_cache[key] = initial_state(loop, rec, {**values, **dict(zip(names, theta))},
+                                          {**known, **dict(zip(estimate_initial, x_init))})
+        return s0_cache[key]
+
+    def res(xs: np.ndarray) -> np.ndarray:
+        theta, x_init = split(xs)
+        q, u = loop.sim(state(theta, x_init), W, theta, pf)
+        r = (qm - np.array(q).ravel()) / weights.sigma_q
+        if loop.closed:
+            r = np.concatenate([r, (um - np.array(u).ravel()) / weights.sigma_u])
+        return np.where(np.isfinite(r), r, 1e12)
+
+    def jac(xs: np.ndarray) -> np.ndarray:
+        theta, x_init = split(xs)
+        jq, ju, jq0, ju0 = loop.jac(state(theta, x_init), W, theta, pf)
+        j = -np.hstack([np.array(jq), np.array(jq0)[:, idx]]) / weights.sigma_q
+        if loop.closed:
+            j = np.vstack([j, -np.hstack([np.array(ju), np.array(ju0)[:, idx]]) / weights.sigma_u])
+        j = j * scale
+        return np.where(np.isfinite(j), j, 0.0)
+
+    nfev = 0
+    x_start = np.concatenate([theta0, x_init0]) / scale
+    if x_start.size:
+        if loop.jac is None:
+            raise ValueError("the loop was compiled without its Jacobian (with_jacobian=False)")
+        sol = least_squares(res, x_start, jac=jac, bounds=(lo_all / scale, hi_all / scale), method="trf",
+                            x_scale="jac", max_nfev=max_nfev, xtol=1e-10, ftol=1e-10, gtol=1e-10)
+        xs = sol.x
+        success = bool(sol.success or sol.status == 0)
+        nfev = int(sol.nfev)
+    else:
+        xs = x_start
+        success = True
+    theta, x_init = split(xs)
+    final = {**values, **dict(zip(names, map(float, theta)))}
+    initial = dict(zip(estimate_initial, map(float, x_init)))
+    r, q, u = residuals(loop, rec, final, weights, q_meas=qm, u_meas=um, initial={**known, **initial})
+    j = jac(xs) / scale if xs.size else np.zeros((r.size, 0))
+    cost = float(r @ r) if np.all(np.isfinite(r)) else math.inf
+    rms = float(np.sqrt(np.mean((qm - q) ** 2))) if np.all(np.isfinite(q)) else math.inf
+    return Fit(final, cost, rms, q, u, j, success, nfev, initial)
+
+
+def statistics(loop: Loop, result: Fit) -> LeastSquaresResult:
+    """Estimate, covariance s^2 (J^T J)^-1, std and correlation of the free parameters at the optimum.
+
+    Raises :class:`ident.leastsquares.UnidentifiableError` naming the parameters the recording does not
+    determine (a rank-deficient Jacobian)."""
+    j = result.jacobian
+    names = loop.free + [f"{n}(t0)" for n in result.initial]
+    report = check_identifiability(j, names)
+    if not report.identifiable:
+        raise UnidentifiableError(report.message(), report.unidentifiable, report.null_directions)
+    dof = j.shape[0] - j.shape[1]
+    factor = result.cost / dof if dof > 0 else float("nan")
+    col = np.linalg.norm(j, axis=0)
+    jn = j / col
+    n_th = len(loop.free)
+    cov = (np.linalg.inv(jn.T @ jn) / np.outer(col, col) * factor)[:n_th, :n_th]
+    sv = np.linalg.svd(j[:, :n_th], compute_uv=False)
+    return LeastSquaresResult(loop.theta(result.values), cov, list(loop.free), result.cost, dof, False,
+                              float(sv[0] / sv[-1]))
+
+
+@dataclass
+class OutputErrorResult:
+    """An output-error identification: the compiled loop, the fit and the parameter statistics."""
+
+    loop: Loop
+    fit: Fit
+    weights: Weights
+    statistics: LeastSquaresResult
+
+
+def _rms_weight(residual: np.ndarray) -> float:
+    rms = float(np.sqrt(np.mean(residual ** 2)))
+    return rms if rms > 0 and math.isfinite(rms) else 1.0
+
+
+def identify(model: symbolic.SymbolicModel, rec: Recording, free: list[str], controller: Controller | None = None,
+             signals: Signals = Signals(), bounds: dict[str, tuple[float, float]] | None = None,
+             start: dict[str, float] | None = None, substeps: int | None = None,
+             tracking: dict[str, str] | None = None, max_nfev: int = 50,
+             input_name: str | None = None, estimate_initial: list[str] | None = None) -> OutputErrorResult:
+    """Refit ``free`` parameters of ``model`` (values of the others: ``start`` or the Modelica start values)
+    so that its free run reproduces ``rec``; closed loop when ``controller`` is given.
+
+    The recording must be sampled uniformly (at the controller period in closed loop). Each channel is
+    weighted by the RMS of its residual after a first fit, then the fit is repeated. ``estimate_initial``:
+    plant states whose initial value is estimated too (default: the output, when it is a state)."""
+    if not free:
+        raise ValueError("name at least one free parameter")
+    _check_names(model, free)
+    needed = [signals.output, signals.input] + ([signals.reference] if controller is not None else [])
+    missing = [c for c in needed if c not in rec.columns]
+    if missing:
+        raise KeyError(f"recording has no column {', '.join(repr(c) for c in missing)} "
+                       f"(columns: {', '.join(rec.columns)})")
+    steps = np.diff(rec.time)
+    ts = float(np.median(steps)) if controller is None else controller.Ts
+    bad = np.flatnonzero(np.abs(steps - ts) > 1e-3 * ts)
+    if bad.size:
+        i = int(bad[0])
+        raise ValueError(f"recording row {i + 3}, column 'time': step {steps[i]!r} s differs from the sample "
+                         f"period {ts} s (the refit needs uniform sampling at the controller's instants)")
+    values = {v.name: float(v.start) for v in model.parameters}
+    values.update(start or {})
+    loop = build_loop(model, controller, signals.output, list(free), values, rec.time.size, substeps=substeps,
+                      tracking=tracking, ts=ts, input_name=input_name, signals=signals)
+    q0, u0 = simulate(loop, rec)
+    qm = rec[signals.output]
+    weights = Weights(_rms_weight(qm - q0), _rms_weight(rec[signals.input] - u0) if loop.closed else 1.0)
+    if estimate_initial is None:
+        estimate_initial = [signals.output] if signals.output in [v.name for v in model.states] else []
+    result = fit(loop, rec, weights, bounds, max_nfev=max_nfev, estimate_initial=estimate_initial)
+    weights = Weights(_rms_weight(qm - result.q_sim),
+                      _rms_weight(rec[signals.input] - result.u_sim) if loop.closed else 1.0)
+    result = fit(loop.with_values(result.values), rec, weights, bounds, max_nfev=max_nfev,
+                 estimate_initial=estimate_initial)
+    loop = loop.with_values(result.values)
+    return OutputErrorResult(loop, result, weights, statistics(loop, result))
+
+
+def cli_identify_oe(args) -> int:
+    """``motiontwin identify oe``: refit, print the table and, with ``--out``, write the JSON that
+    ``motiontwin writeback --values`` reads ({"parameters", "std", "covariance", ...})."""
+    from fmus import build
+    from harness.recording import atomic_write_texts, read_recording
+    from ident.controller import load_controller
+
+    controller = load_controller(args.controller) if args.controller else None
+    signals = Signals(output=args.output, input=args.input)
+    required = [signals.output, signals.input] + ([signals.reference] if controller else [])
+    rec = read_recording(args.recording, required)
+    model = build.load_model(args.class_name, args.modelica)
+    free = [n.strip() for n in args.free.split(",") if n.strip()]
+    result = identify(model, rec, free, controller, signals, max_nfev=args.max_nfev)
+    stats = result.statistics
+    print(stats.summary())
+    print(f"RMS output error {result.fit.rms_q:.4g}; {'closed' if controller else 'open'} loop, "
+          f"{result.loop.substeps} RK4 substeps per sample")
+    if args.out:
+        method = ("output-error refit, CasADi single shooting (RK4, AD Jacobian), "
+                  f"{'closed loop' if controller else 'open loop'}")
+        doc = {"method": method, "recording": str(args.recording), "modelica": str(args.modelica),
+               "class": args.class_name, "parameters": stats.as_dict(),
+               "std": dict(zip(stats.names, stats.std.tolist())), "names": stats.names,
+               "covariance": stats.covariance.tolist(), "correlation_condition": stats.correlation_condition,
+               "rms_output_error": result.fit.rms_q, "converged": result.fit.success}
+        atomic_write_texts({Path(args.out): json.dumps(doc, indent=2) + "\n"})
+        print(args.out)
+    return 0
