@@ -5,20 +5,30 @@ JSON object (the ``controller`` field of a diagnosis bundle's experiment.json, o
     {"kind": "discrete_state_space", "Ts": 0.0005, "inputs": ["r", "q"], "outputs": ["u"],
      "A": [[...]], "B": [[...], ...], "C": [[...]], "D": [[dr, dq]]}
 
-meaning z[k+1] = A z[k] + B y[k], u[k] = C z[k] + D y[k] with y = the listed inputs. Units: Ts [s]; the
+meaning z[k+1] = A z[k] + B y[k], u[k] = C z[k] + D y[k] with y = the listed inputs. Or one of the project's
+sampled library controllers by its Modelica name with parameter values, e.g.
+``{"kind": "MotionTwin.Controllers.RobustJointController", "parameters": {"Kp": 2e5, "Kv": 0, "Ka": 0}}``: its
+sampled matrices (Tustin, or ``method="discrete"``) at those values (the others at their Modelica defaults),
+exactly as its FMU executes them. Inputs other than ``r`` and ``q`` (reference derivatives of a feedforward)
+are not recorded, so their gains must be 0. Units: Ts [s]; the
 matrices map the reference and the measured position [m] to the force [N].
 """
 from __future__ import annotations
 
+import functools
 import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import casadi as ca
 import numpy as np
 
+from fmus import frontend, symbolic
+
 CONTROLLER_KINDS = ("discrete_state_space",)
+LIBRARY_PACKAGE = "MotionTwin.Controllers."   # named controllers: sampled classes of the project's library
 
 
 class ControllerError(ValueError):
@@ -40,18 +50,20 @@ class Controller:
         return self.A.shape[0]
 
 
-def _field(doc: dict, key: str, where: str, kind: type | tuple[type, ...]) -> Any:
+def field(doc: dict, key: str, where: str, kind: type | tuple[type, ...],
+          error: type[ValueError] = ControllerError) -> Any:
+    """``doc[key]`` checked for presence and type; ``error`` (naming ``where`` and the field) otherwise."""
     if not isinstance(doc, dict) or key not in doc:
-        raise ControllerError(f"{where}: required field {key!r} missing")
+        raise error(f"{where}: required field {key!r} missing")
     value = doc[key]
     if not isinstance(value, kind) or isinstance(value, bool) and kind is not bool:
         name = kind.__name__ if isinstance(kind, type) else " or ".join(k.__name__ for k in kind)
-        raise ControllerError(f"{where}: field {key!r} must be a {name}, got {value!r}")
+        raise error(f"{where}: field {key!r} must be a {name}, got {value!r}")
     return value
 
 
 def _matrix(doc: dict, key: str, where: str, shape: tuple[int, int]) -> np.ndarray:
-    raw = _field(doc, key, where, list)
+    raw = field(doc, key, where, list)
     try:
         mat = np.array(raw, dtype=float)
     except (TypeError, ValueError):
@@ -66,27 +78,90 @@ def _matrix(doc: dict, key: str, where: str, shape: tuple[int, int]) -> np.ndarr
 
 
 def read_controller(doc: dict, where: str) -> Controller:
-    """Parse a controller object (kind discrete_state_space); ``where`` names it in error messages."""
-    kind = _field(doc, "kind", where, str)
+    """Parse a controller object: kind ``discrete_state_space`` (matrices given) or the name of one of the
+    library's sampled controllers with its ``parameters``; ``where`` names it in error messages."""
+    kind = field(doc, "kind", where, str)
+    if kind.startswith(LIBRARY_PACKAGE):
+        return read_named_controller(doc, where)
     if kind not in CONTROLLER_KINDS:
         raise ControllerError(f"{where}: field 'kind' is {kind!r}; supported controller kinds: "
-                              f"{', '.join(CONTROLLER_KINDS)}")
-    ts = _field(doc, "Ts", where, (int, float))
+                              f"{', '.join(CONTROLLER_KINDS)} or the name of a sampled controller of the "
+                              f"project's library, e.g. {LIBRARY_PACKAGE}RobustJointController")
+    ts = field(doc, "Ts", where, (int, float))
     if not (math.isfinite(ts) and ts > 0):
         raise ControllerError(f"{where}: field 'Ts' must be a positive number of seconds, got {ts!r}")
-    inputs = _field(doc, "inputs", where, list)
+    inputs = field(doc, "inputs", where, list)
     if sorted(map(str, inputs)) != ["q", "r"]:
         raise ControllerError(f"{where}: field 'inputs' must be ['r', 'q'] (in any order), got {inputs!r}")
-    outputs = _field(doc, "outputs", where, list)
+    outputs = field(doc, "outputs", where, list)
     if list(outputs) != ["u"]:
         raise ControllerError(f"{where}: field 'outputs' must be ['u'], got {outputs!r}")
-    n = len(_field(doc, "A", where, list))
+    n = len(field(doc, "A", where, list))
     A = _matrix(doc, "A", where, (n, n))
     B = _matrix(doc, "B", where, (n, 2))
     C = _matrix(doc, "C", where, (1, n))
     D = _matrix(doc, "D", where, (1, 2))
     order = [inputs.index("r"), inputs.index("q")]
     return Controller(float(ts), A, B[:, order], C, D[:, order])
+
+
+@functools.lru_cache(maxsize=8)
+def _library_controller(class_name: str) -> symbolic.SymbolicModel:
+    from fmus import build
+
+    return build.load_model(class_name)
+
+
+def read_named_controller(doc: dict, where: str) -> Controller:
+    """The sampled (Tustin or discrete) matrices of a library controller at the given parameter values,
+    exactly as its FMU executes them (fmus.symbolic's discretisation). Its inputs ``r`` and ``q`` are the
+    recorded reference and position; any other input (e.g. the reference derivatives of the feedforward)
+    is not recorded, so its path must be switched off by the parameters (its matrix columns zero)."""
+    kind = doc["kind"]
+    try:
+        model = _library_controller(kind)
+    except frontend.ModelicaError as exc:
+        raise ControllerError(f"{where}: field 'kind' names {kind!r}, which the project's Modelica library cannot "
+                          f"provide ({exc})") from None
+    if not model.sampled:
+        raise ControllerError(f"{where}: field 'kind' names {kind!r}, which is not a sampled controller (no "
+                          "__motiontwin(sampled(...)) annotation)")
+    inputs = [v.name for v in model.inputs]
+    outputs = [c.var.name for c in model.computed if c.causality == "output"]
+    if not {"r", "q"} <= set(inputs) or "u" not in outputs:
+        raise ControllerError(f"{where}: controller {kind} must have inputs 'r', 'q' and output 'u'; it has inputs "
+                          f"{inputs} and outputs {outputs}")
+    raw = doc.get("parameters", {})
+    if not isinstance(raw, dict):
+        raise ControllerError(f"{where}: field 'parameters' must be an object of parameter values, got {raw!r}")
+    names = [v.name for v in model.parameters]
+    values = dict(zip(names, model.parameter_values()))
+    for key, value in raw.items():
+        if key not in values:
+            raise ControllerError(f"{where}: field 'parameters.{key}': {kind} has no parameter {key!r} "
+                              f"(parameters: {', '.join(names)})")
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+            raise ControllerError(f"{where}: field 'parameters.{key}' must be a finite number, got {value!r}")
+        values[key] = float(value)
+    ts = values[names[model.ts_index]]
+    if not ts > 0:
+        raise ControllerError(f"{where}: field 'parameters.{names[model.ts_index]}' (the sample period) must be "
+                          f"positive, got {ts!r}")
+    p = [values[n] for n in names]
+    ad, bd, cd, dd = (np.array(m, dtype=float)
+                      for m in ca.Function("law", [model.p], [model.Ad, model.Bd, model.Cd, model.Dd])(p))
+    row = outputs.index("u")
+    u_row = [c.var.name for c in model.computed].index(outputs[row])
+    cd, dd = cd[u_row:u_row + 1], dd[u_row:u_row + 1]
+    for i, name in enumerate(inputs):
+        if name not in ("r", "q") and (np.any(bd[:, i] != 0) or dd[0, i] != 0):
+            raise ControllerError(f"{where}: field 'parameters': input {name!r} of {kind} is not recorded, so the "
+                              f"gains acting on it must be zero (e.g. a feedforward gain)")
+    order = [inputs.index("r"), inputs.index("q")]
+    mats = (ad, bd[:, order], cd, dd[:, order])
+    if not all(np.all(np.isfinite(m)) for m in mats):
+        raise ControllerError(f"{where}: field 'parameters' gives a non-finite sampled law for {kind}")
+    return Controller(float(ts), *mats)
 
 
 def load_controller(path: str | Path) -> Controller:

@@ -13,7 +13,7 @@ import scipy.signal as sps
 from harness.recording import make_recording
 from ident.diagnosis import BundleError, main, read_bundle
 from ident.diagnosis import benchmark as bench
-from ident.diagnosis import simulate as sim
+from ident import outputerror as sim
 
 
 @pytest.fixture(scope="module")
@@ -138,6 +138,10 @@ def test_contract_concealed_gravity_offset(small_bundle, diagnosed):
     assert abs(doc["augmented_parameters"]["m"] / truth["m"] - 1) < 0.05
     val = doc["validation"]
     assert val["augmented_rms"] < 0.5 * val["nominal_rms"]
+    # the noise floor: at least the generator's white encoder noise, and what the (nearly true) augmented
+    # model leaves; the model error above it falls by far more than half
+    assert bench.NOISE <= val["noise_floor_rms"] <= 1.1 * val["augmented_rms"]
+    assert val["excess_ratio"] < 0.2
     assert Path(doc["augmented_model"]).is_file() and Path(doc["augmented_fmu"]).is_file()
     table = np.loadtxt(out / "validation_prediction.csv", delimiter=",", skiprows=1)
     header = (out / "validation_prediction.csv").read_text().splitlines()[0]
@@ -155,7 +159,7 @@ def test_augmented_fmu_reproduces_casadi_model(diagnosed):
     import fmpy
 
     from ident.diagnosis import effects as fx
-    from ident.diagnosis.bundle import Controller
+    from ident.controller import Controller
 
     out, exit_code = diagnosed
     assert exit_code == 0
@@ -176,3 +180,65 @@ def test_augmented_fmu_reproduces_casadi_model(diagnosed):
     q_fmu = np.interp(t, res["time"], res["q"])
     scale = np.max(np.abs(q_casadi))
     assert np.max(np.abs(q_fmu - q_casadi)) < 2e-3 * scale
+
+
+ROBUST = "MotionTwin.Controllers.RobustJointController"
+ROBUST_GAINS = {"Kp": 2.0e5, "Ki": 4.0e6, "Kd": 900.0, "tau": 2e-4, "KL": 1.0, "fc": 800.0, "fp": 800.0,
+                "Kv": 0.0, "Ka": 0.0, "Kj": 0.0, "Ts": 5e-4}
+
+
+def _named_bundle(small_bundle: Path, tmp_path: Path, controller: dict) -> Path:
+    bundle = _copy(small_bundle, tmp_path)
+    doc = json.loads((bundle / "experiment.json").read_text())
+    doc["controller"] = controller
+    (bundle / "experiment.json").write_text(json.dumps(doc))
+    return bundle
+
+
+def test_named_controller_equals_its_discrete_state_space(small_bundle, tmp_path):
+    """The library controller by name gives the matrices of the equivalent discrete_state_space bundle
+    (built from python-control's Tustin discretisation of the class's continuous law, e = r - q)."""
+    import casadi as ca
+    import control
+
+    from fmus import build
+
+    named = read_bundle(_named_bundle(small_bundle, tmp_path / "n", {"kind": ROBUST, "parameters": ROBUST_GAINS}))
+    law = build.load_model(ROBUST)
+    values = dict(zip([v.name for v in law.parameters], law.parameter_values())) | ROBUST_GAINS
+    p = [values[v.name] for v in law.parameters]
+    # the continuous matrices, read from the flat equations (not from the sampled ones under test)
+    i_r = [v.name for v in law.inputs].index("r")
+    i_u = [c.var.name for c in law.computed].index("u")
+    y = ca.vertcat(*[c.expr for c in law.computed])
+    a, b, c, d = (np.array(ca.Function("m", [law.p], [m])(p), dtype=float) for m in
+                  (ca.jacobian(law.dx, law.x), ca.jacobian(law.dx, law.u), ca.jacobian(y, law.x),
+                   ca.jacobian(y, law.u)))
+    cont = control.ss(a, b[:, [i_r]], c[[i_u], :], d[[i_u]][:, [i_r]])
+    disc = control.c2d(cont, ROBUST_GAINS["Ts"], method="bilinear")
+    controller = {"kind": "discrete_state_space", "Ts": ROBUST_GAINS["Ts"], "inputs": ["q", "r"],
+                  "outputs": ["u"], "A": disc.A.tolist(), "B": np.hstack([-disc.B, disc.B]).tolist(),
+                  "C": disc.C.tolist(), "D": np.hstack([-disc.D, disc.D]).tolist()}
+    explicit = read_bundle(_named_bundle(small_bundle, tmp_path / "e", controller))
+    assert named.controller.Ts == explicit.controller.Ts
+    for name in "ABCD":
+        got, ref = getattr(named.controller, name), getattr(explicit.controller, name)
+        assert got.shape == ref.shape
+        assert np.max(np.abs(got - ref)) <= 1e-12 * max(1.0, np.max(np.abs(ref))), name
+    # the same diagnosis inputs: the closed loop driven by the training recording is the same
+    for bundle in (named, explicit):
+        loop = sim.build_loop(bundle.plant.model, bundle.controller, "x", [], {}, 2000, with_jacobian=False)
+        rec = make_recording(bundle.train.time[:2000], {k: bundle.train[k][:2000] for k in ("r", "u", "q", "u_ext")})
+        bundle.q_free_run = sim.simulate(loop, rec)[0]
+    assert np.max(np.abs(named.q_free_run - explicit.q_free_run)) <= 1e-12
+
+
+@pytest.mark.parametrize("controller, needles", [
+    ({"kind": "MotionTwin.Controllers.NoSuchController"}, ("'kind'", "NoSuchController")),
+    ({"kind": ROBUST, "parameters": {"Kq": 1.0}}, ("'parameters.Kq'", "no parameter")),
+    ({"kind": ROBUST, "parameters": {"Kp": "high"}}, ("'parameters.Kp'", "finite number")),
+    ({"kind": ROBUST, "parameters": {}}, ("'parameters'", "r_dot", "not recorded")),
+])
+def test_named_controller_errors(small_bundle, tmp_path, controller, needles):
+    bundle = _named_bundle(small_bundle, tmp_path, controller)
+    _expect_error(bundle, tmp_path, "experiment.json", "controller", *needles)

@@ -1,13 +1,20 @@
 """Read and validate a diagnosis bundle (issue 7 contract): experiment.json, the nominal plant, the
 sampled controller and the train/validation recordings.
 
+The controller is either ``{"kind": "discrete_state_space", "Ts": ..., "inputs": ["r", "q"], "outputs": ["u"],
+"A": ..., "B": ..., "C": ..., "D": ...}`` or one of the project's sampled library controllers by its
+Modelica name with parameter values, e.g. ``{"kind": "MotionTwin.Controllers.RobustJointController",
+"parameters": {"Kp": 2e5, "Ki": 4e6, "Kd": 900, "Kv": 0, "Ka": 0, "Ts": 0.0005}}``: the class is loaded
+with ``fmus.build.load_model`` and its sampled matrices (Tustin, or ``method="discrete"``) are evaluated at
+the parameters (the others at their Modelica defaults), exactly as its FMU executes them. Inputs other
+than ``r`` and ``q`` (reference derivatives of a feedforward) are not recorded, so their gains must be 0.
+
 Every problem raises :class:`BundleError` whose message names the file and the field or column at fault.
 Units: time [s], positions [m], forces [N].
 """
 from __future__ import annotations
 
 import json
-import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -17,28 +24,14 @@ import numpy as np
 
 from fmus import frontend, symbolic
 from harness.recording import Recording, RecordingError, read_recording
+from ident import controller
+from ident.controller import Controller, field
 
 REQUIRED_COLUMNS = ("time", "r", "u", "q")
-CONTROLLER_KINDS = ("discrete_state_space",)
 
 
 class BundleError(ValueError):
     """A bundle is unusable; the message names the file and the field, column or row at fault."""
-
-
-@dataclass
-class Controller:
-    """Sampled linear controller z+ = A z + B y, u = C z + D y with y = [r; q] (inputs reordered to r, q)."""
-
-    Ts: float
-    A: np.ndarray
-    B: np.ndarray
-    C: np.ndarray
-    D: np.ndarray
-
-    @property
-    def n_states(self) -> int:
-        return self.A.shape[0]
 
 
 @dataclass
@@ -66,53 +59,15 @@ class Bundle:
 
 
 def _field(doc: dict, key: str, where: str, kind: type | tuple[type, ...]) -> Any:
-    if not isinstance(doc, dict) or key not in doc:
-        raise BundleError(f"{where}: required field {key!r} missing")
-    value = doc[key]
-    if not isinstance(value, kind) or isinstance(value, bool) and kind is not bool:
-        name = kind.__name__ if isinstance(kind, type) else " or ".join(k.__name__ for k in kind)
-        raise BundleError(f"{where}: field {key!r} must be a {name}, got {value!r}")
-    return value
-
-
-def _matrix(doc: dict, key: str, where: str, shape: tuple[int, int]) -> np.ndarray:
-    raw = _field(doc, key, where, list)
-    try:
-        mat = np.array(raw, dtype=float)
-    except (TypeError, ValueError):
-        raise BundleError(f"{where}: field {key!r} must be a list of rows of numbers") from None
-    if mat.size == 0 and shape[0] * shape[1] == 0:
-        return np.zeros(shape)
-    if mat.ndim != 2 or mat.shape != shape:
-        raise BundleError(f"{where}: field {key!r} has shape {mat.shape}, expected {shape}")
-    if not np.all(np.isfinite(mat)):
-        raise BundleError(f"{where}: field {key!r} contains a non-finite value")
-    return mat
+    return field(doc, key, where, kind, BundleError)
 
 
 def read_controller(doc: dict, where: str) -> Controller:
-    """Parse the ``controller`` object of experiment.json (kind discrete_state_space)."""
-    kind = _field(doc, "kind", where, str)
-    if kind not in CONTROLLER_KINDS:
-        raise BundleError(f"{where}: field 'kind' is {kind!r}; supported controller kinds: "
-                          f"{', '.join(CONTROLLER_KINDS)}")
-    ts = _field(doc, "Ts", where, (int, float))
-    if not (math.isfinite(ts) and ts > 0):
-        raise BundleError(f"{where}: field 'Ts' must be a positive number of seconds, got {ts!r}")
-    inputs = _field(doc, "inputs", where, list)
-    if sorted(map(str, inputs)) != ["q", "r"]:
-        raise BundleError(f"{where}: field 'inputs' must be ['r', 'q'] (in any order), got {inputs!r}")
-    outputs = _field(doc, "outputs", where, list)
-    if list(outputs) != ["u"]:
-        raise BundleError(f"{where}: field 'outputs' must be ['u'], got {outputs!r}")
-    a_raw = _field(doc, "A", where, list)
-    n = len(a_raw)
-    A = _matrix(doc, "A", where, (n, n))
-    B = _matrix(doc, "B", where, (n, 2))
-    C = _matrix(doc, "C", where, (1, n))
-    D = _matrix(doc, "D", where, (1, 2))
-    order = [inputs.index("r"), inputs.index("q")]
-    return Controller(float(ts), A, B[:, order], C, D[:, order])
+    """The ``controller`` object of experiment.json (see :mod:`ident.controller` for both forms)."""
+    try:
+        return controller.read_controller(doc, where)
+    except controller.ControllerError as exc:
+        raise BundleError(str(exc)) from None
 
 
 def _state_roles(model: symbolic.SymbolicModel, output: str, where: str) -> tuple[str, str]:

@@ -3,7 +3,9 @@ noise-aware null reference, keep those that are significant and improve validati
 Modelica model, its FMU and the report. Units: SI (s, m, N)."""
 from __future__ import annotations
 
+import concurrent.futures
 import math
+import multiprocessing
 import os
 import shutil
 import tempfile
@@ -16,7 +18,7 @@ import numpy as np
 
 from ident.diagnosis import effects as fx
 from ident.diagnosis import evidence as ev
-from ident.diagnosis import simulate as sim
+from ident import outputerror as sim
 from ident.diagnosis.bundle import Bundle, read_bundle
 
 AUGMENTED_CLASS = "Augmented"
@@ -26,6 +28,7 @@ BOOTSTRAP_COUNT = 30
 SCREEN_NFEV = 4             # cheap fit of every candidate, to rank them
 MAX_NFEV = 15               # full fit of the best-ranked candidates
 FULL_FITS = 3
+FLOOR_REPLICATES = 5         # noise re-simulations for the validation noise floor
 MULTI_START = ("position_ripple", "resonance")   # nonlinear in a period/frequency: screen every start
 
 
@@ -107,15 +110,32 @@ def _mass_equivalent(bundle: Bundle, values: dict[str, float]) -> float:
     return float(1 / np.array(gain(np.zeros(model.x.numel()), 0.0, p)).item())
 
 
+@dataclass
+class LoopCache:
+    """Compiled closed loops of one diagnosis, by structure: the effect names, the number of samples, the
+    RK4 substeps and whether the Jacobian is compiled. Parameter values are inputs of a compiled loop, so
+    a structure is compiled once however often it is refitted, validated or re-screened."""
+
+    loops: dict[tuple, sim.Loop] = field(default_factory=dict)
+    models: dict[tuple[str, ...], object] = field(default_factory=dict)
+
+
+_CACHE = LoopCache()
+
+
 def build_structure(bundle: Bundle, effects: list[fx.Effect], values: dict[str, float], folder: Path,
-                    n_samples: int, with_jacobian: bool = True,
-                    min_substeps: int = 1) -> tuple[sim.Loop, dict[str, tuple[float, float]]]:
+                    n_samples: int, with_jacobian: bool = True, min_substeps: int = 1,
+                    substeps: int | None = None) -> tuple[sim.Loop, dict[str, tuple[float, float]]]:
     """Write and load the augmented model with ``effects`` and compile its loop (at least ``min_substeps``
-    RK4 steps per sample, so that structures compared with each other share the integration accuracy)."""
-    plant_values = {k[len("plant."):]: v for k, v in values.items() if k.startswith("plant.")}
-    fx.write_model(folder, bundle.plant.text, bundle.plant.class_name, effects, values, plant_values,
-                   AUGMENTED_CLASS)
-    model = fx.load_augmented(folder, AUGMENTED_CLASS)
+    RK4 steps per sample, so that structures compared with each other share the integration accuracy).
+    A structure already compiled with the same samples/substeps is reused from :data:`_CACHE`."""
+    names = tuple(e.name for e in effects)
+    model = _CACHE.models.get(names)
+    if model is None:
+        plant_values = {k[len("plant."):]: v for k, v in values.items() if k.startswith("plant.")}
+        fx.write_model(folder, bundle.plant.text, bundle.plant.class_name, effects, values, plant_values,
+                       AUGMENTED_CLASS)
+        model = _CACHE.models[names] = fx.load_augmented(folder, AUGMENTED_CLASS)
     free, bounds = _nominal_bounds(bundle, "plant.")
     for effect in effects:
         for p in effect.params:
@@ -126,9 +146,13 @@ def build_structure(bundle: Bundle, effects: list[fx.Effect], values: dict[str, 
     all_values.update({k: v for k, v in values.items() if k in all_values})
     tracking = {s: "q" for e in effects for s in e.tracks_position}
     tracking.update({s: "u" for e in effects for s in e.tracks_force})
-    loop = sim.build_loop(model, bundle.controller, "plant." + bundle.plant.position_state, free, all_values,
-                          n_samples, tracking=tracking, with_jacobian=with_jacobian, min_substeps=min_substeps)
-    return loop, bounds
+    substeps = substeps or max(min_substeps, sim.stable_substeps(model, all_values, bundle.controller.Ts))
+    key = (names, n_samples, substeps, with_jacobian)
+    if key not in _CACHE.loops:
+        _CACHE.loops[key] = sim.build_loop(model, bundle.controller, "plant." + bundle.plant.position_state,
+                                           free, all_values, n_samples, substeps=substeps, tracking=tracking,
+                                           with_jacobian=with_jacobian)
+    return _CACHE.loops[key].with_values(all_values), bounds
 
 
 def fit_structure(bundle: Bundle, current: ModelFit, candidate: fx.Effect, ctx: fx.Context,
@@ -199,21 +223,10 @@ def select(bundle: Bundle, nominal: ModelFit, weights: sim.Weights, ctx: fx.Cont
         null = ev.bootstrap_residuals(noisy, current.fit.q_sim, current.fit.u_sim, weights.sigma_q,
                                       weights.sigma_u, bundle.train.time.size, BOOTSTRAP_COUNT, seed=rounds)
         base_gain = ev.projected_gain(current.fit.jacobian, null)
-        screened: dict[str, ModelFit] = {}
-        for name, factory in fx.VOCABULARY.items():
-            candidate = factory(ctx)
-            if candidate.family in used_families or name not in shortlist:
-                continue
-            t0 = time.perf_counter()
-            try:
-                screened[name] = fit_structure(bundle, current, candidate, ctx, weights,
-                                               work / f"r{rounds}_{name}", SCREEN_NFEV)
-            except (RuntimeError, ValueError, np.linalg.LinAlgError) as exc:
-                _log(progress, f"  {name}: fit failed ({exc})")
-                continue
-            _log(progress, f"  round {rounds} screen {name}: cost -{current.fit.cost - screened[name].fit.cost:.4g}"
-                           f" ({time.perf_counter() - t0:.1f} s)")
-        order = sorted(screened, key=lambda n: screened[n].fit.cost)
+        names = [n for n, factory in fx.VOCABULARY.items()
+                 if n in shortlist and factory(ctx).family not in used_families]
+        screened = screen(bundle, current, names, ctx, weights, work / f"r{rounds}", progress)
+        order = sorted(screened, key=lambda n: screened[n][0].cost)
         shortlist = order[:FULL_FITS + 2]     # later rounds screen only the effects that ranked high here
         ranked = order[:FULL_FITS]
         for name in list(ranked):
@@ -222,7 +235,12 @@ def select(bundle: Bundle, nominal: ModelFit, weights: sim.Weights, ctx: fx.Cont
         trials: dict[str, tuple[ModelFit, float, float, np.ndarray]] = {}
         for name in ranked:
             t0 = time.perf_counter()
-            trial = refine(bundle, screened[name], weights)
+            result, substeps = screened[name]
+            effects = current.effects + [fx.VOCABULARY[name](ctx)]
+            loop, bounds = build_structure(bundle, effects, result.values, work / f"r{rounds}_{name}",
+                                           bundle.train.time.size, substeps=substeps)
+            trial = refine(bundle, ModelFit(effects, loop.with_values(result.values), result, bounds,
+                                            work / f"r{rounds}_{name}"), weights)
             candidate = trial.effects[-1]
             gain = current.fit.cost - trial.fit.cost
             null_gain = ev.projected_gain(trial.fit.jacobian, null) - base_gain
@@ -262,6 +280,55 @@ def select(bundle: Bundle, nominal: ModelFit, weights: sim.Weights, ctx: fx.Cont
     return current, log
 
 
+_SCREEN_JOB: tuple | None = None   # (bundle, current, ctx, weights, folder) inherited by forked workers
+
+
+def _screen_one(name: str) -> tuple[str, sim.Fit | None, int, float, str]:
+    """Cheap fit of the current structure plus the effect ``name`` (run in a worker or in-process)."""
+    bundle, current, ctx, weights, folder = _SCREEN_JOB
+    t0 = time.perf_counter()
+    try:
+        trial = fit_structure(bundle, current, fx.VOCABULARY[name](ctx), ctx, weights, folder / name,
+                              SCREEN_NFEV)
+    except (RuntimeError, ValueError, np.linalg.LinAlgError) as exc:
+        return name, None, 0, time.perf_counter() - t0, str(exc)
+    return name, trial.fit, trial.loop.substeps, time.perf_counter() - t0, ""
+
+
+def screen_workers() -> int:
+    """Processes for the candidate screening: ``MOTIONTWIN_DIAGNOSIS_WORKERS`` or the machine's cores
+    (at most 4); 1 runs in-process. The results do not depend on it (each fit is deterministic)."""
+    value = os.environ.get("MOTIONTWIN_DIAGNOSIS_WORKERS")
+    count = int(value) if value and value.isdigit() else min(4, os.cpu_count() or 1)
+    return max(1, count) if "fork" in multiprocessing.get_all_start_methods() else 1
+
+
+def screen(bundle: Bundle, current: ModelFit, names: list[str], ctx: fx.Context, weights: sim.Weights,
+           folder: Path, progress=None) -> dict[str, tuple[sim.Fit, int]]:
+    """Screen every candidate effect with a few Gauss-Newton steps, in parallel processes (forked, so
+    they share the bundle and the current fit): name -> (fit, RK4 substeps of its loop)."""
+    global _SCREEN_JOB
+    _SCREEN_JOB = (bundle, current, ctx, weights, folder)
+    workers = min(screen_workers(), len(names))
+    try:
+        if workers > 1:
+            with concurrent.futures.ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("fork")) \
+                    as pool:
+                results = list(pool.map(_screen_one, names))
+        else:
+            results = [_screen_one(name) for name in names]
+    finally:
+        _SCREEN_JOB = None
+    out: dict[str, tuple[sim.Fit, int]] = {}
+    for name, result, substeps, seconds, error in results:
+        if result is None:
+            _log(progress, f"  {name}: fit failed ({error})")
+            continue
+        out[name] = (result, substeps)
+        _log(progress, f"  screen {name}: cost -{current.fit.cost - result.cost:.4g} ({seconds:.1f} s)")
+    return out
+
+
 def _simplest(name: str, trials: dict, null: np.ndarray, bundle: Bundle, work: Path, progress) -> str:
     """Prefer the nested simpler effect (coulomb in stribeck/asymmetric) unless the extra parameters beat
     their own null reference and improve the validation fit by the same margin as any effect."""
@@ -286,9 +353,28 @@ def _effect_values(structure: ModelFit, effect: fx.Effect) -> dict[str, float]:
     return {p.name: structure.fit.values[p.name] for p in effect.params}
 
 
+def validation_floor(loop: sim.Loop, bundle: Bundle, values: dict[str, float], sigma_q: float,
+                     count: int = FLOOR_REPLICATES) -> float:
+    """RMS of measured minus free-run q that the fitted model itself leaves on the validation excitation
+    [m]: the model is re-simulated with white encoder noise of the estimated level fed back through the
+    controller (the noise and its closed-loop echo, which no free-run simulation can predict). No model
+    can bring the validation RMS below this floor, so the improvement is also reported above it."""
+    rec = bundle.validation
+    q_free, _ = sim.simulate(loop, rec, values)
+    rng = np.random.default_rng(0)
+    power = []
+    for _ in range(count):
+        noise = rng.normal(0.0, sigma_q, rec.time.size)
+        q_noisy, _ = sim.simulate(loop, rec, values, noise=noise)
+        power.append(np.mean((q_noisy + noise - q_free) ** 2))
+    return float(np.sqrt(np.mean(power)))
+
+
 def run(bundle: Bundle, work: Path, progress=None) -> dict:
     """The whole diagnosis in ``work``; returns what the report needs."""
     t0 = time.perf_counter()
+    _CACHE.loops.clear()
+    _CACHE.models.clear()
     nominal, weights = fit_nominal(bundle, progress)
     validate(bundle, nominal, work / "v_nominal")
     ctx = context(bundle, nominal)
@@ -297,12 +383,17 @@ def run(bundle: Bundle, work: Path, progress=None) -> dict:
     values = dict(final.fit.values)
     if not final.effects:
         values = {"plant." + k: v for k, v in values.items()}
+    names = tuple(e.name for e in final.effects)
+    _CACHE.models.pop(names, None)     # write model_dir with the fitted values and build the FMU from it
     loop, _ = build_structure(bundle, final.effects, values, model_dir, bundle.validation.time.size,
                               with_jacobian=False, min_substeps=final.loop.substeps)
+    written = _CACHE.models[names]
     q_aug, _ = sim.simulate(loop, bundle.validation, values)
+    floor = validation_floor(loop, bundle, values, weights.sigma_q)
+    _log(progress, f"diagnosis done in {time.perf_counter() - t0:.1f} s")
     return {"bundle": bundle, "nominal": nominal, "final": final, "weights": weights, "context": ctx,
             "log": log, "model_dir": model_dir, "augmented_values": values, "q_augmented": q_aug,
-            "augmented_model": loop.model, "seconds": time.perf_counter() - t0}
+            "augmented_model": written, "validation_floor": floor, "seconds": time.perf_counter() - t0}
 
 
 def diagnose(bundle_dir: str | os.PathLike, out_dir: str | os.PathLike, progress=None) -> dict:

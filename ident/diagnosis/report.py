@@ -61,7 +61,8 @@ def diagnosis_document(result: dict, out: Path, fmu_path: Path | None) -> dict:
     aug_rms = float(np.sqrt(np.mean((q_meas - result["q_augmented"]) ** 2)))
     return {
         "effects": effects,
-        "validation": {"nominal_rms": float(nominal.val_rms), "augmented_rms": aug_rms},
+        "validation": {"nominal_rms": float(nominal.val_rms), "augmented_rms": aug_rms,
+                       **_above_floor(float(nominal.val_rms), aug_rms, result["validation_floor"])},
         "nominal_parameters": _strip(nominal.fit.values),
         "augmented_parameters": _strip({k: v for k, v in result["augmented_values"].items()}),
         "augmented_model": str(out / "augmented_model" / f"{AUGMENTED_CLASS}.mo"),
@@ -70,6 +71,17 @@ def diagnosis_document(result: dict, out: Path, fmu_path: Path | None) -> dict:
         "candidates": [{k: v for k, v in entry.items()} for entry in result["log"]],
         "runtime_s": round(result["seconds"], 2),
     }
+
+
+def _above_floor(nominal_rms: float, augmented_rms: float, floor: float) -> dict[str, float]:
+    """The validation RMS split into the noise floor and the model error above it [m]: the error of a
+    model is sqrt(rms^2 - floor^2) (independent noise adds in power), and ``excess_ratio`` compares the
+    augmented with the nominal model without the floor that neither can go below."""
+    nominal_excess = math.sqrt(max(nominal_rms ** 2 - floor ** 2, 0.0))
+    augmented_excess = math.sqrt(max(augmented_rms ** 2 - floor ** 2, 0.0))
+    ratio = augmented_excess / nominal_excess if nominal_excess > 0 else math.nan
+    return {"noise_floor_rms": floor, "nominal_excess_rms": nominal_excess,
+            "augmented_excess_rms": augmented_excess, "excess_ratio": ratio}
 
 
 def _plots(result: dict, staging: Path) -> list[str]:
@@ -150,6 +162,9 @@ def _markdown(doc: dict, plots: list[str], result: dict) -> str:
                   "the validation fit: the nominal structure is kept, only its parameters were off.", ""]
     lines += ["## Fit", "", "| model | validation RMS [m] |", "|---|---|",
               f"| nominal, refitted | {val['nominal_rms']:.4g} |", f"| augmented | {val['augmented_rms']:.4g} |", "",
+              f"Noise floor (RMS that the fitted model leaves when re-simulated with the estimated encoder noise "
+              f"fed back): {val['noise_floor_rms']:.4g} m. Model error above it: {val['nominal_excess_rms']:.4g} m "
+              f"(nominal) -> {val['augmented_excess_rms']:.4g} m (augmented).", "",
               "Nominal parameters (refitted): " + ", ".join(f"{k} = {v:.5g}" for k, v in
                                                           doc["nominal_parameters"].items()), "",
               "## Candidates tested", "", "| round | effect | cost reduction | null 99.9 % | ratio | seconds |",

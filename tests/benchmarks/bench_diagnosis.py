@@ -1,0 +1,98 @@
+"""Benchmark (not a test): `motiontwin diagnose` runtime per bundle against the issue-7 target of 120 s
+for 12 s of training + 6 s of validation recorded at 2 kHz on this 2-core machine, with what was found.
+
+For every case of the benchmark set it prints the true and found effects, the error of the main
+parameter, the validation RMS ratio (augmented / nominal), the same ratio above the noise floor, the wall
+time, the CPU time of this process and the 1-minute load average (other jobs inflate wall time; the CPU
+time of the single-threaded diagnosis does not depend on them).
+
+Run: .venv/bin/python tests/benchmarks/bench_diagnosis.py [BENCH_DIR] [--set heldout|tuning] [--case NAME]
+(bundles are generated into BENCH_DIR by ``python -m ident.diagnosis.benchmark generate`` when missing).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import tempfile
+import time
+from pathlib import Path
+
+from ident.diagnosis import diagnose
+from ident.diagnosis import effects as fx
+
+TARGET_S = 120.0
+MAIN_PARAMETER = {"gravity_offset": "F0", "coulomb_friction": "Fc", "asymmetric_friction": "Fc_pos",
+                  "stribeck_friction": "Fs", "position_ripple": "amplitude", "time_delay": "delay",
+                  "resonance": "frequency", "position_dependent_inertia": "mass_max"}
+
+
+def truth_contract(effect: dict, mass: float) -> dict[str, float]:
+    """A truth effect (Modelica parameter names) in the contract's parameters."""
+    ctx = fx.Context(5e-4, 0.0, 0.1, 0.2, mass)
+    candidate = fx.VOCABULARY[effect["name"]](ctx)
+    values = {p.name: sum(p.bounds) / 2 for p in candidate.params} | effect["parameters"] | {"plant.m": mass}
+    return candidate.contract(values, ctx)
+
+
+def cpu_seconds() -> float:
+    """CPU time of this process and its finished children (the screening workers) [s]."""
+    t = os.times()
+    return t.user + t.system + t.children_user + t.children_system
+
+
+def parameter_errors(truth: dict, doc: dict) -> str:
+    found = {e["name"]: e["parameters"] for e in doc["effects"]}
+    parts = []
+    for effect in truth["effects"]:
+        key = MAIN_PARAMETER.get(effect["name"])
+        if key is None or effect["name"] not in found:
+            continue
+        true_value = truth_contract(effect, truth.get("m", 2.0))[key]
+        parts.append(f"{key} {found[effect['name']][key]:.4g}/{true_value:.4g} "
+                     f"({100 * (found[effect['name']][key] / true_value - 1):+.1f}%)")
+    return "; ".join(parts) or "-"
+
+
+def _ratio(value: float | None) -> str:
+    """The above-floor ratio, '-' where the nominal model is already at the noise floor (no ratio)."""
+    return "-" if value is None or value != value else f"{value:.2f}"
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser()
+    parser.add_argument("bench", nargs="?", type=Path, default=Path(tempfile.gettempdir()) / "mt-diagnosis-bench")
+    parser.add_argument("--set", default="heldout", choices=["heldout", "tuning"])
+    parser.add_argument("--case", action="append", default=None)
+    args = parser.parse_args()
+    folder = args.bench / args.set
+    if not folder.is_dir():
+        from ident.diagnosis import benchmark
+        benchmark.generate(args.bench, args.set)
+    cases = sorted(p.name for p in folder.iterdir() if (p / "experiment.json").is_file())
+    print(f"target: {TARGET_S:.0f} s per bundle (12 s + 6 s at 2 kHz), {os.cpu_count()} cores")
+    print(f"{'case':28s} {'truth':38s} {'found':38s} {'main parameter (found/true)':34s} "
+          f"{'val ratio':>9s} {'above floor':>11s} {'wall s':>7s} {'cpu s':>6s} {'load':>5s} ok")
+    worst = 0.0
+    for case in cases:
+        if args.case and case not in args.case:
+            continue
+        truth = json.loads((folder / f"{case}.truth.json").read_text())
+        wall0, cpu0 = time.perf_counter(), cpu_seconds()
+        with tempfile.TemporaryDirectory() as tmp:
+            doc = diagnose(folder / case, Path(tmp) / "out")
+        wall, cpu = time.perf_counter() - wall0, cpu_seconds() - cpu0
+        worst = max(worst, wall)
+        val = doc["validation"]
+        true_names = ",".join(e["name"] for e in truth["effects"]) or "-"
+        found = ",".join(e["name"] for e in doc["effects"]) or "-"
+        print(f"{case:28s} {true_names:38s} {found:38s} {parameter_errors(truth, doc):34s} "
+              f"{val['augmented_rms'] / val['nominal_rms']:9.2f} {_ratio(val.get('excess_ratio')):>11s} "
+              f"{wall:7.1f} {cpu:6.1f} {os.getloadavg()[0]:5.1f} {'yes' if wall < TARGET_S else 'NO'}",
+              flush=True)
+    print(f"slowest: {worst:.1f} s (target {TARGET_S:.0f} s)")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
