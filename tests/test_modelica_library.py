@@ -47,8 +47,12 @@ EXPORTED = [
     "MotionTwin.Controllers.StateSpaceController",
     "MotionTwin.Controllers.DiscreteStateSpaceController",
     "MotionTwin.Examples.JointWithRobustController",
+    "MotionTwin.Benchmarks.Encoder",
+    "MotionTwin.Benchmarks.LoopController",
+    "MotionTwin.Benchmarks.OffsetRippleJoint",
+    "MotionTwin.Benchmarks.RigidJoint",
 ]
-SAMPLED = {n for n in EXPORTED if ".Controllers." in n}
+SAMPLED = {n for n in EXPORTED if ".Controllers." in n or n.endswith("LoopController")}
 
 
 @lru_cache(maxsize=None)

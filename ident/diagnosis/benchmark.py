@@ -1,14 +1,27 @@
-"""Benchmark for the diagnosis: bundle generator (seeded truth simulations with concealed effects,
-encoder quantisation and noise) and a runner that prints a confusion table, parameter errors, validation
+"""Benchmark for the diagnosis: bundle generator (seeded truth co-simulations with concealed effects, encoder
+quantisation and noise) and a runner that prints a confusion table, parameter errors, validation
 improvement and runtime per case.
 
-The truth plant is the nominal linear-motor axis plus the case's effects with their true values, written as
-Modelica by :mod:`ident.diagnosis.effects` and simulated in closed loop by :mod:`ident.diagnosis.simulate`
-with 4x finer integration, the controller reading the noisy encoder. (To be replaced by co-simulated FMUs of
-the library's higher-fidelity joints through the harness.) Units: SI (s, m, N, kg).
+The truth of a case is a Modelica model of the project's library (``MotionTwin.Effects.*Joint``, or
+``MotionTwin.Benchmarks.*`` where the library has none, e.g. two effects at once) built into an FMI 2.0 FMU
+by :mod:`fmus.build`, and co-simulated by the harness :class:`~harness.master.Master` with
+
+* the controller as the ``MotionTwin.Benchmarks.LoopController`` FMU (the library's
+  ``DiscreteStateSpaceController`` with two states and inputs ``[r, q]``, ``method = "discrete"``) whose
+  ``A, B, C, D`` parameters are the bundle's matrices, stepped every ``TS``;
+* the plant stepped every ``TS / PLANT_SUBSTEPS`` by its own variable-step RODAS4 solver;
+* the ``MotionTwin.Benchmarks.Encoder`` FMU between them: the controller reads the *measured* position,
+  ``quantize(q + noise)`` (the rounding of :func:`harness.measurement.quantize`), the noise being a seeded
+  external signal drawn with :func:`harness.measurement.add_noise`.
+
+Every run starts at x = 0 with a pre-roll (a smooth move to the first reference position and a dwell) that is
+cut off, so recordings start at rest. Recordings hold ``time, r, u, q, u_ext`` at the controller instants; the
+nominal ``plant.mo`` is the rigid axis with mass and damping guesses 20-40 % off. Units: SI (s, m, N, kg).
 
     python -m ident.diagnosis.benchmark generate OUT_DIR [--set tuning|heldout]
     python -m ident.diagnosis.benchmark run OUT_DIR [--set tuning|heldout]
+    python -m ident.diagnosis.benchmark conceal OUT_DIR [--set ...] [--case NAME]
+    python -m ident.diagnosis.benchmark verify OUT_DIR [--case coulomb_friction]
 """
 from __future__ import annotations
 
@@ -18,14 +31,17 @@ import math
 import sys
 import tempfile
 import time
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 import scipy.signal as sps
 
-from harness.recording import make_recording, write_recording
-from ident.diagnosis import effects as fx
-from ident.diagnosis import simulate as sim
+from fmus import build
+from harness import measurement
+from harness.master import Master
+from harness.recording import atomic_write_texts, make_recording, write_recording
+from harness.system import system_from_dict
 from ident.diagnosis.bundle import Controller
 
 PLANT_CLASS = "LinearAxis"
@@ -43,27 +59,105 @@ equation
 end LinearAxis;
 '''
 TS = 5e-4
+PLANT_SUBSTEPS = 4         # plant and encoder communication steps per controller sample
 TRUE_M, TRUE_D = 2.0, 15.0
 RESOLUTION = 5e-9          # encoder quantum [m]
 NOISE = 10e-9              # encoder noise std [m]
+V_EPS = 5e-3               # tanh velocity scale of the friction laws [m/s]
+PRE_MOVE, PRE_DWELL = 0.5, 1.0   # pre-roll [s]: move from x = 0 to the first reference, then rest
 
-# case name -> list of (effect, true parameter values in the effect's Modelica names)
-CASES: dict[str, list[tuple[str, dict[str, float]]]] = {
-    "params_only_a": [],
-    "params_only_b": [],
-    "gravity_offset": [("gravity_offset", {"gravity_F0": 1.5})],
-    "coulomb_friction": [("coulomb_friction", {"coulomb_Fc": 0.15})],
-    "asymmetric_friction": [("asymmetric_friction", {"asym_Fc_pos": 0.2, "asym_Fc_neg": 0.06})],
-    "stribeck_friction": [("stribeck_friction", {"stribeck_Fc": 0.08, "stribeck_Fs": 0.25, "stribeck_vs": 0.004})],
-    "position_ripple": [("position_ripple", {"ripple_a": 0.5, "ripple_b": 0.3, "ripple_period": 0.016})],
-    "position_dependent_inertia": [("position_dependent_inertia", {"inertia_slope": 5.0})],
-    "time_delay": [("time_delay", {"delay_T": 2e-4})],
-    "resonance": [("resonance", {"resonance_m2": 0.1, "resonance_fa": 220.0, "resonance_zeta": 0.03})],
-    "two_effects": [("gravity_offset", {"gravity_F0": 1.0}),
-                    ("position_ripple", {"ripple_a": 0.4, "ripple_b": -0.2, "ripple_period": 0.012})],
-}
-SCALED = {"gravity_F0", "coulomb_Fc", "asym_Fc_pos", "asym_Fc_neg", "stribeck_Fc", "stribeck_Fs", "ripple_a",
-          "ripple_b", "inertia_slope", "delay_T", "resonance_m2"}
+ENCODER = "MotionTwin.Benchmarks.Encoder"
+CONTROLLER = "MotionTwin.Benchmarks.LoopController"
+RIGID = "MotionTwin.Benchmarks.RigidJoint"
+
+CASES = ["params_only_a", "params_only_b", "gravity_offset", "coulomb_friction", "asymmetric_friction",
+         "stribeck_friction", "position_ripple", "position_dependent_inertia", "time_delay", "resonance",
+         "two_effects"]
+
+
+@dataclass
+class TruthPlant:
+    """The truth of a case: a library class, its parameter values and the effects in the contract's terms."""
+
+    class_name: str
+    parameters: dict[str, float]
+    effects: list[dict] = field(default_factory=list)   # {"name", "parameters" (contract), "model"}
+
+
+def _effect(name: str, contract: dict[str, float], model: dict[str, float]) -> dict:
+    """One true effect: contract parameters plus the equivalent values of the diagnosis' effect model."""
+    return {"name": name, "parameters": {**contract, **model}, "contract": contract}
+
+
+def truth_plant(case: str, scale: float = 1.0) -> TruthPlant:
+    """Library model and true values of ``case``; effect sizes are multiplied by ``scale``."""
+    s = scale
+    rigid = {"m": TRUE_M, "d": TRUE_D}
+    if case.startswith("params_only"):
+        return TruthPlant(RIGID, rigid)
+    if case == "gravity_offset":
+        f0 = 1.5 * s
+        return TruthPlant("MotionTwin.Effects.OffsetForceJoint", {**rigid, "F0": f0},
+                          [_effect(case, {"F0": f0}, {"gravity_F0": f0})])
+    if case == "coulomb_friction":
+        fc = 0.15 * s
+        return TruthPlant("MotionTwin.Effects.CoulombJoint", {**rigid, "Fc": fc, "v_eps": V_EPS},
+                          [_effect(case, {"Fc": fc}, {"coulomb_Fc": fc, "coulomb_v_eps": V_EPS})])
+    if case == "asymmetric_friction":
+        pos, neg = 0.2 * s, 0.06 * s
+        return TruthPlant("MotionTwin.Effects.AsymmetricFrictionJoint",
+                          {"m": TRUE_M, "d": 0.0, "beta_vp": TRUE_D, "beta_vn": TRUE_D, "beta_cp": pos,
+                           "beta_cn": neg, "v_eps": V_EPS},
+                          [_effect(case, {"Fc_pos": pos, "Fc_neg": neg},
+                                   {"asym_Fc_pos": pos, "asym_Fc_neg": neg, "asym_v_eps": V_EPS})])
+    if case == "stribeck_friction":
+        fc, fs, vs = 0.08 * s, 0.25 * s, 0.004
+        return TruthPlant("MotionTwin.Effects.StribeckJoint", {**rigid, "Fc": fc, "Fs": fs, "vs": vs, "v_eps": V_EPS},
+                          [_effect(case, {"Fc": fc, "Fs": fs, "vs": vs},
+                                   {"stribeck_Fc": fc, "stribeck_Fs": fs, "stribeck_vs": vs,
+                                    "stribeck_v_eps": V_EPS})])
+    if case == "position_ripple":
+        return _ripple(case, "MotionTwin.Effects.RippleJoint", rigid, 0.5 * s, 0.3 * s, 0.016, [])
+    if case == "two_effects":
+        f0 = 1.0 * s
+        return _ripple("position_ripple", "MotionTwin.Benchmarks.OffsetRippleJoint", {**rigid, "F0": f0},
+                       0.4 * s, -0.2 * s, 0.012, [_effect("gravity_offset", {"F0": f0}, {"gravity_F0": f0})])
+    if case == "position_dependent_inertia":
+        # m(x) = m0*(1 + dm*cos(2*pi*x/0.4)): from m0 + 0.5*s at x = 0 down to m0 at x = 0.1 m
+        m0 = TRUE_M - 0.25 * s
+        return TruthPlant("MotionTwin.Effects.VariableInertiaJoint",
+                          {"m0": m0, "dm": 0.5 * s / m0, "period": 0.4, "d": TRUE_D},
+                          [_effect(case, {}, {})])   # mass range filled in from the recorded positions
+    if case == "time_delay":
+        delay = 2e-4 * s
+        return TruthPlant("MotionTwin.Effects.DelayedInputJoint", {**rigid, "T": delay},
+                          [_effect(case, {"delay": delay}, {"delay_T": delay})])
+    if case == "resonance":
+        m2, fa, zeta = 0.1 * s, 220.0, 0.03
+        wa = 2 * math.pi * fa
+        k, c = m2 * wa ** 2, 2 * zeta * m2 * wa
+        mu = TRUE_M * m2 / (TRUE_M + m2)
+        w_res = math.sqrt(k / mu)
+        return TruthPlant("MotionTwin.Effects.TwoMassJoint", {"m1": TRUE_M, "m2": m2, "k": k, "c": c, "d": TRUE_D},
+                          [_effect(case, {"frequency": w_res / (2 * math.pi), "damping": c / (2 * mu * w_res)},
+                                   {"resonance_m2": m2, "resonance_fa": fa, "resonance_zeta": zeta})])
+    raise KeyError(f"unknown benchmark case {case!r}; cases: {', '.join(CASES)}")
+
+
+def _ripple(name: str, class_name: str, base: dict[str, float], a: float, b: float, period: float,
+            others: list[dict]) -> TruthPlant:
+    """Ripple a*sin(kx) + b*cos(kx) written as the library's A*sin(kx + phase)."""
+    amplitude, phase = math.hypot(a, b), math.atan2(b, a)
+    effect = _effect(name, {"amplitude": amplitude, "period": period},
+                     {"ripple_a": a, "ripple_b": b, "ripple_period": period})
+    return TruthPlant(class_name, {**base, "A": amplitude, "period": period, "phase": phase}, others + [effect])
+
+
+def inertia_range(plant: TruthPlant, q: np.ndarray) -> dict[str, float]:
+    """mass_min, mass_max of a VariableInertiaJoint over the positions ``q`` [kg]."""
+    p = plant.parameters
+    mass = p["m0"] * (1 + p["dm"] * np.cos(2 * math.pi * np.linspace(q.min(), q.max(), 201) / p["period"]))
+    return {"mass_min": float(mass.min()), "mass_max": float(mass.max())}
 
 
 def pid_controller(ts: float = TS, mass: float = TRUE_M, bandwidth: float = 60.0) -> Controller:
@@ -103,60 +197,124 @@ def reference(duration: float, rng: np.random.Generator, stroke: float, sweep: f
     return t, r, u_ext
 
 
-def truth_model(case: str, scale: float):
-    """Augmented Modelica model of the truth (nominal axis at the true m, d plus the case's effects)."""
-    folder = Path(tempfile.mkdtemp(prefix="mt-truth-"))
-    ctx = fx.Context(TS, 0.0, 0.1, 0.2, TRUE_M)
-    effects, values = [], {"plant.m": TRUE_M, "plant.d": TRUE_D}
-    for name, params in CASES[case]:
-        effect = fx.VOCABULARY[name](ctx)
-        effects.append(effect)
-        for p in effect.params:
-            values[p.name] = float(np.mean(p.bounds))
-        values.update({k: v * (scale if k in SCALED else 1.0) for k, v in params.items()})
-    plant_text = PLANT_TEXT.format(m=TRUE_M, d=TRUE_D)
-    fx.write_model(folder, plant_text, PLANT_CLASS, effects, values, {"m": TRUE_M, "d": TRUE_D}, "Truth")
-    model = fx.load_augmented(folder, "Truth")
-    tracking = {s: "q" for e in effects for s in e.tracks_position}
-    tracking.update({s: "u" for e in effects for s in e.tracks_force})
-    return model, values, tracking
+def with_preroll(r: np.ndarray, u_ext: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
+    """Prepend the pre-roll (cosine move from 0 to r[0], then a dwell); returns r, u_ext and its length."""
+    n_move, n_dwell = int(round(PRE_MOVE / TS)), int(round(PRE_DWELL / TS))
+    move = r[0] * (1 - np.cos(np.pi * np.linspace(0, 1, n_move))) / 2
+    pre = n_move + n_dwell
+    return (np.concatenate([move, np.full(n_dwell, r[0]), r]), np.concatenate([np.zeros(pre), u_ext]), pre)
+
+
+# -- FMUs and the co-simulated loop ----------------------------------------------------------------
+
+_BUILT: dict[tuple[str, str], Path] = {}
+
+
+def truth_fmus(classes: list[str], folder: Path | None = None) -> dict[str, Path]:
+    """FMI 2.0 FMUs of ``classes`` (built once per process and folder by the project's pipeline)."""
+    folder = Path(folder) if folder is not None else Path(tempfile.gettempdir()) / "motiontwin-benchmark-fmus"
+    missing = [c for c in dict.fromkeys(classes) if (c, str(folder)) not in _BUILT]
+    if missing:
+        for fmu, class_name in zip(build.build(missing, out_dir=folder, fmi_versions=("2.0",), workers=1), missing):
+            _BUILT[(class_name, str(folder))] = fmu.path
+    return {c: _BUILT[(c, str(folder))] for c in classes}
+
+
+def loop_system(plant_fmu: Path, controller_fmu: Path, encoder_fmu: Path, ctrl: Controller,
+                plant_parameters: dict[str, float], resolution: float) -> dict:
+    """The harness system description (as a dict) of controller -> plant -> encoder -> controller."""
+    matrices = {f"{name}[{i + 1},{j + 1}]": float(mat[i, j])
+                for name, mat in zip("ABCD", (ctrl.A, ctrl.B, ctrl.C, ctrl.D))
+                for i in range(mat.shape[0]) for j in range(mat.shape[1])}
+    fast = ctrl.Ts / PLANT_SUBSTEPS
+    return {
+        "base_step": fast,
+        "fmus": {
+            "ctrl": {"path": str(controller_fmu), "step": ctrl.Ts, "parameters": {**matrices, "Ts": ctrl.Ts}},
+            "plant": {"path": str(plant_fmu), "step": fast, "parameters": dict(plant_parameters)},
+            "enc": {"path": str(encoder_fmu), "step": fast, "parameters": {"resolution": resolution}},
+        },
+        "inputs": {"r": {"unit": "m"}, "u_ext": {"unit": "N"}, "noise": {"unit": "m"}},
+        "connections": [
+            {"from": "input.r", "to": "ctrl.u[1]"},
+            {"from": "enc.y", "to": "ctrl.u[2]"},
+            {"from": ["ctrl.y", "input.u_ext"], "to": "plant.u"},
+            {"from": "plant.q", "to": "enc.q"},
+            {"from": "input.noise", "to": "enc.noise"},
+        ],
+        "log": [{"name": "samples", "signals": ["input.r", "plant.u", "enc.y", "input.u_ext", "plant.q"],
+                 "step": ctrl.Ts}],
+    }
+
+
+def cosimulate(plant: TruthPlant, r: np.ndarray, u_ext: np.ndarray, noise: np.ndarray,
+               resolution: float = RESOLUTION, ctrl: Controller | None = None,
+               fmu_dir: Path | None = None) -> dict[str, np.ndarray]:
+    """Closed-loop co-simulation on the controller grid k*Ts, k = 0..n-1; returns r, u, q (measured),
+    u_ext and q_true. ``noise[k]`` is the sensor noise of sample k."""
+    ctrl = ctrl or pid_controller()
+    paths = truth_fmus([plant.class_name, CONTROLLER, ENCODER], fmu_dir)
+    system = system_from_dict(loop_system(paths[plant.class_name], paths[CONTROLLER], paths[ENCODER], ctrl,
+                                          plant.parameters, resolution))
+    n = r.size
+    t = np.arange(n) * ctrl.Ts
+    # the encoder output read at base tick k*M was computed at tick k*M - 1: give it noise[k] there
+    fine = np.arange(n * PLANT_SUBSTEPS + 1)
+    noise_fine = noise[np.minimum((fine + 1) // PLANT_SUBSTEPS, n - 1)]
+    with Master(system, progress=False) as master:
+        log = master.run(inputs={"r": (t, r), "u_ext": (t, u_ext), "noise": noise_fine},
+                         stop_time=n * ctrl.Ts)["samples"][:n]
+    return {"time": t, "r": log["input.r"], "u": log["plant.u"], "q": log["enc.y"], "u_ext": log["input.u_ext"],
+            "q_true": log["plant.q"]}
 
 
 def simulate_truth(case: str, t: np.ndarray, r: np.ndarray, u_ext: np.ndarray, rng: np.random.Generator,
-                   scale: float, with_effects: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Closed-loop truth with encoder noise fed back; returns measured q (quantised), u and the true q."""
-    ctrl = pid_controller()
-    model, values, tracking = truth_model(case if with_effects else "params_only_a", scale)
-    pre = int(1.0 / TS)
-    n = t.size + pre
-    rr = np.concatenate([np.full(pre, r[0]), r])
-    ue = np.concatenate([np.zeros(pre), u_ext])
-    noise = rng.normal(0, NOISE, n)
-    loop = sim.build_loop(model, ctrl, "plant.x", [], values, n, tracking=tracking, with_jacobian=False)
-    fine = sim.build_loop(model, ctrl, "plant.x", [], values, n, substeps=4 * loop.substeps, tracking=tracking,
-                          with_jacobian=False)
-    rec = make_recording(np.arange(n) * TS, {"r": rr, "u": np.zeros(n), "q": np.full(n, r[0]), "u_ext": ue})
-    q, u = sim.simulate(fine, rec, values, noise=noise)
-    q_meas = np.round((q + noise) / RESOLUTION) * RESOLUTION
-    return q_meas[pre:], u[pre:], q[pre:]
+                   scale: float, with_effects: bool = True, noise_std: float = NOISE,
+                   resolution: float = RESOLUTION, fmu_dir: Path | None = None) -> tuple[np.ndarray, ...]:
+    """Closed-loop truth (pre-roll cut off); returns the measured q, the force u and the true q."""
+    plant = truth_plant(case if with_effects else "params_only_a", scale)
+    rr, ue, pre = with_preroll(r, u_ext)
+    noise = measurement.add_noise(np.zeros(rr.size), noise_std, rng)
+    out = cosimulate(plant, rr, ue, noise, resolution, fmu_dir=fmu_dir)
+    return out["q"][pre:], out["u"][pre:], out["q_true"][pre:]
 
+
+# -- bundles ------------------------------------------------------------------------------------------
 
 def write_bundle(folder: Path, case: str, seed: int, scale: float = 1.0, nominal_error: float | None = None,
-                 durations: tuple[float, float] = (12.0, 6.0)) -> dict:
-    """Write one bundle (experiment.json, plant.mo, train.csv, validation.csv) and its truth.json."""
+                 durations: tuple[float, float] = (12.0, 6.0), noise_std: float = NOISE,
+                 resolution: float = RESOLUTION, fmu_dir: Path | None = None, stroke: float = 0.1,
+                 sweep_fraction: float = 0.25) -> dict:
+    """Write one bundle (experiment.json, plant.mo, train.csv, validation.csv) and its ``NAME.truth.json``
+    next to it (true effects, truth model, concealment: max and RMS |q_truth - q_rigid| [m] and max |u_truth -
+    u_rigid| [N] on the training run, the rigid axis at the true m, d driven by the same r, u_ext and noise)."""
     rng = np.random.default_rng(seed)
+    folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
-    err = nominal_error if nominal_error is not None else rng.uniform(0.2, 0.4)
+    err = nominal_error if nominal_error is not None else rng.uniform(0.2, 0.5)
     m_nom = TRUE_M * (1 + err * rng.choice([-1, 1]))
-    d_nom = TRUE_D * (1 + rng.uniform(0.2, 0.4) * rng.choice([-1, 1]))
-    plant_text = PLANT_TEXT.format(m=float(round(m_nom, 3)), d=float(round(d_nom, 3)))
-    (folder / "plant.mo").write_text(plant_text, encoding="utf-8")
+    d_nom = TRUE_D * (1 + rng.uniform(0.2, 0.5) * rng.choice([-1, 1]))
+    plant = truth_plant(case, scale)
     ctrl = pid_controller()
+    concealment = {}
     for part, duration in zip(("train", "validation"), durations):
-        t, r, u_ext = reference(duration, rng, 0.1, duration / 4)
-        q, u, _ = simulate_truth(case, t, r, u_ext, rng, scale)
+        t, r, u_ext = reference(duration, rng, stroke, duration * sweep_fraction)
+        noise_seed = int(rng.integers(2 ** 31))
+        q, u, q_true = simulate_truth(case, t, r, u_ext, np.random.default_rng(noise_seed), scale,
+                                      noise_std=noise_std, resolution=resolution, fmu_dir=fmu_dir)
+        if part == "train":
+            _, u_rigid, q_rigid = simulate_truth(case, t, r, u_ext, np.random.default_rng(noise_seed), scale,
+                                                 with_effects=False, noise_std=noise_std, resolution=resolution,
+                                                 fmu_dir=fmu_dir)
+            concealment = {"max_abs_m": float(np.max(np.abs(q_true - q_rigid))),
+                           "rms_m": float(np.sqrt(np.mean((q_true - q_rigid) ** 2))),
+                           "force_max_abs_N": float(np.max(np.abs(u - u_rigid)))}
+            if plant.class_name.endswith("VariableInertiaJoint"):
+                plant.effects[0]["contract"] = inertia_range(plant, q_true)
+                plant.effects[0]["parameters"] = dict(plant.effects[0]["contract"])
         rec = make_recording(t, {"r": r, "u": u, "q": q, "u_ext": u_ext}, sample_time=TS, seed=seed,
-                             excited="point-to-point moves, then a swept sine 20-600 Hz on u_ext")
+                             excited="point-to-point moves, then a swept sine 20-600 Hz on u_ext",
+                             metadata={"truth": plant.class_name, "noise_seed": noise_seed})
         write_recording(folder / f"{part}.csv", rec)
     experiment = {
         "plant": {"modelica": "plant.mo", "class": PLANT_CLASS, "input": "u", "output": "q"},
@@ -164,16 +322,22 @@ def write_bundle(folder: Path, case: str, seed: int, scale: float = 1.0, nominal
                        "A": ctrl.A.tolist(), "B": ctrl.B.tolist(), "C": ctrl.C.tolist(), "D": ctrl.D.tolist()},
         "recordings": {"train": "train.csv", "validation": "validation.csv"},
     }
-    (folder / "experiment.json").write_text(json.dumps(experiment, indent=2), encoding="utf-8")
-    truth = {"case": case, "seed": seed, "scale": scale, "m": TRUE_M, "d": TRUE_D,
-             "effects": [{"name": n, "parameters": {k: v * (scale if k in SCALED else 1) for k, v in p.items()}}
-                         for n, p in CASES[case]]}
-    (folder.parent / f"{folder.name}.truth.json").write_text(json.dumps(truth, indent=2), encoding="utf-8")
+    truth = {"case": case, "seed": seed, "scale": scale, "m": TRUE_M, "d": TRUE_D, "stroke": stroke,
+             "sweep_fraction": sweep_fraction,
+             "truth_model": {"class": plant.class_name, "parameters": plant.parameters,
+                             "plant_step": TS / PLANT_SUBSTEPS, "encoder_resolution": resolution,
+                             "noise_std": noise_std},
+             "effects": plant.effects, "concealment": concealment}
+    atomic_write_texts({
+        folder / "plant.mo": PLANT_TEXT.format(m=float(round(m_nom, 3)), d=float(round(d_nom, 3))),
+        folder / "experiment.json": json.dumps(experiment, indent=2),
+        folder.parent / f"{folder.name}.truth.json": json.dumps(truth, indent=2),
+    })
     return truth
 
 
 def concealment(case: str, seed: int, scale: float = 1.0) -> float:
-    """Max |q_truth - q_without_effects| [m] over a training trajectory: how hidden the effect is."""
+    """Max |q_truth - q_without_effects| [m] over a 12 s training trajectory: how hidden the effect is."""
     rng = np.random.default_rng(seed)
     t, r, u_ext = reference(12.0, rng, 0.1, 3.0)
     _, _, q1 = simulate_truth(case, t, r, u_ext, np.random.default_rng(0), scale)
@@ -189,35 +353,82 @@ def case_list(which: str) -> list[tuple[str, int, float]]:
     return [(c, 500 + i, float(rng.uniform(0.6, 1.5))) for i, c in enumerate(CASES)]
 
 
+def trajectory(which: str, seed: int) -> dict[str, float]:
+    """Stroke [m] and swept-sine share of a recording: fixed in the tuning set, drawn per case when held out."""
+    if which == "tuning":
+        return {"stroke": 0.1, "sweep_fraction": 0.25}
+    rng = np.random.default_rng(seed + 7919)
+    return {"stroke": float(rng.uniform(0.06, 0.14)), "sweep_fraction": float(rng.uniform(0.2, 0.35))}
+
+
 def generate(out: Path, which: str) -> None:
+    """Write every bundle of the set ``which`` into ``out/which/CASE`` (FMUs built into ``out/fmus``)."""
     for case, seed, scale in case_list(which):
         t0 = time.perf_counter()
-        write_bundle(out / which / case, case, seed, scale)
-        print(f"{which}/{case}: seed {seed}, scale {scale:.2f}, {time.perf_counter() - t0:.1f} s", flush=True)
+        shape = trajectory(which, seed)
+        truth = write_bundle(out / which / case, case, seed, scale, fmu_dir=out / "fmus", **shape)
+        print(f"{which}/{case}: seed {seed}, scale {scale:.2f}, stroke {shape['stroke'] * 1e3:.0f} mm, "
+              f"sweep {shape['sweep_fraction']:.2f}, truth {truth['truth_model']['class']}, "
+              f"concealment {truth['concealment']['max_abs_m'] * 1e6:.2f} um "
+              f"({truth['concealment']['force_max_abs_N']:.3g} N), {time.perf_counter() - t0:.1f} s",
+              flush=True)
 
 
-def _main_value(name: str, params: dict[str, float]) -> tuple[str, float] | None:
-    keys = {"gravity_offset": "F0", "coulomb_friction": "Fc", "asymmetric_friction": "Fc_pos",
-            "stribeck_friction": "Fs", "position_ripple": "amplitude", "time_delay": "delay",
-            "resonance": "frequency", "position_dependent_inertia": "mass_max"}
-    key = keys[name]
-    return (key, params[key]) if key in params else None
+# -- verification against the CasADi simulation of the diagnosis' own augmented model ------------
+
+def verify(case: str = "coulomb_friction", seed: int = 10, duration: float = 12.0,
+           fmu_dir: Path | None = None) -> dict[str, float]:
+    """Noise-free comparison of the co-simulated FMU truth with the CasADi closed-loop simulation of the
+    same physics written as the diagnosis' augmented model (RK4, 32 substeps per sample), on the same
+    drive including the pre-roll; returns max and RMS |q_fmu - q_casadi| [m] and the max |q| [m]."""
+    try:
+        from ident import outputerror as sim
+    except ImportError:
+        from ident.diagnosis import simulate as sim
+    from ident.diagnosis import effects as fx
+
+    plant = truth_plant(case)
+    if plant.class_name.endswith("VariableInertiaJoint"):
+        raise ValueError("position_dependent_inertia: the truth (cosine mass) has no exact CasADi counterpart")
+    rng = np.random.default_rng(seed)
+    t, r, u_ext = reference(duration, rng, 0.1, duration / 4)
+    rr, ue, _ = with_preroll(r, u_ext)
+    fmu = cosimulate(plant, rr, ue, np.zeros(rr.size), resolution=1e-15, fmu_dir=fmu_dir)
+
+    ctx = fx.Context(TS, 0.0, 0.1, 0.2, TRUE_M)
+    effects, values = [], {"plant.m": TRUE_M, "plant.d": TRUE_D}
+    for true in plant.effects:
+        effect = fx.VOCABULARY[true["name"]](ctx)
+        effects.append(effect)
+        values.update({p.name: float(np.mean(p.bounds)) for p in effect.params})
+        values.update({k: v for k, v in true["parameters"].items() if k in {p.name for p in effect.params}})
+    folder = Path(tempfile.mkdtemp(prefix="mt-verify-"))
+    fx.write_model(folder, PLANT_TEXT.format(m=TRUE_M, d=TRUE_D), PLANT_CLASS, effects, values,
+                   {"m": TRUE_M, "d": TRUE_D}, "Truth")
+    model = fx.load_augmented(folder, "Truth")
+    n = rr.size
+    loop = sim.build_loop(model, pid_controller(), "plant.x", [], values, n, substeps=32, with_jacobian=False)
+    rec = make_recording(np.arange(n) * TS, {"r": rr, "u": np.zeros(n), "q": np.zeros(n), "u_ext": ue})
+    q_casadi, _ = sim.simulate(loop, rec, values)
+    diff = fmu["q_true"] - q_casadi
+    return {"max_abs_m": float(np.max(np.abs(diff))), "rms_m": float(np.sqrt(np.mean(diff ** 2))),
+            "max_q_m": float(np.max(np.abs(q_casadi)))}
 
 
-def _truth_contract(effect: dict) -> dict[str, float]:
-    e = fx.VOCABULARY[effect["name"]](fx.Context(TS, 0.0, 0.1, 0.2, TRUE_M))
-    values = {p.name: float(np.mean(p.bounds)) for p in e.params}
-    values.update(effect["parameters"])
-    values["plant.m"] = TRUE_M
-    return e.contract(values, fx.Context(TS, 0.0, 0.1, 0.2, TRUE_M))
+# -- the runner ------------------------------------------------------------------------------------
+
+_MAIN = {"gravity_offset": "F0", "coulomb_friction": "Fc", "asymmetric_friction": "Fc_pos",
+         "stribeck_friction": "Fs", "position_ripple": "amplitude", "time_delay": "delay",
+         "resonance": "frequency", "position_dependent_inertia": "mass_max"}
+VOCABULARY = list(_MAIN)
 
 
 def run(out: Path, which: str, only: list[str] | None = None) -> int:
+    """Diagnose every bundle of the set and print one line per case and the confusion table."""
     from ident.diagnosis import diagnose
 
-    names = list(fx.VOCABULARY)
+    names = VOCABULARY
     confusion = {n: {m: 0 for m in names + ["(none)"]} for n in names + ["(none)"]}
-    rows = []
     for case, _, _ in case_list(which):
         if only and case not in only:
             continue
@@ -238,16 +449,16 @@ def run(out: Path, which: str, only: list[str] | None = None) -> int:
         errors = []
         for effect in truth["effects"]:
             match = [e for e in doc["effects"] if e["name"] == effect["name"]]
-            tv = _main_value(effect["name"], _truth_contract(effect))
-            if match and tv:
-                fv = match[0]["parameters"].get(tv[0])
-                errors.append(f"{tv[0]} {fv:.4g}/{tv[1]:.4g} ({100 * (fv / tv[1] - 1):+.0f}%)")
+            key = _MAIN[effect["name"]]
+            true_value = effect["contract"].get(key)
+            if match and true_value:
+                fv = match[0]["parameters"].get(key)
+                errors.append(f"{key} {fv:.4g}/{true_value:.4g} ({100 * (fv / true_value - 1):+.0f}%)")
         val = doc["validation"]
         ratio = val["augmented_rms"] / val["nominal_rms"]
         m_err = 100 * (doc["augmented_parameters"].get("m", math.nan) / TRUE_M - 1)
-        rows.append((case, ",".join(true_names) or "-", ",".join(found) or "-", "; ".join(errors), m_err,
-                     val["nominal_rms"], val["augmented_rms"], ratio, seconds))
-        print(f"{case:28s} truth={rows[-1][1]:40s} found={rows[-1][2]:40s} {rows[-1][3]} m_err={m_err:+.1f}% "
+        truth_text, found_text = ",".join(true_names) or "-", ",".join(found) or "-"
+        print(f"{case:28s} truth={truth_text:40s} found={found_text:40s} {'; '.join(errors)} m_err={m_err:+.1f}% "
               f"val {val['nominal_rms']:.3g}->{val['augmented_rms']:.3g} m (x{ratio:.2f}) {seconds:.0f} s",
               flush=True)
     print("\nconfusion (rows truth, columns found):")
@@ -260,7 +471,7 @@ def run(out: Path, which: str, only: list[str] | None = None) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m ident.diagnosis.benchmark")
-    parser.add_argument("command", choices=["generate", "run", "conceal"])
+    parser.add_argument("command", choices=["generate", "run", "conceal", "verify"])
     parser.add_argument("out", type=Path)
     parser.add_argument("--set", default="tuning", choices=["tuning", "heldout"])
     parser.add_argument("--case", default=None)
@@ -271,6 +482,13 @@ def main(argv: list[str] | None = None) -> int:
         for case, seed, scale in case_list(args.set):
             if args.case in (None, case):
                 print(f"{case}: max |q_truth - q_nominal| = {concealment(case, seed, scale) * 1e6:.2f} um")
+    elif args.command == "verify":
+        case = args.case or "coulomb_friction"
+        t0 = time.perf_counter()
+        res = verify(case, fmu_dir=args.out / "fmus")
+        print(f"{case}: noise-free FMU co-simulation vs CasADi (RK4, Ts/32): max |dq| = {res['max_abs_m']:.3g} m, "
+              f"RMS {res['rms_m']:.3g} m (max |q| {res['max_q_m']:.3g} m; encoder noise {NOISE:g} m, "
+              f"quantum {RESOLUTION:g} m), {time.perf_counter() - t0:.1f} s")
     else:
         return run(args.out, args.set, [args.case] if args.case else None)
     return 0
