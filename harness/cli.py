@@ -96,11 +96,6 @@ def _ssp(args: argparse.Namespace) -> int:
     return 0
 
 
-def _sample_rate(rec: object) -> float:
-    """[Hz] of a recording sampled at a constant rate."""
-    return 1.0 / float(np.median(np.diff(rec.time)))
-
-
 def _report_fit(fit: object, args: argparse.Namespace, method: str) -> int:
     """Print a least-squares fit and, with ``--out``, write estimates, std and covariance as JSON."""
     import json
@@ -119,39 +114,21 @@ def _report_fit(fit: object, args: argparse.Namespace, method: str) -> int:
 
 def _identify_joint(args: argparse.Namespace) -> int:
     from harness import recording
-    from ident.joint import identify_joint_periodic
+    from ident.joint import identify_joint_recording
 
     rec = recording.read_recording(args.recording, required=("time", args.position, args.force))
-    sample_rate = _sample_rate(rec)
-    result = identify_joint_periodic(rec[args.position], rec[args.force], sample_rate, args.f0, args.cutoff,
-                                     min_speed=args.min_speed, friction=args.friction)
+    result, notes = identify_joint_recording(rec, args.f0, args.cutoff, position=args.position, force=args.force,
+                                             min_speed=args.min_speed, friction=args.friction,
+                                             nominal_inertia=args.nominal_inertia, source=str(args.recording))
+    for note in notes:
+        print(note)
     return _report_fit(result.fit, args, "inverse-dynamics Gauss-Markov least squares (Abdellatif, Bona eq. 2)")
 
 
 def _identify_frf(args: argparse.Namespace) -> int:
-    import json
+    from ident.frf import cli_identify_frf
 
-    from harness import recording
-    from ident.frf import acceleration_from_position, estimate_frf, fit_joint_frf
-
-    rec = recording.read_recording(args.recording, required=("time", args.input, args.position))
-    fs = _sample_rate(rec)
-    frf = estimate_frf(rec[args.input][1:-1], acceleration_from_position(rec[args.position], fs), fs, args.segment)
-    fit = fit_joint_frf(frf, output="acceleration", sample_rate=fs, min_coherence=args.min_coherence)
-    model = fit.model
-    values = {"K": model.gain, "alpha": model.alpha}
-    for k, ((wr, zr), (wa, za)) in enumerate(zip(model.resonances, model.antiresonances)):
-        suffix = "" if k == 0 else str(k + 1)
-        values.update({f"omega{suffix}": wr, f"zeta{suffix}": zr, f"omega_bar{suffix}": wa, f"zeta_bar{suffix}": za})
-    for name, value in values.items():
-        print(f"{name:>12} {value:13.6g}")
-    print(f"rms log-magnitude error {fit.rms_log_error:.3g}")
-    if args.out:
-        doc = {"method": "H1 FRF from swept sine + fit of K/(s(s+alpha)) and resonance/antiresonance pairs "
-                         "(Cheung eqs. 6-8), rad/s", "recording": str(args.recording), "parameters": values}
-        recording.atomic_write_texts({args.out: json.dumps(doc, indent=2) + "\n"})
-        print(args.out)
-    return 0
+    return cli_identify_frf(args)
 
 
 def _identify_oe(args: argparse.Namespace) -> int:
@@ -162,15 +139,15 @@ def _identify_oe(args: argparse.Namespace) -> int:
 
 def _identify_hexapod(args: argparse.Namespace) -> int:
     from harness import recording
-    from ident.hexapod import identify_hexapod_periodic
+    from ident.hexapod import identify_hexapod_recording
 
     lengths = [f"L{i}" for i in range(1, 7)]
     forces = [f"tau{i}" for i in range(1, 7)]
     rec = recording.read_recording(args.recording, required=("time", *lengths, *forces))
-    sample_rate = _sample_rate(rec)
-    result = identify_hexapod_periodic(np.column_stack([rec[c] for c in lengths]),
-                                       np.column_stack([rec[c] for c in forces]), sample_rate, args.f0,
-                                       args.cutoff, min_leg_speed=args.min_speed)
+    result, notes = identify_hexapod_recording(rec, args.f0, args.cutoff, min_leg_speed=args.min_speed,
+                                               source=str(args.recording))
+    for note in notes:
+        print(note)
     return _report_fit(result.fit, args, "hexapod base parameters, Gauss-Markov least squares (Abdellatif)")
 
 
@@ -285,11 +262,16 @@ def _parser() -> argparse.ArgumentParser:
     q.add_argument("--cutoff", type=float, required=True, help="low-pass cut-off of the derivatives [Hz]")
     q.add_argument("--min-speed", type=float, default=0.0, help="drop samples slower than this (Coulomb sign)")
     q.add_argument("--friction", default="asymmetric", help="friction parametrisation (see ident.joint)")
+    q.add_argument("--nominal-inertia", type=float, default=None,
+                   help="a-priori J [kg.m2 or kg]: refuse a fit more than 10x away (mis-declared units)")
     q.add_argument("--out", type=Path, default=None, help="write estimates, std and covariance as JSON")
     q.set_defaults(func=_identify_joint)
     q = kinds.add_parser("frf", help="joint model K/(s(s+alpha)) x resonance/antiresonance pairs (Cheung eqs. 6-8) "
                                      "from a swept-sine recording")
-    q.add_argument("recording", type=Path, help="recording CSV with the force and the encoder position")
+    q.add_argument("recording", type=Path, nargs="+",
+                   help="recording CSV with the force and the encoder position (several with --worst-case)")
+    q.add_argument("--worst-case", action="store_true",
+                   help="fit each recording (one per actuator position) and use the lowest-gain model (Cheung)")
     q.add_argument("--input", default="u", help="force column [N] (default u)")
     q.add_argument("--position", default="q", help="position column [m] (default q)")
     q.add_argument("--segment", type=int, default=4096, help="Welch segment length [samples]")

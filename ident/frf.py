@@ -16,12 +16,15 @@ Units: time s, frequency Hz for data, rad/s for model poles/zeros (omega, alpha)
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Sequence
 
 import control
 import numpy as np
 import scipy.ndimage
 import scipy.optimize
 import scipy.signal
+
+from ident.units import check_inertia, check_motion, checked_columns
 
 __all__ = [
     "FrequencyResponse",
@@ -33,6 +36,12 @@ __all__ = [
     "fit_joint_frf",
     "LowFrequencyFit",
     "fit_low_frequency_model",
+    "joint_model_parameters",
+    "identify_frf_recording",
+    "WorstCase",
+    "select_worst_case",
+    "identify_frf_worst_case",
+    "frf_document",
 ]
 
 
@@ -280,3 +289,143 @@ def fit_low_frequency_model(
     jac = sol.jac * np.exp(sol.x)  # d residual / d (K, alpha)
     covariance = sigma2 * np.linalg.inv(jac.T @ jac)
     return LowFrequencyFit(float(gain), float(alpha), covariance, float(np.sqrt(np.mean(sol.fun**2))))
+
+
+FRF_METHOD = ("H1 FRF from swept sine + fit of K/(s(s+alpha)) and resonance/antiresonance pairs "
+              "(Cheung eqs. 6-8), rad/s")
+
+
+def joint_model_parameters(model: JointModel) -> dict[str, float]:
+    """The model in the CheungJoint FMU's parameter names: K, alpha, omega, zeta, omega_bar, zeta_bar
+    (second and further modes suffixed 2, 3, ...)."""
+    values = {"K": model.gain, "alpha": model.alpha}
+    for k, ((wr, zr), (wa, za)) in enumerate(zip(model.resonances, model.antiresonances)):
+        suffix = "" if k == 0 else str(k + 1)
+        values.update({f"omega{suffix}": wr, f"zeta{suffix}": zr, f"omega_bar{suffix}": wa,
+                       f"zeta_bar{suffix}": za})
+    return values
+
+
+def identify_frf_recording(rec, *, input: str = "u", position: str = "q", segment_length: int = 4096,
+                           min_coherence: float = 0.9, source: str = "recording",
+                           nominal_mass: float | None = None) -> tuple[JointModelFit, list[str]]:
+    """Fit Cheung's joint model to a swept-sine harness.recording.Recording, with unit checks.
+
+    The force column must be in N or N.m and the position in m or rad (mm, um, deg, kN, ms ...
+    converted and reported in the returned notes). The position's span and speed, and the moving mass
+    1/K (kg or kg.m2; within 10x of ``nominal_mass`` if given) must be plausible, else
+    ident.units.UnitError names the column.
+    """
+    columns = checked_columns(rec, {input: "force", position: "position"}, source=source)
+    check_motion(columns, position, source=source)
+    fs = columns.sample_rate
+    frf = estimate_frf(columns[input][1:-1], acceleration_from_position(columns[position], fs), fs, segment_length)
+    fit = fit_joint_frf(frf, output="acceleration", sample_rate=fs, min_coherence=min_coherence)
+    check_inertia(1.0 / fit.model.gain, "moving mass 1/K", position, columns.rotary(position), source=source,
+                  nominal=nominal_mass)
+    return fit, columns.notes
+
+
+@dataclass(frozen=True)
+class WorstCase:
+    """Fits over actuator positions and the one with the lowest gain (Cheung: the design model).
+
+    labels: one per position (e.g. recording paths); fits: JointModelFit per position; selected: index of
+    the worst case; criterion: 'K' (acceleration gain) or 'K/alpha' (low-frequency velocity gain).
+    """
+
+    labels: list[str]
+    fits: list[JointModelFit]
+    selected: int
+    criterion: str
+
+    @property
+    def model(self) -> JointModel:
+        return self.fits[self.selected].model
+
+    def table(self) -> str:
+        """One line per position with K, alpha, K/alpha and the first mode, the worst marked '*'."""
+        lines = [f"{'':1} {'position':<28} {'K':>12} {'alpha':>10} {'K/alpha':>10} {'omega':>10} "
+                 f"{'omega_bar':>10} {'rms log':>8}"]
+        for i, (label, fit) in enumerate(zip(self.labels, self.fits)):
+            m = fit.model
+            wr = m.resonances[0][0] if m.resonances else float("nan")
+            wa = m.antiresonances[0][0] if m.antiresonances else float("nan")
+            lines.append(f"{'*' if i == self.selected else ' '} {label[-28:]:<28} {m.gain:12.6g} {m.alpha:10.5g} "
+                         f"{m.gain / m.alpha:10.5g} {wr:10.5g} {wa:10.5g} {fit.rms_log_error:8.3g}")
+        lines.append(f"* worst case (lowest {self.criterion}), used for design")
+        return "\n".join(lines)
+
+
+def select_worst_case(fits: Sequence[JointModelFit], labels: Sequence[str], *, criterion: str = "K") -> WorstCase:
+    """The fit with the lowest gain: ``criterion`` 'K' (acceleration gain of L(s)) or 'K/alpha'
+    (velocity gain of L(s) below alpha). Cheung designs the controller on this model, as the other
+    positions only have more gain (more phase margin is lost at the lowest gain crossover)."""
+    if criterion not in ("K", "K/alpha"):
+        raise ValueError(f"criterion must be 'K' or 'K/alpha', got {criterion!r}")
+    if not fits or len(fits) != len(labels):
+        raise ValueError(f"need one label per fit and at least one fit, got {len(fits)} fits, {len(labels)} labels")
+    gains = [f.model.gain if criterion == "K" else f.model.gain / f.model.alpha for f in fits]
+    return WorstCase(list(labels), list(fits), int(np.argmin(gains)), criterion)
+
+
+def identify_frf_worst_case(recordings: Sequence, labels: Sequence[str], *, criterion: str = "K",
+                            **options) -> tuple[WorstCase, list[str]]:
+    """identify_frf_recording on each recording (one per actuator position), then select_worst_case.
+    ``options`` go to identify_frf_recording; returns the selection and all conversion notes."""
+    fits, notes = [], []
+    for rec, label in zip(recordings, labels, strict=True):
+        fit, rec_notes = identify_frf_recording(rec, source=label, **options)
+        fits.append(fit)
+        notes += rec_notes
+    return select_worst_case(fits, labels, criterion=criterion), notes
+
+
+def frf_document(fit: JointModelFit | WorstCase, recording: str | Sequence[str]) -> dict:
+    """The JSON document ``motiontwin identify frf --out`` writes: method, recording, parameters (the
+    CheungJoint names, so writeback --values takes it), and for a WorstCase also 'worst_case' with the
+    criterion, the selected index and one row of parameters per position."""
+    if isinstance(fit, WorstCase):
+        doc = {"method": FRF_METHOD + f"; worst case (lowest {fit.criterion}) over actuator positions",
+               "recording": fit.labels[fit.selected], "parameters": joint_model_parameters(fit.model)}
+        doc["worst_case"] = {
+            "criterion": fit.criterion, "selected": fit.selected,
+            "positions": [{"recording": label, "parameters": joint_model_parameters(f.model),
+                           "rms_log_error": f.rms_log_error} for label, f in zip(fit.labels, fit.fits)],
+        }
+        return doc
+    return {"method": FRF_METHOD, "recording": str(recording), "parameters": joint_model_parameters(fit.model)}
+
+
+def cli_identify_frf(args) -> int:
+    """Handler of ``motiontwin identify frf REC [REC ...] [--worst-case]`` (arguments: recording (list of
+    paths), input, position, segment, min_coherence, worst_case, out). Prints unit conversions, the
+    parameters (and with --worst-case the per-position table) and writes frf_document() to --out."""
+    import json
+
+    from harness import recording
+
+    paths = list(args.recording) if isinstance(args.recording, (list, tuple)) else [args.recording]
+    if len(paths) > 1 and not args.worst_case:
+        raise ValueError(f"{len(paths)} recordings given: pass --worst-case to fit each and select the lowest gain")
+    options = dict(input=args.input, position=args.position, segment_length=args.segment,
+                   min_coherence=args.min_coherence)
+    recs = [recording.read_recording(p, required=("time", args.input, args.position)) for p in paths]
+    if args.worst_case:
+        result, notes = identify_frf_worst_case(recs, [str(p) for p in paths], **options)
+        fit_rms = result.fits[result.selected].rms_log_error
+    else:
+        result, notes = identify_frf_recording(recs[0], source=str(paths[0]), **options)
+        fit_rms = result.rms_log_error
+    for note in notes:
+        print(note)
+    if args.worst_case:
+        print(result.table())
+    doc = frf_document(result, str(paths[0]))
+    for name, value in doc["parameters"].items():
+        print(f"{name:>12} {value:13.6g}")
+    print(f"rms log-magnitude error {fit_rms:.3g}")
+    if args.out:
+        recording.atomic_write_texts({args.out: json.dumps(doc, indent=2) + "\n"})
+        print(args.out)
+    return 0

@@ -49,6 +49,7 @@ from ident.leastsquares import (
 )
 from ident.signals import lowpass_differentiate, period_average, samples_per_period
 from ident.trajectory import fourier_basis
+from ident.units import UnitError, check_inertia, checked_columns
 
 __all__ = [
     "POSE_NAMES",
@@ -70,7 +71,7 @@ __all__ = [
     "scale_to_limits",
     "random_limited_excitation",
     "evaluate_pose_design",
-    "optimize_pose_excitation",
+    "identify_hexapod_recording",
 ]
 
 POSE_NAMES = ("x", "y", "z", "a", "b", "c")
@@ -329,6 +330,40 @@ def identify_hexapod_periodic(lengths: np.ndarray, forces: np.ndarray, sample_ra
                                  force_avg.mean, force_avg.noise_covariance, mask)
 
 
+def identify_hexapod_recording(rec, fundamental_frequency: float, cutoff_frequency: float, *,
+                               lengths: tuple[str, ...] = tuple(f"L{i}" for i in range(1, 7)),
+                               forces: tuple[str, ...] = tuple(f"tau{i}" for i in range(1, 7)),
+                               min_leg_speed: float = 0.0, geom: HexapodGeometry = HEXAPOD,
+                               source: str = "recording", **options) -> tuple[HexapodIdentification, list[str]]:
+    """identify_hexapod_periodic on a harness.recording.Recording, with unit checks (ident.units).
+
+    Leg lengths must be lengths (m, or mm/um converted and reported), leg forces forces (N, kN, mN);
+    the lengths must lie within 0.5-2x the geometry's leg lengths at home (a length recorded in mm but
+    declared m is 1000x off), and the fitted mass parameters must be positive. Returns the result and
+    the conversion notes; raises ident.units.UnitError naming the column otherwise. ``options`` go to
+    identify_hexapod_periodic.
+    """
+    columns = checked_columns(rec, {**{c: "length" for c in lengths}, **{c: "force" for c in forces}},
+                              source=source)
+    home = hexapod_inverse(HEXAPOD_HOME, geom)
+    for j, name in enumerate(lengths):
+        ratio = float(np.median(columns[name])) / home[j]
+        if not 0.5 <= ratio <= 2.0:
+            raise UnitError(
+                f"{source}: column {name!r} (declared {rec.units.get(name) or 'no unit'}) has median "
+                f"{np.median(columns[name]):.4g} m, {ratio:.3g}x the leg length {home[j]:.4g} m at home; "
+                "declare the unit the lengths were recorded in (e.g. mm) in the sidecar"
+            )
+    result = identify_hexapod_periodic(np.column_stack([columns[c] for c in lengths]),
+                                       np.column_stack([columns[c] for c in forces]), columns.sample_rate,
+                                       fundamental_frequency, cutoff_frequency, min_leg_speed=min_leg_speed,
+                                       geom=geom, **options)
+    for name, value in zip(result.fit.names, result.fit.estimate):
+        if name.startswith("m"):
+            check_inertia(float(value), repr(name), ", ".join(lengths), False, source=source)
+    return result, columns.notes
+
+
 # ---------------------------------------------------------------- excitation design (eqs. 19-22)
 
 @dataclass(frozen=True)
@@ -439,66 +474,3 @@ class _SymbolicRegressor:
         speed = ca.jtimes(lengths, pose, rates)
         acceleration = ca.jtimes(speed, pose, rates) + ca.jtimes(speed, rates, second)
         self.function = ca.Function("hexapod_design_sample", [pose, rates, second], [psi, speed, acceleration])
-
-
-def optimize_pose_excitation(limits: HexapodLimits, fundamental_frequency: float, n_harmonics: int, *,
-                             criterion: str = "d_optimal", truth: ModelicaHexapod | None = None,
-                             base: BaseParameters | None = None, force_covariance: np.ndarray | None = None,
-                             n_samples: int = 40, smoothing_speed: float = 0.02, n_starts: int = 2,
-                             seed: int = 0, margin: float = 0.02, max_iter: int = 150) -> PoseExcitation:
-    """Optimal Fourier coefficients (offsets fixed at limits.center) by CasADi/IPOPT (eqs. 19-22).
-
-    ``criterion``: 'condition' (deterministic design, eq. 21: p-norm surrogate of cond(Psi^T Psi), as
-    ident.excitation_design) or 'd_optimal' (statistical design, eq. 22: max log det Psi^T Sigma^-1
-    Psi). The regressor is the symbolic one of the Modelica truth with Coulomb tanh widened to
-    ``smoothing_speed`` [m/s]. Limits are imposed at ``n_samples`` instants with ``margin``; the result
-    is finally shrunk by :func:`scale_to_limits` on a fine grid so it is feasible everywhere.
-    """
-    from ident.excitation_design import _cholesky_logdet, _log_condition_surrogate
-
-    if criterion not in ("d_optimal", "condition"):
-        raise ValueError(f"criterion must be 'd_optimal' or 'condition', got {criterion!r}")
-    truth = ModelicaHexapod() if truth is None else truth
-    base = hexapod_base_parameters() if base is None else base
-    sigma = np.eye(6) if force_covariance is None else np.asarray(force_covariance, dtype=float)
-    sample = _SymbolicRegressor(truth, base, smoothing_speed).function
-    basis = fourier_basis(np.arange(n_samples) / (n_samples * fundamental_frequency), fundamental_frequency,
-                          n_harmonics)
-    coef = ca.MX.sym("coef", 2 * n_harmonics, 6)
-    center = ca.DM(np.asarray(limits.center, dtype=float)).T
-    pose = ca.repmat(center, n_samples, 1) + ca.mtimes(ca.DM(basis.position), coef)
-    rates = ca.mtimes(ca.DM(basis.velocity), coef)
-    second = ca.mtimes(ca.DM(basis.acceleration), coef)
-    psi, speed, acceleration = sample.map(n_samples)(pose.T, rates.T, second.T)  # psi: 6 x (n * n_base)
-    n_base = len(base.names)
-    inv_chol = ca.DM(np.linalg.inv(np.linalg.cholesky(sigma)))
-    whitened = ca.mtimes(inv_chol, psi) if criterion == "d_optimal" else psi
-    blocks = ca.horzsplit(whitened, n_base)
-    info = sum(ca.mtimes(blk.T, blk) for blk in blocks) / n_samples
-    info_sx = ca.SX.sym("info", n_base, n_base)
-    criterion_fn = ca.Function("criterion", [info_sx], [
-        -_cholesky_logdet(info_sx) if criterion == "d_optimal" else _log_condition_surrogate(info_sx)])
-    objective = criterion_fn(info)
-    g = ca.vertcat(ca.vec((pose - ca.repmat(center, n_samples, 1)) / ca.repmat(ca.DM(limits.pose_range).T,
-                                                                                 n_samples, 1)),
-                   ca.vec(speed) / limits.leg_speed, ca.vec(acceleration) / limits.leg_acceleration)
-    solver = ca.nlpsol("hexapod_excitation", "ipopt", {"x": ca.vec(coef), "f": objective, "g": g},
-                       {"ipopt.print_level": 0, "print_time": False, "ipopt.max_iter": max_iter,
-                        "ipopt.tol": 1e-6, "ipopt.hessian_approximation": "limited-memory"})
-    rng = np.random.default_rng(seed)
-    best, best_value = None, np.inf
-    for _ in range(n_starts):
-        start = scale_to_limits(random_pose_excitation(limits.pose_range, fundamental_frequency, n_harmonics,
-                                                       rng, center=limits.center), limits, margin=margin + 0.05)
-        x0 = np.hstack([start.a, start.b]).T.reshape(-1, order="F")
-        sol = solver(x0=x0, lbg=-(1.0 - margin), ubg=1.0 - margin)
-        value = float(sol["f"])
-        if solver.stats()["success"] and value < best_value:
-            best, best_value = np.asarray(sol["x"]).reshape(2 * n_harmonics, 6, order="F"), value
-        elif best is None and np.isfinite(value):
-            best, best_value = np.asarray(sol["x"]).reshape(2 * n_harmonics, 6, order="F"), np.inf
-    if best is None:
-        raise RuntimeError(f"IPOPT found no {criterion} design from {n_starts} starts")
-    design = PoseExcitation(best[:n_harmonics].T, best[n_harmonics:].T, np.asarray(limits.center, dtype=float),
-                            fundamental_frequency)
-    return scale_to_limits(design, limits)

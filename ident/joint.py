@@ -20,6 +20,7 @@ import numpy as np
 
 from ident.leastsquares import LeastSquaresResult, gauss_markov
 from ident.signals import lowpass_differentiate, period_average, samples_per_period
+from ident.units import check_inertia, check_motion, checked_columns
 
 __all__ = [
     "FRICTION_MODELS",
@@ -32,6 +33,7 @@ __all__ = [
     "identify_joint_periodic",
     "FrictionModelComparison",
     "compare_friction_models",
+    "identify_joint_recording",
 ]
 
 FRICTION_MODELS = ("asymmetric", "symmetric", "viscous", "none")
@@ -222,3 +224,35 @@ def compare_friction_models(
             friction, fit.correlation_condition, fit.residual_variance_factor, float(np.max(fit.relative_std))
         ))
     return rows
+
+
+def identify_joint_recording(
+    rec,
+    fundamental_frequency: float,
+    cutoff_frequency: float,
+    *,
+    position: str = "q",
+    force: str = "u",
+    min_speed: float = 0.0,
+    friction: str = "asymmetric",
+    gravity: bool = True,
+    nominal_inertia: float | None = None,
+    source: str = "recording",
+) -> tuple[JointIdentification, list[str]]:
+    """identify_joint_periodic on a harness.recording.Recording, with unit checks (ident.units).
+
+    The position and force columns are checked against their declared units (m with N, or rad with N.m;
+    mm, deg, kN, ms ... are converted and reported), the filtered motion and the fitted J are checked for
+    plausibility (and against ``nominal_inertia`` within 10x if given). Returns the identification and
+    the notes on conversions; raises ident.units.UnitError naming the column otherwise.
+    ``min_speed`` is in SI (m/s or rad/s).
+    """
+    columns = checked_columns(rec, {position: "position", force: "force"}, source=source)
+    result = identify_joint_periodic(
+        columns[position], columns[force], columns.sample_rate, fundamental_frequency, cutoff_frequency,
+        min_speed=min_speed, friction=friction, gravity=gravity,
+    )
+    check_motion(columns, position, source=source, velocity=result.velocity, acceleration=result.acceleration)
+    check_inertia(float(result.fit.estimate[0]), "J", position, columns.rotary(position), source=source,
+                  nominal=nominal_inertia)
+    return result, columns.notes

@@ -89,3 +89,73 @@ def test_point_to_point_pem_recovers_low_frequency_model():
     assert fit.gain == pytest.approx(TRUTH.gain, rel=0.02)
     assert fit.alpha == pytest.approx(TRUTH.alpha, rel=0.02)
     assert np.sqrt(fit.covariance[1, 1]) < 0.02 * TRUTH.alpha
+
+
+def _sweep_recording(model: JointModel, seed: int):
+    """A 40 s logarithmic swept sine through ``model`` (lsim with ZOH input), as a recording in m and N."""
+    from harness.recording import make_recording
+
+    rng = np.random.default_rng(seed)
+    t = np.arange(int(40 * FS)) / FS
+    u = 0.1 * scipy.signal.chirp(t, f0=0.5, f1=500, t1=t[-1], method="logarithmic")
+    tf = model.transfer_function()
+    _, q, _ = scipy.signal.lsim((tf.num[0][0], tf.den[0][0]), u, t, interp=False)
+    q = np.round((q + 2e-7 * rng.standard_normal(q.size)) / RESOLUTION) * RESOLUTION
+    return make_recording(t, {"u": u, "q": q}, {"u": "N", "q": "m"}, sample_time=1 / FS)
+
+
+def test_worst_case_over_positions_selects_the_lowest_gain_within_2_percent():
+    """Cheung: the model with the lowest gain over the actuator positions is the design model."""
+    from ident.frf import frf_document, identify_frf_worst_case
+
+    w = 2 * np.pi
+    positions = {  # gain and modes change with the position, as the effective inertia does
+        "near.csv": JointModel(55.0, 20.0, ((w * 230, 0.04),), ((w * 160, 0.03),)),
+        "far.csv": JointModel(38.0, 18.0, ((w * 200, 0.05),), ((w * 135, 0.03),)),
+        "mid.csv": JointModel(46.0, 22.0, ((w * 215, 0.04),), ((w * 150, 0.03),)),
+    }
+    recordings = [_sweep_recording(m, seed) for seed, m in enumerate(positions.values())]
+    worst, notes = identify_frf_worst_case(recordings, list(positions))
+    assert notes == []
+    assert worst.labels[worst.selected] == "far.csv"
+    truth, fit = positions["far.csv"], worst.model
+    assert fit.gain == pytest.approx(truth.gain, rel=0.02)
+    assert fit.alpha == pytest.approx(truth.alpha, rel=0.02)
+    assert fit.resonances[0][0] == pytest.approx(truth.resonances[0][0], rel=0.02)
+    assert fit.antiresonances[0][0] == pytest.approx(truth.antiresonances[0][0], rel=0.02)
+    for label, f in zip(worst.labels, worst.fits):  # every position is fitted, not only the worst
+        assert f.model.gain == pytest.approx(positions[label].gain, rel=0.02)
+    table = worst.table().splitlines()
+    assert len(table) == 5 and table[2].startswith("* far.csv")
+    doc = frf_document(worst, worst.labels)
+    assert doc["recording"] == "far.csv" and doc["parameters"]["K"] == fit.gain
+    assert set(doc["parameters"]) == {"K", "alpha", "omega", "zeta", "omega_bar", "zeta_bar"}
+    assert [row["recording"] for row in doc["worst_case"]["positions"]] == list(positions)
+    assert doc["worst_case"]["selected"] == 1
+
+
+def test_cli_handler_writes_the_worst_case_document(tmp_path, capsys):
+    """The proposed `motiontwin identify frf A.csv B.csv --worst-case --out fit.json` handler."""
+    import argparse
+    import json
+
+    from harness.recording import write_recording
+    from ident.frf import cli_identify_frf
+
+    w = 2 * np.pi
+    models = [JointModel(52.0, 20.0, ((w * 220, 0.04),), ((w * 150, 0.03),)),
+              JointModel(41.0, 20.0, ((w * 205, 0.04),), ((w * 140, 0.03),))]
+    paths = []
+    for k, model in enumerate(models):
+        paths.append(tmp_path / f"position{k}.csv")
+        write_recording(paths[-1], _sweep_recording(model, 10 + k))
+    out = tmp_path / "fit.json"
+    args = argparse.Namespace(recording=paths, input="u", position="q", segment=4096, min_coherence=0.9,
+                              worst_case=True, out=out)
+    assert cli_identify_frf(args) == 0
+    doc = json.loads(out.read_text())
+    assert doc["recording"] == str(paths[1]) and doc["worst_case"]["selected"] == 1
+    assert doc["parameters"]["K"] == pytest.approx(41.0, rel=0.02)
+    assert "worst case (lowest K)" in capsys.readouterr().out
+    with pytest.raises(ValueError, match="pass --worst-case"):
+        cli_identify_frf(argparse.Namespace(**{**vars(args), "worst_case": False}))
