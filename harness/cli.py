@@ -333,6 +333,8 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--ms", type=float, default=2.0, help="upper bound on max|S| (modulus margin 1/Ms)")
     p.add_argument("--s-below-bw", type=float, default=None, help="upper bound on max|S| below CLBW (eq. 17)")
     p.add_argument("--bw-min", type=float, default=None, help="lower bound on the worst-case CLBW [Hz] (eq. 16)")
+    p.add_argument("--tau-max", type=float, default=0.03,
+                   help="upper bound on the slowest closed-loop time constant [s] on every plant set (inf: unconstrained)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--popsize", type=int, default=12, help="differential evolution population multiplier")
     p.add_argument("--maxiter", type=int, default=80, help="differential evolution generations")

@@ -121,7 +121,7 @@ def test_tune_writes_its_design_and_a_controller_fmu_with_those_defaults(tmp_pat
     import fmpy
 
     out, fmu = tmp_path / "tuned.json", tmp_path / "tuned.fmu"
-    assert main(["tune", "--popsize", "5", "--maxiter", "10", "--refine", "1", "--out", str(out),
+    assert main(["tune", "--popsize", "5", "--maxiter", "10", "--refine", "1", "--tau-max", "0.05", "--out", str(out),
                  "--fmu-out", str(fmu), "--fmi", "2.0"]) == 0
     doc = json.loads(out.read_text())
     assert doc["violations"] == [] and all(m["stable"] and m["gm_db"] >= 7.0 for m in doc["margins"])

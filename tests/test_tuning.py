@@ -17,7 +17,7 @@ from ident.frf import JointModel
 
 TS = 5e-4
 NOMINAL = JointModel(1.0, 10.0, ((2450.0, 0.05),), ((1885.0, 0.05),))  # CheungJoint defaults (1 kg)
-SPEC = tuning.TuningSpec(gm_min_db=7.0, pm_min_deg=40.0, pm_max_deg=60.0, ms_max=2.0)
+SPEC = tuning.TuningSpec(gm_min_db=7.0, pm_min_deg=40.0, pm_max_deg=60.0, ms_max=2.0, tau_max_s=0.05)
 
 
 def paper_controller(p: dict[str, float]) -> control.TransferFunction:
