@@ -182,31 +182,17 @@ def with_feedforward(design: dict[str, float], mass: float, damping: float) -> d
     return {**design, "Kv": damping / dc, "Ka": mass / dc, "Kj": design.get("Kj", 0.0)}
 
 
-TABLE2_READINGS = ("per-sample", "continuous")
-
-
 def table2_designs(masses: Sequence[float], damping: float, ts: float = TS,
                    reading: str = "per-sample") -> list[dict[str, float]]:
-    """Table 2 columns d1, d3, d5, d7 on our joints (1/(m s^2 + c_v s)), Kp, Ki, Kd rescaled to the paper's CLBW.
-
-    reading: how Table 2's Kp, Ki, Kd are read before the common rescaling.
-    "per-sample" (default): gains of the DSP's discrete PID u_k = Kp e_k + Ki sum(e) + Kd (e_k - e_k-1), i.e.
-    Ki/Ts and Kd*Ts in continuous time: PD zero near 17 Hz, integral zero near 1 Hz below the 56-73 Hz CLBW.
-    "continuous": as printed (as ``ident.tuning.table2_comparison`` reads them): the PD zero Kp/Kd is then
-    at 0.008 Hz, so the loop is a pure damper with almost no position stiffness on an SI plant.
-    """
+    """Table 2 columns d1, d3, d5, d7 on our joints (1/(m s^2 + c_v s)), Kp, Ki, Kd rescaled to the paper's CLBW;
+    ``reading`` as :func:`ident.tuning.table2_parameters`."""
     from ident.frf import JointModel
-    from ident.tuning import DESIGN_NAMES, TABLE2, rescale_to_bandwidth
+    from ident.tuning import TABLE2, rescale_to_bandwidth, table2_parameters
 
-    if reading not in TABLE2_READINGS:
-        raise ValueError(f"reading must be one of {TABLE2_READINGS}, got {reading!r}")
     designs = []
     for joint, mass in zip(JOINTS, masses):
-        column = TABLE2[joint]
-        params = {k: float(column[k]) for k in DESIGN_NAMES} | {"tau": 2 * ts, "Ts": ts}
-        if reading == "per-sample":
-            params |= {"Ki": params["Ki"] / ts, "Kd": params["Kd"] * ts}
-        scaled, gain = rescale_to_bandwidth(params, JointModel(1.0 / mass, damping / mass), column["CLBW"])
+        params = table2_parameters(joint, ts, reading)
+        scaled, gain = rescale_to_bandwidth(params, JointModel(1.0 / mass, damping / mass), TABLE2[joint]["CLBW"])
         designs.append(with_feedforward(scaled, mass, damping) | {"table2_scale": gain})
     return designs
 

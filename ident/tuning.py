@@ -728,13 +728,33 @@ def rescale_to_bandwidth(parameters: dict[str, float], plant: JointModel | contr
     return scaled(log_g), 10 ** log_g
 
 
+TABLE2_READINGS = ("per-sample", "continuous")
+
+
+def table2_parameters(name: str, ts: float = 5e-4, reading: str = "per-sample") -> dict[str, float]:
+    """Controller parameters of Table 2 column ``name`` (before rescaling; tau = 2 ts, which Table 2 omits).
+
+    reading: how the printed Kp, Ki, Kd are read. "per-sample" (default): gains of the DSP's discrete PID
+    u_k = Kp e_k + Ki sum(e) + Kd (e_k - e_k-1), i.e. Ki/Ts and Kd*Ts in continuous time (PD zero near 17 Hz,
+    integral zero near 1 Hz, below the 56-73 Hz CLBW). "continuous": as printed; the PD zero Kp/Kd is then at
+    0.008 Hz, a pure damper with almost no position stiffness on an SI plant.
+    """
+    if reading not in TABLE2_READINGS:
+        raise ValueError(f"reading must be one of {TABLE2_READINGS}, got {reading!r}")
+    column = TABLE2[name]
+    params = {k: float(column[k]) for k in DESIGN_NAMES} | {"tau": 2 * ts, "Ts": ts}
+    if reading == "per-sample":
+        params |= {"Ki": params["Ki"] / ts, "Kd": params["Kd"] * ts}
+    return params
+
+
 def table2_comparison(plant: JointModel | control.LTI, ts: float = 5e-4, delay_samples: int = 1,
-                      tuned: TuningResult | None = None) -> list[dict[str, float | str]]:
+                      tuned: TuningResult | None = None, reading: str = "per-sample") -> list[dict[str, float | str]]:
     """One row per Table 2 column (paper figures beside ours, after rescaling to the paper's CLBW), plus the
-    tuned design when given. tau = 2 ts for the paper's designs (Table 2 does not give it)."""
+    tuned design when given; ``reading`` as :func:`table2_parameters`."""
     rows: list[dict[str, float | str]] = []
     for name, column in TABLE2.items():
-        params = {k: float(column[k]) for k in DESIGN_NAMES} | {"tau": 2 * ts, "Ts": ts}
+        params = table2_parameters(name, ts, reading)
         scaled, g = rescale_to_bandwidth(params, plant, column["CLBW"], delay_samples)
         m = loop_margins(scaled, plant, delay_samples)
         rows.append({"design": f"Table 2 {name}", "scale": g, **{f"paper {k}": column[k] for k in _PAPER_FIGURES},

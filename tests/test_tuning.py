@@ -175,6 +175,7 @@ def test_table2_rescaled_to_paper_bandwidth() -> None:
         assert row["CLBW"] == pytest.approx(row["paper CLBW"], rel=2e-3)
     d1 = rows[0]
     p = {k: float(tuning.TABLE2["d1"][k]) for k in tuning.DESIGN_NAMES} | {"tau": 2 * TS, "Ts": TS}
+    p |= {"Ki": p["Ki"] / TS, "Kd": p["Kd"] * TS}   # the DSP's per-sample PID gains in continuous time
     gm, *_ = python_control_margins(float(d1["scale"]) * independent_loop(p, NOMINAL))
     assert d1["GM"] == pytest.approx(gm, abs=0.1)
 
