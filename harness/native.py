@@ -9,20 +9,16 @@ libraries as loaded by fmpy. Times in seconds.
 from __future__ import annotations
 
 import ctypes
-import hashlib
 import logging
-import os
-import shutil
-import subprocess
-import tempfile
 import threading
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from fmus import clib
+
 SOURCE = Path(__file__).with_name("native_loop.c")
-CFLAGS = ("-O2", "-shared", "-fPIC", "-std=c99", "-ffp-contract=off")
 CALLS = ("get", "set", "step", "terminate")
 
 _LOG = logging.getLogger(__name__)
@@ -60,34 +56,13 @@ class CFailure(ctypes.Structure):
     _fields_ = [("fmu", ctypes.c_int), ("call", ctypes.c_int), ("tick", ctypes.c_long), ("status", ctypes.c_int)]
 
 
-def _cache_dir() -> Path:
-    base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
-    return Path(base) / "motiontwin" / "native"
-
-
 def _build() -> Path | None:
-    """Compile native_loop.c (once per source, compiler and flags); None without a C compiler."""
-    cc = os.environ.get("CC", "gcc")
-    if shutil.which(cc) is None:
-        _LOG.debug("no C compiler '%s' found: the master uses its Python loop", cc)
-        return None
-    key = hashlib.sha256((cc + " ".join(CFLAGS)).encode() + SOURCE.read_bytes()).hexdigest()[:24]
-    cache = _cache_dir()
-    library = cache / f"native_loop-{key}.so"
-    if library.exists():
-        return library
-    cache.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(suffix=".so.part", dir=cache)
-    os.close(fd)
+    """Compile native_loop.c (once per source, compiler and flags); None without a working C compiler."""
     try:
-        proc = subprocess.run([cc, *CFLAGS, str(SOURCE), "-o", tmp], capture_output=True, text=True)
-        if proc.returncode != 0:
-            _LOG.debug("compiling %s failed, the master uses its Python loop:\n%s", SOURCE, proc.stderr)
-            return None
-        os.replace(tmp, library)
-    finally:
-        Path(tmp).unlink(missing_ok=True)
-    return library
+        return clib.cached_library({SOURCE.name: SOURCE.read_text()}, "native", "native_loop")
+    except clib.CompileError as exc:
+        _LOG.debug("the master uses its Python loop: %s", exc)
+        return None
 
 
 def library() -> Any | None:

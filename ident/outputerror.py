@@ -10,9 +10,11 @@ FMU share one set of equations. Two set-ups:
   u_k = C z_k + D [r_k; q_k + n_k] + u_ext_k over [t_k, t_k + Ts) and updates z_{k+1} = A z_k + B [r_k; q_k + n_k];
   the residual stacks the output and the force channels, each weighted by its noise level.
 
-The plant is integrated over one sample by RK4 with ``substeps`` steps. One step function is built once and
-chained with ``mapaccum`` over the recording, so the residual Jacobian with respect to the free parameters
-comes from algorithmic differentiation (forward mode, one sweep per parameter) instead of finite differences.
+The plant is integrated over one sample by RK4 with ``substeps`` steps. One step function (CasADi SX) is
+built once, with its forward-sensitivity step from algorithmic differentiation, so the residual Jacobian with
+respect to the free parameters is exact instead of finite differences. Both are chained over the recording in
+compiled C (:mod:`ident.chain`: CasADi-generated code + a model-agnostic loop, cached by source hash), or,
+without a C compiler, with CasADi's ``mapaccum`` (same results, much slower on long recordings).
 
 Shooting: single shooting is the method. For the stable or marginally stable loops of motion systems
 (a joint is an integrator with damping; in closed loop the controller stabilises it) the free run stays
@@ -30,6 +32,7 @@ Units: SI (s, m, N), those of the Modelica model.
 from __future__ import annotations
 
 import json
+import logging
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -41,6 +44,7 @@ from scipy.optimize import least_squares
 
 from fmus import symbolic
 from harness.recording import Recording
+from ident import chain as native_chain
 from ident.controller import Controller
 from ident.leastsquares import LeastSquaresResult, UnidentifiableError, check_identifiability
 
@@ -48,6 +52,7 @@ __all__ = ["Signals", "Loop", "Weights", "Fit", "OutputErrorResult", "build_loop
            "simulate", "residuals", "fit", "statistics", "identify", "cli_identify_oe"]
 
 
+_LOG = logging.getLogger(__name__)
 JIT_OPTIONS = {"jit": True, "compiler": "shell", "jit_options": {"flags": ["-O2"]}}
 
 
@@ -152,13 +157,15 @@ def build_loop(model: symbolic.SymbolicModel, controller: Controller | None, pos
                values: dict[str, float], n_samples: int, substeps: int | None = None,
                tracking: dict[str, str] | None = None, with_jacobian: bool = True, min_substeps: int = 1,
                ts: float | None = None, input_name: str | None = None, signals: Signals = Signals(),
-               jit: bool = False) -> Loop:
+               jit: bool = False, native: bool | None = None) -> Loop:
     """Compile the free-run simulation of ``n_samples`` samples with the parameters ``free`` symbolic.
 
     controller: None for open loop (then ``ts`` [s] is required); position_state: the state or output
     compared with the recording; input_name: the plant input that is driven (default: the only one; other
     inputs stay at their start values); jit: compile the step functions to C (gcc) first, which pays
-    off on long recordings (the chain then runs at C speed, minus CasADi's per-call overhead).
+    off on long recordings (the chain then runs at C speed, minus CasADi's per-call overhead); only used by
+    the CasADi chain. native: chain the samples in compiled C (:mod:`ident.chain`); None = when a C
+    compiler is available, False = CasADi ``mapaccum`` chain.
     """
     if ca.depends_on(model.dx, model.t):
         raise ValueError(f"{model.name}: time-varying plants are not supported by the output-error refit")
@@ -219,45 +226,76 @@ def build_loop(model: symbolic.SymbolicModel, controller: Controller | None, pos
         k4 = f(xk + h * k3, uvec, p_full)
         xk = xk + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
     s_next, out_k = ca.vertcat(xk, z_next), ca.vertcat(q, u)
-    opts = JIT_OPTIONS if jit else {}
-    step = ca.Function("step", [s, w, theta, pfix], [s_next, q, u], opts)
-    s0 = ca.MX.sym("s0", nx + nz)
-    W = ca.MX.sym("W", 3, n_samples)
-    th = ca.MX.sym("th", len(free))
-    pf = ca.MX.sym("pf", len(fixed))
-    _, q_all, u_all = _chain(step, n_samples, s0, W, th, pf)
-    # the output at sample k is read from the state at t_k, which the chain's output k holds
-    sim = ca.Function("sim", [s0, W, th, pf], [q_all, u_all])
-    jac = _sensitivity_chain(s, w, theta, pfix, s_next, out_k, n_samples, opts) if with_jacobian else None
+    step = ca.Function("step", [s, w, theta, pfix], [ca.densify(s_next), ca.densify(q), ca.densify(u)])
+    aug, seed = _sensitivity_step(s, w, theta, pfix, s_next, out_k) if with_jacobian else (None, None)
+    pair = None
+    if native or (native is None and native_chain.available()):
+        try:
+            pair = _native_pair(step, aug, seed, n_samples)
+        except (RuntimeError, OSError) as exc:
+            if native:
+                raise
+            _LOG.warning("compiled chain unavailable, using CasADi's mapaccum chain: %s", exc)
+    sim, jac = pair or _casadi_pair(step, aug, seed, n_samples, JIT_OPTIONS if jit else {})
     return Loop(model, controller, position_state, list(free), values, substeps, n_samples, sim, jac,
                 dict(tracking or {}), signals, ts)
 
 
-def _chain(step: ca.Function, n_samples: int, s0: ca.MX, W: ca.MX, th: ca.MX, pf: ca.MX) -> list[ca.MX]:
-    """``step`` applied ``n_samples`` times, the state accumulated, one column of W per sample."""
-    return step.mapaccum("chain", n_samples, [0], [0])(s0, W, th, pf)
-
-
-def _sensitivity_chain(s: ca.SX, w: ca.SX, theta: ca.SX, pfix: ca.SX, s_next: ca.SX, out_k: ca.SX,
-                       n_samples: int, opts: dict) -> Callable:
-    """Forward sensitivities of the chained step w.r.t. [theta; s0], propagated sample by sample with the
-    step's AD Jacobians (S+ = ds+/ds S + [ds+/dtheta, 0]): one pass over the recording gives the whole
-    residual Jacobian, at a cost of about (1 + n_theta + n_s) free runs."""
+def _sensitivity_step(s: ca.SX, w: ca.SX, theta: ca.SX, pfix: ca.SX, s_next: ca.SX,
+                      out_k: ca.SX) -> tuple[ca.Function, np.ndarray]:
+    """The step augmented with forward sensitivities w.r.t. [theta; s0], propagated sample by sample with
+    the step's AD Jacobians (S+ = ds+/ds S + [ds+/dtheta, 0]), and the initial seed vec([0, I]): one pass
+    over the recording gives the whole residual Jacobian, at a cost of about (1 + n_theta + n_s) free runs."""
     ns, nth = s.numel(), theta.numel()
     sens = ca.SX.sym("S", ns, nth + ns)
     pad = ca.SX.zeros(ns, ns)
     s_sens = ca.jacobian(s_next, s) @ sens + ca.horzcat(ca.jacobian(s_next, theta), pad)
     o_sens = ca.jacobian(out_k, s) @ sens + ca.horzcat(ca.jacobian(out_k, theta), ca.SX.zeros(2, ns))
-    aug = ca.Function("sstep", [ca.vertcat(s, ca.vec(sens)), w, theta, pfix],
-                      [ca.vertcat(s_next, ca.vec(s_sens)), o_sens[0, :nth].T, o_sens[1, :nth].T,
-                       o_sens[0, nth:].T, o_sens[1, nth:].T], opts)
-    s0 = ca.MX.sym("s0", ns)
-    W = ca.MX.sym("W", 3, n_samples)
-    th = ca.MX.sym("th", nth)
-    pf = ca.MX.sym("pf", pfix.numel())
-    seed = ca.vec(ca.DM(np.hstack([np.zeros((ns, nth)), np.eye(ns)])))
-    _, dq, du, dq0, du0 = _chain(aug, n_samples, ca.vertcat(s0, seed), W, th, pf)
-    return ca.Function("simjac", [s0, W, th, pf], [dq.T, du.T, dq0.T, du0.T])
+    outs = [ca.vertcat(s_next, ca.vec(s_sens)), o_sens[0, :nth].T, o_sens[1, :nth].T,
+            o_sens[0, nth:].T, o_sens[1, nth:].T]
+    aug = ca.Function("sstep", [ca.vertcat(s, ca.vec(sens)), w, theta, pfix], [ca.densify(o) for o in outs])
+    seed = np.hstack([np.zeros((ns, nth)), np.eye(ns)]).ravel(order="F")
+    return aug, seed
+
+
+def _native_pair(step: ca.Function, aug: ca.Function | None, seed: np.ndarray | None,
+                 n_samples: int) -> tuple[Callable, Callable | None]:
+    """``sim`` and ``jac`` running the samples in compiled C."""
+    chains = native_chain.native_chains([step] + ([aug] if aug is not None else []), n_samples)
+
+    def sim(s0, W, th, pf) -> tuple[np.ndarray, np.ndarray]:
+        q, u = chains[0](s0, W, th, pf)
+        return q.reshape(1, -1), u.reshape(1, -1)
+
+    def jac(s0, W, th, pf) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        dq, du, dq0, du0 = chains[1](np.concatenate([np.asarray(s0, float).ravel(), seed]), W, th, pf)
+        return dq, du, dq0, du0
+
+    return sim, (jac if aug is not None else None)
+
+
+def _casadi_pair(step: ca.Function, aug: ca.Function | None, seed: np.ndarray | None, n_samples: int,
+                 opts: dict) -> tuple[Callable, Callable | None]:
+    """``sim`` and ``jac`` as CasADi ``mapaccum`` chains (the fallback without a C compiler)."""
+    if opts:
+        step = ca.Function("step", step.sx_in(), step.call(step.sx_in()), opts)
+    n_in = [step.numel_in(i) for i in range(4)]
+    s0, th, pf = ca.MX.sym("s0", n_in[0]), ca.MX.sym("th", n_in[2]), ca.MX.sym("pf", n_in[3])
+    W = ca.MX.sym("W", n_in[1], n_samples)
+    _, q_all, u_all = _chain(step, n_samples, s0, W, th, pf)
+    # the output at sample k is read from the state at t_k, which the chain's output k holds
+    sim = ca.Function("sim", [s0, W, th, pf], [q_all, u_all])
+    if aug is None:
+        return sim, None
+    if opts:
+        aug = ca.Function("sstep", aug.sx_in(), aug.call(aug.sx_in()), opts)
+    _, dq, du, dq0, du0 = _chain(aug, n_samples, ca.vertcat(s0, ca.DM(seed)), W, th, pf)
+    return sim, ca.Function("simjac", [s0, W, th, pf], [dq.T, du.T, dq0.T, du0.T])
+
+
+def _chain(step: ca.Function, n_samples: int, s0: ca.MX, W: ca.MX, th: ca.MX, pf: ca.MX) -> list[ca.MX]:
+    """``step`` applied ``n_samples`` times, the state accumulated, one column of W per sample."""
+    return step.mapaccum("chain", n_samples, [0], [0])(s0, W, th, pf)
 
 
 def _column(rec: Recording, name: str, optional: bool = False) -> np.ndarray:

@@ -204,3 +204,62 @@ def test_cli_closed_loop_controller_file(tmp_path, model, fmu):
     assert oe.cli_identify_oe(_cli_args(csv, out, path)) == 0
     est = json.loads(out.read_text())["parameters"]
     assert est["m"] == pytest.approx(TRUTH["m"], rel=1e-3) and est["d"] == pytest.approx(TRUTH["d"], rel=1e-3)
+
+
+def _chain_inputs(loop: oe.Loop, n: int, seed: int) -> tuple[np.ndarray, ...]:
+    rng = np.random.default_rng(seed)
+    ns = loop.model.x.numel() + (loop.controller.n_states if loop.closed else 0)
+    W = np.vstack([1e-3 * np.sin(np.arange(n) * TS * 2 * np.pi * 3), rng.standard_normal(n),
+                   NOISE * rng.standard_normal(n)])
+    return 1e-4 * rng.standard_normal(ns), W, loop.theta(TRUTH), loop.pfix()
+
+
+def _relative_error(a, b) -> float:
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    scale = np.max(np.abs(b))
+    return float(np.max(np.abs(a - b)) / scale) if scale > 0 else float(np.max(np.abs(a)))
+
+
+@pytest.mark.parametrize("closed", [False, True])
+def test_compiled_chain_matches_casadi_mapaccum(model, closed):
+    """The C chain (generated step + driver) and CasADi's own mapaccum chain of the same step function give
+    the same free run and the same sensitivity Jacobian."""
+    n = 1500
+    ctrl = pd_controller() if closed else None
+    loops = [oe.build_loop(model, ctrl, "x", ["m", "d"], {}, n, ts=TS, substeps=4, native=native)
+             for native in (True, False)]
+    assert not isinstance(loops[0].sim, __import__("casadi").Function)
+    args = _chain_inputs(loops[0], n, seed=3)
+    for fast, ref in zip(loops[0].sim(*args), loops[1].sim(*args)):
+        assert np.shape(fast) == ref.shape and _relative_error(fast, ref) < 1e-12
+    for fast, ref in zip(loops[0].jac(*args), loops[1].jac(*args)):
+        assert np.shape(fast) == ref.shape and _relative_error(fast, ref) < 1e-12
+
+
+def test_compiled_chain_cached_and_fallback_without_compiler(model, monkeypatch, tmp_path):
+    """The library is compiled once per generated source (second build reuses the cached file); without a
+    working C compiler the loop falls back to the CasADi chain (unless the compiled one is demanded)."""
+    import casadi as ca
+    from ident import chain
+
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
+    oe.build_loop(model, None, "x", ["m"], {}, 50, ts=TS, substeps=2)
+    built = sorted((tmp_path / "motiontwin" / "ident").glob("chain-*.so"))
+    mtime = built[0].stat().st_mtime_ns
+    native = oe.build_loop(model, None, "x", ["m"], {}, 50, ts=TS, substeps=2)
+    assert sorted((tmp_path / "motiontwin" / "ident").glob("chain-*.so")) == built
+    assert built[0].stat().st_mtime_ns == mtime
+    monkeypatch.setenv("CC", "no-such-compiler-motiontwin")
+    assert not chain.available()
+    fallback = oe.build_loop(model, None, "x", ["m"], {}, 50, ts=TS, substeps=2)
+    assert isinstance(fallback.sim, ca.Function)
+    args = _chain_inputs(native, 50, seed=4)
+    assert _relative_error(native.sim(*args)[0], fallback.sim(*args)[0]) < 1e-12
+    monkeypatch.setenv("MOTIONTWIN_NATIVE_CHAIN", "0")
+    monkeypatch.delenv("CC")
+    assert not chain.available()
+    monkeypatch.delenv("MOTIONTWIN_NATIVE_CHAIN")
+    monkeypatch.setenv("CC", "false")   # a "compiler" that always fails
+    assert isinstance(oe.build_loop(model, None, "x", ["m"], {}, 50, ts=TS, substeps=2).sim, ca.Function)
+    with pytest.raises(RuntimeError, match="compiling"):
+        oe.build_loop(model, None, "x", ["m"], {}, 50, ts=TS, substeps=2, native=True)

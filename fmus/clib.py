@@ -1,0 +1,62 @@
+"""Host shared libraries compiled from C sources on first use and cached by content hash.
+
+Used by the compiled loops that run beside the FMUs on the user's machine (the harness's inner loop,
+the identification's sample chain): one compiler call per distinct source, compiler and flags, the
+library written atomically into ``$XDG_CACHE_HOME/motiontwin/<folder>``. FMU binaries are built by
+:mod:`fmus.package` instead (object cache, static libgcc, shipped inside the archive).
+"""
+from __future__ import annotations
+
+import hashlib
+import os
+import shutil
+import subprocess
+import tempfile
+from pathlib import Path
+
+CFLAGS = ("-O2", "-shared", "-fPIC", "-std=c99", "-ffp-contract=off")
+
+
+class CompileError(RuntimeError):
+    """The C compiler failed; the message carries its output."""
+
+
+def compiler() -> str | None:
+    """The C compiler (``$CC``, default gcc) when it is on the PATH, else None."""
+    cc = os.environ.get("CC", "gcc")
+    return cc if shutil.which(cc) else None
+
+
+def cache_dir(folder: str) -> Path:
+    base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
+    return Path(base) / "motiontwin" / folder
+
+
+def cached_library(sources: dict[str, str], folder: str, prefix: str) -> Path:
+    """Path of the shared library built from ``sources`` (file name -> C text), compiled once per
+    (sources, compiler, flags) into ``cache_dir(folder)/prefix-HASH.so``.
+
+    Raises CompileError when there is no compiler or it fails (nothing is left in the cache then).
+    """
+    cc = compiler()
+    if cc is None:
+        raise CompileError(f"no C compiler '{os.environ.get('CC', 'gcc')}' found (set CC)")
+    digest = hashlib.sha256("\0".join([cc, " ".join(CFLAGS)]).encode())
+    for name in sorted(sources):
+        digest.update(b"\0" + name.encode() + b"\0" + sources[name].encode())
+    cache = cache_dir(folder)
+    library = cache / f"{prefix}-{digest.hexdigest()[:24]}.so"
+    if library.exists():
+        return library
+    cache.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory(dir=cache) as tmp:
+        files = []
+        for name, text in sources.items():
+            (Path(tmp) / name).write_text(text)
+            files.append(str(Path(tmp) / name))
+        out = Path(tmp) / "lib.so"
+        proc = subprocess.run([cc, *CFLAGS, *files, "-o", str(out), "-lm"], capture_output=True, text=True)
+        if proc.returncode != 0:
+            raise CompileError(f"compiling {', '.join(sorted(sources))} failed:\n{proc.stderr[-2000:]}")
+        os.replace(out, library)
+    return library

@@ -1,0 +1,115 @@
+"""Compiled sample-by-sample recurrence of a CasADi step function (C driver ``chain.c``).
+
+A step function ``fn(s, w, theta, pfix) -> (s_next, y_1, ..., y_m)`` (CasADi SX, the single source of the
+model) is turned into C by CasADi's code generator, compiled together with the model-agnostic driver into a
+shared library cached under ``$XDG_CACHE_HOME/motiontwin/ident`` by the hash of the generated source, and
+called through ctypes on numpy arrays: ``s_k`` is carried inside C, ``w_k`` is column k of W. This replaces
+``mapaccum`` over long recordings, whose expression graph grows with the number of samples.
+Nothing here knows about units; the caller's are kept.
+"""
+from __future__ import annotations
+
+import ctypes
+import os
+import threading
+from pathlib import Path
+
+import casadi as ca
+import numpy as np
+
+from fmus import clib
+
+__all__ = ["available", "compile_functions", "NativeChain", "native_chains"]
+
+DRIVER = Path(__file__).with_name("chain.c")
+
+_LOCK = threading.Lock()
+_LOADED: dict[str, ctypes.CDLL] = {}
+_double_p = ctypes.POINTER(ctypes.c_double)
+
+
+def available() -> bool:
+    """True when a C compiler is found and ``MOTIONTWIN_NATIVE_CHAIN`` is not ``0`` (else callers use
+    CasADi's own ``mapaccum`` chain)."""
+    return os.environ.get("MOTIONTWIN_NATIVE_CHAIN", "1") != "0" and clib.compiler() is not None
+
+
+def compile_functions(functions: list[ca.Function]) -> ctypes.CDLL:
+    """Generate C for ``functions`` (CasADi C API), compile with the driver, load; cached by source hash."""
+    gen = ca.CodeGenerator("model.c", {"with_header": False, "casadi_int": "long long int",
+                                       "casadi_real": "double"})
+    for fn in functions:
+        gen.add(fn)
+    source = gen.dump()
+    with _LOCK:
+        path = str(clib.cached_library({"model.c": source, DRIVER.name: DRIVER.read_text()}, "ident", "chain"))
+        if path not in _LOADED:
+            lib = ctypes.CDLL(path)
+            lib.mt_chain.restype = ctypes.c_int
+            lib.mt_chain.argtypes = [ctypes.c_void_p, ctypes.c_long, ctypes.c_int, _double_p, _double_p,
+                                     ctypes.c_int, _double_p, _double_p, ctypes.c_int,
+                                     ctypes.POINTER(ctypes.c_int), ctypes.POINTER(_double_p),
+                                     ctypes.c_long, ctypes.c_long, ctypes.c_long, ctypes.c_long]
+            _LOADED[path] = lib
+        return _LOADED[path]
+
+
+def _dense(fn: ca.Function) -> None:
+    for i in range(fn.n_in()):
+        if not fn.sparsity_in(i).is_dense():
+            raise ValueError(f"{fn.name()}: input {i} is sparse; the compiled chain needs dense inputs")
+    for i in range(fn.n_out()):
+        if not fn.sparsity_out(i).is_dense():
+            raise ValueError(f"{fn.name()}: output {i} is sparse; densify it before compiling the chain")
+
+
+class NativeChain:
+    """``fn`` applied ``n_samples`` times in C: ``chain(s0, W, theta, pfix)`` returns, per output
+    y_j of ``fn``, an array of shape (n_samples, size of y_j)."""
+
+    def __init__(self, lib: ctypes.CDLL, fn: ca.Function, n_samples: int):
+        _dense(fn)
+        if fn.n_in() != 4:
+            raise ValueError(f"{fn.name()}: expected inputs (s, w, theta, pfix), got {fn.n_in()}")
+        self._lib, self._fn, self.n_samples = lib, fn, int(n_samples)
+        self._address = ctypes.cast(getattr(lib, fn.name()), ctypes.c_void_p).value
+        self._ns = fn.numel_in(0)
+        self._nw = fn.numel_in(1)
+        if fn.numel_out(0) != self._ns:
+            raise ValueError(f"{fn.name()}: next state has {fn.numel_out(0)} entries, state {self._ns}")
+        self._sizes = [fn.numel_out(j) for j in range(1, fn.n_out())]
+        self._work = (fn.sz_arg(), fn.sz_res(), fn.sz_iw(), fn.sz_w())
+
+    def __call__(self, s0, W, theta, pfix) -> list[np.ndarray]:
+        n = self.n_samples
+        s0 = np.ascontiguousarray(np.asarray(s0, dtype=float).ravel())
+        W = np.asarray(W, dtype=float)
+        if W.shape != (self._nw, n):
+            raise ValueError(f"W has shape {W.shape}, the chain needs {(self._nw, n)}")
+        cols = np.asfortranarray(W)   # column k contiguous
+        theta = np.ascontiguousarray(np.asarray(theta, dtype=float).ravel())
+        pfix = np.ascontiguousarray(np.asarray(pfix, dtype=float).ravel())
+        for name, arr, size in (("s0", s0, self._ns), ("theta", theta, self._fn.numel_in(2)),
+                                ("pfix", pfix, self._fn.numel_in(3))):
+            if arr.size != size:
+                raise ValueError(f"{name} has {arr.size} entries, the chain needs {size}")
+        outs = [np.empty((n, size)) for size in self._sizes]
+        ptrs = (_double_p * max(len(outs), 1))(*[o.ctypes.data_as(_double_p) for o in outs])
+        sizes = (ctypes.c_int * max(len(outs), 1))(*self._sizes)
+        status = self._lib.mt_chain(self._address, n, self._ns, _ptr(s0), cols.ctypes.data_as(_double_p),
+                                    self._nw, _ptr(theta), _ptr(pfix), len(outs), sizes, ptrs, *self._work)
+        if status < 0:
+            raise MemoryError("compiled chain: out of memory")
+        if status > 0:
+            raise RuntimeError(f"{self._fn.name()} failed at sample {status - 1}")
+        return outs
+
+
+def _ptr(array: np.ndarray):
+    return array.ctypes.data_as(_double_p) if array.size else None
+
+
+def native_chains(functions: list[ca.Function], n_samples: int) -> list[NativeChain]:
+    """One compiled library for all ``functions``; a chain of ``n_samples`` samples for each."""
+    lib = compile_functions(functions)
+    return [NativeChain(lib, fn, n_samples) for fn in functions]
