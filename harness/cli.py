@@ -113,8 +113,10 @@ def _report_fit(fit: object, args: argparse.Namespace, method: str) -> int:
 
 
 def _identify_joint(args: argparse.Namespace) -> int:
+    import json
+
     from harness import recording
-    from ident.joint import identify_joint_recording
+    from ident.joint import identify_joint_recording, serial_joint_parameters
 
     rec = recording.read_recording(args.recording, required=("time", args.position, args.force))
     result, notes = identify_joint_recording(rec, args.f0, args.cutoff, position=args.position, force=args.force,
@@ -122,7 +124,21 @@ def _identify_joint(args: argparse.Namespace) -> int:
                                              nominal_inertia=args.nominal_inertia, source=str(args.recording))
     for note in notes:
         print(note)
-    return _report_fit(result.fit, args, "inverse-dynamics Gauss-Markov least squares (Abdellatif, Bona eq. 2)")
+    method = "inverse-dynamics Gauss-Markov least squares (Abdellatif, Bona eq. 2)"
+    if not args.out:
+        return _report_fit(result.fit, args, method)
+    names, estimate, covariance = serial_joint_parameters(result.fit)
+    std = np.sqrt(np.diag(covariance))
+    print(result.fit.summary())
+    doc = {"method": method, "recording": str(args.recording), "class": "MotionTwin.Plants.SerialRobotJoint",
+           "parameters": dict(zip(names, estimate.tolist())), "std": dict(zip(names, std.tolist())),
+           "names": names, "covariance": covariance.tolist(),
+           "regressor_parameters": result.fit.as_dict(), "regressor_std": dict(zip(result.fit.names,
+                                                                                  result.fit.std.tolist())),
+           "correlation_condition": result.fit.correlation_condition}
+    recording.atomic_write_texts({args.out: json.dumps(doc, indent=2) + "\n"})
+    print(args.out)
+    return 0
 
 
 def _identify_frf(args: argparse.Namespace) -> int:
@@ -264,7 +280,9 @@ def _parser() -> argparse.ArgumentParser:
     q.add_argument("--friction", default="asymmetric", help="friction parametrisation (see ident.joint)")
     q.add_argument("--nominal-inertia", type=float, default=None,
                    help="a-priori J [kg.m2 or kg]: refuse a fit more than 10x away (mis-declared units)")
-    q.add_argument("--out", type=Path, default=None, help="write estimates, std and covariance as JSON")
+    q.add_argument("--out", type=Path, default=None,
+                   help="JSON in the SerialRobotJoint FMU's parameter names (M, k, q_off, beta_*) for "
+                        "writeback --values; the regressor estimates beside them")
     q.set_defaults(func=_identify_joint)
     q = kinds.add_parser("frf", help="joint model K/(s(s+alpha)) x resonance/antiresonance pairs (Cheung eqs. 6-8) "
                                      "from a swept-sine recording")

@@ -34,6 +34,7 @@ __all__ = [
     "FrictionModelComparison",
     "compare_friction_models",
     "identify_joint_recording",
+    "serial_joint_parameters",
 ]
 
 FRICTION_MODELS = ("asymmetric", "symmetric", "viscous", "none")
@@ -256,3 +257,37 @@ def identify_joint_recording(
     check_inertia(float(result.fit.estimate[0]), "J", position, columns.rotary(position), source=source,
                   nominal=nominal_inertia)
     return result, columns.notes
+
+
+def serial_joint_parameters(fit: LeastSquaresResult) -> tuple[list[str], np.ndarray, np.ndarray]:
+    """The fit in the parameter names of ``MotionTwin.Plants.SerialRobotJoint`` (M, k, q_off, beta_vp,
+    beta_cp, beta_vn, beta_cn), so that ``motiontwin writeback --values`` takes it as it is, with the
+    covariance carried through the (linear, and for k and q_off first-order) change of variables.
+
+    Needs gravity in the fit; symmetric friction is written as equal positive and negative coefficients,
+    viscous-only friction with zero Coulomb levels. Returns (names, estimate, covariance).
+    """
+    names = list(fit.names)
+    if "g_sin" not in names:
+        raise ValueError("SerialRobotJoint has a gravity term: identify with gravity to write its parameters")
+    index = {n: i for i, n in enumerate(names)}
+    source = {"asymmetric": {"beta_vp": "fv_pos", "beta_cp": "fc_pos", "beta_vn": "fv_neg", "beta_cn": "fc_neg"},
+              "symmetric": {"beta_vp": "fv", "beta_cp": "fc", "beta_vn": "fv", "beta_cn": "fc"},
+              "viscous": {"beta_vp": "fv", "beta_vn": "fv"}}
+    friction = next((kind for kind, cols in _FRICTION_NAMES.items() if cols and all(c in index for c in cols)),
+                    "none")
+    out = ["M", "k", "q_off", "beta_vp", "beta_cp", "beta_vn", "beta_cn"]
+    gs, gc = fit.estimate[index["g_sin"]], fit.estimate[index["g_cos"]]
+    grav = gravity_amplitude_offset(gs, gc)
+    jacobian = np.zeros((len(out), len(names)))   # d(out)/d(regressor parameters)
+    jacobian[0, index["J"]] = 1.0
+    k = grav.amplitude
+    jacobian[1, [index["g_sin"], index["g_cos"]]] = [gs / k, gc / k]
+    jacobian[2, [index["g_sin"], index["g_cos"]]] = [-gc / k**2, gs / k**2]
+    for row, name in enumerate(out[3:], start=3):
+        column = source.get(friction, {}).get(name)
+        if column is not None:
+            jacobian[row, index[column]] = 1.0
+    estimate = jacobian @ fit.estimate
+    estimate[1], estimate[2] = grav.amplitude, grav.offset
+    return out, estimate, jacobian @ fit.covariance @ jacobian.T

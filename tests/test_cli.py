@@ -60,8 +60,9 @@ def test_excite_writes_csv_and_mat(tmp_path):
     assert recording.read_mat(out.with_suffix(".mat")).columns["value"].tolist() == rec["value"].tolist()
 
 
-def test_identify_joint_recovers_the_truth_from_a_recording(tmp_path):
-    """CLI path of inverse-dynamics identification: truth ODE (tests/ident_truth.py) -> recording -> estimates."""
+def _identify_joint_recording(tmp_path) -> Path:
+    """identify joint on a recording of the truth ODE (tests/ident_truth.py); checks the regressor estimates
+    against the truth and returns the --out JSON."""
     import json
 
     from tests.test_ident_joint import NAMES, TRUTH, noisy_periods, simulate_joint_period
@@ -75,9 +76,44 @@ def test_identify_joint_recovers_the_truth_from_a_recording(tmp_path):
     assert main(["identify", "joint", str(path), "--f0", "0.5", "--cutoff", "10", "--min-speed", "0.2",
                  "--out", str(out)]) == 0
     fit = json.loads(out.read_text())
-    estimate = np.array([fit["parameters"][n] for n in NAMES])
+    estimate = np.array([fit["regressor_parameters"][n] for n in NAMES])
     assert np.all(np.abs(estimate - TRUTH) / np.abs(TRUTH) < 0.03)
     assert main(["identify", "joint", str(path), "--position", "nope", "--f0", "0.5", "--cutoff", "10"]) == 1
+    return out
+
+
+def test_identify_joint_recovers_the_truth_from_a_recording(tmp_path):
+    """CLI path of inverse-dynamics identification: truth ODE -> recording -> estimates within 3 %."""
+    _identify_joint_recording(tmp_path)
+
+
+def test_identify_joint_then_writeback_into_the_serial_joint_fmu(tmp_path):
+    """identify joint --out goes into SerialRobotJoint's start values as it is: the written FMU's friction
+    output and its acceleration under a torque equal the truth ODE's (tests/ident_truth.py) within 3 %."""
+    import json
+
+    import fmpy
+
+    from fmus import build
+    from tests.ident_truth import JOINT_TRUTH, friction_torque
+
+    fit = _identify_joint_recording(tmp_path)
+    doc = json.loads(fit.read_text())
+    assert doc["class"] == "MotionTwin.Plants.SerialRobotJoint" and set(doc["std"]) == set(doc["parameters"])
+    fmu = build.build_fmu(build.load_model("MotionTwin.Plants.SerialRobotJoint"), tmp_path / "fmus", "2.0").path
+    written = tmp_path / "fitted.fmu"
+    assert main(["writeback", str(fmu), "--values", str(fit), "--out", str(written)]) == 0
+    k = float(np.hypot(JOINT_TRUTH["g_sin"], JOINT_TRUTH["g_cos"]))
+    q_off = float(np.arctan2(JOINT_TRUTH["g_cos"], JOINT_TRUTH["g_sin"]))
+    for w in (-2.0, -0.7, 0.6, 2.5):   # the FMU's friction output vs the truth's friction at that velocity
+        res = fmpy.simulate_fmu(str(written), stop_time=1e-6, output_interval=1e-6, output=["f_friction"],
+                                start_values={"w": w})
+        assert res["f_friction"][0] == pytest.approx(friction_torque(JOINT_TRUTH, w), rel=0.03)
+    q0, w0, tau, dt = 0.4, 1.0, 5.0, 1e-3   # M*der(w) = tau - k*sin(q + q_off) - f(w), over a short step
+    res = fmpy.simulate_fmu(str(written), stop_time=dt, output_interval=dt, output=["w"],
+                            start_values={"q": q0, "w": w0, "tau": tau})
+    truth = (tau - k * np.sin(q0 + q_off) - friction_torque(JOINT_TRUTH, w0)) / JOINT_TRUTH["J"]
+    assert (res["w"][-1] - w0) / dt == pytest.approx(truth, rel=0.03)
 
 
 def test_writeback_rebuilds_the_binary_with_the_new_defaults(built_fmus, tmp_path):
