@@ -41,45 +41,63 @@ def _excite(args: argparse.Namespace) -> int:
     return 0
 
 
-def _input_signal(spec: str) -> tuple[str, tuple[np.ndarray, np.ndarray]]:
-    """``NAME=EXPERIMENT.toml[:FIELD]`` -> (NAME, (time, values)); FIELD defaults to value or position."""
-    from harness import excitation
+def _log_recording(logs: dict[str, np.ndarray], group: str | None, meta: dict, **provenance: object):
+    """The recording of one log group of a master run (units and FMUs from ``meta``)."""
+    from harness import recording
 
-    name, sep, rest = spec.partition("=")
-    if not sep or not name:
-        raise ValueError(f"--input {spec!r}: expected NAME=EXPERIMENT.toml[:FIELD]")
-    path, field = rest, ""
-    if ":" in rest and rest.rsplit(":", 1)[0].endswith(".toml"):
-        path, field = rest.rsplit(":", 1)
-    signals = excitation.load_experiment(path).generate()
-    field = field or ("value" if "value" in signals else "position")
-    if field not in signals:
-        raise ValueError(f"--input {spec!r}: the experiment has no field {field!r}; it has {sorted(signals)}")
-    values = signals[field]
-    if values.ndim != 1:
-        raise ValueError(f"--input {spec!r}: field {field!r} has {values.shape[1]} axes; an input takes one")
-    return name, (signals["time"], values)
+    group = group or next(iter(logs))
+    if group not in logs:
+        raise ValueError(f"log group {group!r}: the system logs {sorted(logs)}")
+    log = logs[group]
+    columns = {name: log[name] for name in log.dtype.names if name != "time"}
+    units = {name: meta["units"].get(name) or "" for name in columns}
+    return recording.make_recording(log["time"], columns, units, sample_time=float(log["time"][1] - log["time"][0]),
+                                    fmus=meta["fmus"], **provenance)
 
 
 def _run(args: argparse.Namespace) -> int:
     from harness import recording
+    from harness.inputs import input_from_spec
     from harness.master import Master
 
-    inputs = dict(_input_signal(spec) for spec in args.input)
+    inputs = dict(input_from_spec(spec) for spec in args.input)
     with Master(args.system) as master:
         logs = master.run(inputs=inputs, stop_time=args.stop_time)
         meta = master.metadata()
-    group = args.log or next(iter(logs))
-    if group not in logs:
-        raise ValueError(f"--log {group!r}: the system logs {sorted(logs)}")
-    log = logs[group]
-    columns = {name: log[name] for name in log.dtype.names if name != "time"}
-    units = {name: meta["units"].get(name) or "" for name in columns}
-    rec = recording.make_recording(log["time"], columns, units, sample_time=float(log["time"][1] - log["time"][0]),
-                                   excited={"inputs": args.input}, fmus=meta["fmus"],
-                                   metadata={"system": str(args.system), "order": meta["order"]})
+    rec = _log_recording(logs, args.log, meta, excited={"inputs": args.input},
+                         metadata={"system": str(args.system), "order": meta["order"]})
     for path in recording.write_recording(args.out, rec):
         print(path)
+    return 0
+
+
+def _sweep(args: argparse.Namespace) -> int:
+    import json
+    import time
+
+    from harness import recording, sweep
+    from harness.executor import make_executor
+    from harness.master import master_for
+
+    plan = sweep.load_sweep(args.sweep)
+    t0 = time.perf_counter()
+    with make_executor(args.executor, args.workers, args.scheduler) as executor:
+        results = sweep.run(plan, executor)
+    seconds = time.perf_counter() - t0
+    meta = master_for(plan.system).metadata()
+    texts, rows = {}, []
+    for case, logs in zip(plan.cases, results):
+        rec = _log_recording(logs, plan.log, meta, excited={"sweep": str(args.sweep), "case": case.name},
+                             metadata={"system": str(plan.system.source), "parameters": case.parameters})
+        texts.update(recording.recording_texts(args.out / f"{case.name}.csv", rec))
+        rows.append({"case": case.name, "parameters": case.parameters,
+                     "final": {k: float(rec[k][-1]) for k in rec.columns}})
+    texts[args.out / "sweep.json"] = json.dumps({"sweep": str(args.sweep), "executor": args.executor,
+                                                "runs": len(rows), "seconds": seconds, "cases": rows},
+                                               indent=2) + "\n"
+    args.out.mkdir(parents=True, exist_ok=True)
+    recording.atomic_write_texts(texts)
+    print(f"{len(rows)} runs in {seconds:.2f} s ({len(rows) / seconds:.1f} runs/s, {args.executor}) -> {args.out}")
     return 0
 
 
@@ -112,12 +130,62 @@ def _report_fit(fit: object, args: argparse.Namespace, method: str) -> int:
     return 0
 
 
+def _joint_document(fit: object, method: str, source: Path) -> dict[str, object]:
+    """The --out JSON of identify joint: SerialRobotJoint names (for writeback --values), regressor estimates beside."""
+    from ident.joint import serial_joint_parameters
+
+    names, estimate, covariance = serial_joint_parameters(fit)
+    std = np.sqrt(np.diag(covariance))
+    return {"method": method, "recording": str(source), "class": "MotionTwin.Plants.SerialRobotJoint",
+            "parameters": dict(zip(names, estimate.tolist())), "std": dict(zip(names, std.tolist())),
+            "names": names, "covariance": covariance.tolist(),
+            "regressor_parameters": fit.as_dict(), "regressor_std": dict(zip(fit.names, fit.std.tolist())),
+            "correlation_condition": fit.correlation_condition}
+
+
+def _identify_joint_ml(args: argparse.Namespace) -> int:
+    """identify joint --ml: maximum likelihood of the parameters and the cut-off (Abdellatif eq. 24);
+    --cutoff is the start value and centre of the default search range."""
+    import json
+
+    from harness import recording
+    from ident.ml import identify_joint_ml_recording
+
+    if args.friction != "asymmetric":
+        raise ValueError(f"--ml models asymmetric friction only (ident.ml), got --friction {args.friction!r}")
+    if args.cutoff_range is not None and not 0 < args.cutoff_range[0] < args.cutoff_range[1]:
+        raise ValueError(f"--cutoff-range LOW HIGH must satisfy 0 < LOW < HIGH [Hz], got {args.cutoff_range}")
+    rec = recording.read_recording(args.recording, required=("time", args.position, args.force))
+    result, notes = identify_joint_ml_recording(rec, args.f0, args.cutoff, cutoff_range=args.cutoff_range,
+                                                position=args.position, force=args.force, min_speed=args.min_speed,
+                                                nominal_inertia=args.nominal_inertia, source=str(args.recording))
+    for note in notes:
+        print(note)
+    ml, (low, high) = result.ml, result.cutoff_range
+    print(f"cut-off: start {args.cutoff:g} Hz, searched {low:g}..{high:g} Hz, ML estimate "
+          f"{ml.cutoff_frequency:.6g} Hz")
+    print(result.fit.summary())
+    if args.out:
+        doc = _joint_document(result.fit, "maximum likelihood with the filter cut-off as a parameter "
+                                          "(Abdellatif eq. 24, CasADi/IPOPT)", args.recording)
+        doc.update({"cutoff_frequency": ml.cutoff_frequency, "cutoff_start": args.cutoff,
+                    "cutoff_range": [low, high], "negative_log_likelihood": ml.cost,
+                    "start_regressor_parameters": result.start.fit.as_dict()})
+        recording.atomic_write_texts({args.out: json.dumps(doc, indent=2) + "\n"})
+        print(args.out)
+    return 0
+
+
 def _identify_joint(args: argparse.Namespace) -> int:
     import json
 
     from harness import recording
-    from ident.joint import identify_joint_recording, serial_joint_parameters
+    from ident.joint import identify_joint_recording
 
+    if args.ml:
+        return _identify_joint_ml(args)
+    if args.cutoff_range is not None:
+        raise ValueError("--cutoff-range is the search interval of --ml: add --ml or drop it")
     rec = recording.read_recording(args.recording, required=("time", args.position, args.force))
     result, notes = identify_joint_recording(rec, args.f0, args.cutoff, position=args.position, force=args.force,
                                              min_speed=args.min_speed, friction=args.friction,
@@ -127,15 +195,8 @@ def _identify_joint(args: argparse.Namespace) -> int:
     method = "inverse-dynamics Gauss-Markov least squares (Abdellatif, Bona eq. 2)"
     if not args.out:
         return _report_fit(result.fit, args, method)
-    names, estimate, covariance = serial_joint_parameters(result.fit)
-    std = np.sqrt(np.diag(covariance))
+    doc = _joint_document(result.fit, method, args.recording)
     print(result.fit.summary())
-    doc = {"method": method, "recording": str(args.recording), "class": "MotionTwin.Plants.SerialRobotJoint",
-           "parameters": dict(zip(names, estimate.tolist())), "std": dict(zip(names, std.tolist())),
-           "names": names, "covariance": covariance.tolist(),
-           "regressor_parameters": result.fit.as_dict(), "regressor_std": dict(zip(result.fit.names,
-                                                                                  result.fit.std.tolist())),
-           "correlation_condition": result.fit.correlation_condition}
     recording.atomic_write_texts({args.out: json.dumps(doc, indent=2) + "\n"})
     print(args.out)
     return 0
@@ -151,6 +212,18 @@ def _identify_oe(args: argparse.Namespace) -> int:
     from ident.outputerror import cli_identify_oe
 
     return cli_identify_oe(args)
+
+
+def _identify_projection(args: argparse.Namespace) -> int:
+    from ident.closedloop import cli_identify_projection
+
+    return cli_identify_projection(args)
+
+
+def _design_excitation(args: argparse.Namespace) -> int:
+    from ident.excitation_design import cli_design_excitation
+
+    return cli_design_excitation(args)
 
 
 def _identify_hexapod(args: argparse.Namespace) -> int:
@@ -253,6 +326,16 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--out", type=Path, required=True, help="recording CSV (a JSON sidecar is written beside it)")
     p.set_defaults(func=_run)
 
+    p = sub.add_parser("sweep", help="run the cases of a sweep file (seeds, grids) through an executor")
+    p.add_argument("sweep", type=Path, help="sweep file (TOML, see harness/sweep.py)")
+    p.add_argument("--executor", default="inprocess", choices=["inprocess", "process", "dask"],
+                   help="where the runs go (default inprocess); --scheduler implies dask")
+    p.add_argument("--workers", type=int, default=None, help="worker processes (process pool, Dask LocalCluster)")
+    p.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                   help="Dask scheduler, e.g. tcp://host:8786 (default: a LocalCluster on this machine)")
+    p.add_argument("--out", type=Path, required=True, help="folder: one recording per case + sweep.json")
+    p.set_defaults(func=_sweep)
+
     p = sub.add_parser("regress", help="run a regression suite against reference recordings (tolerance tubes)")
     p.add_argument("suite", type=Path, help="suite file (TOML)")
     p.add_argument("--update", action="store_true", help="rebaseline: rewrite the reference recordings")
@@ -280,6 +363,10 @@ def _parser() -> argparse.ArgumentParser:
     q.add_argument("--friction", default="asymmetric", help="friction parametrisation (see ident.joint)")
     q.add_argument("--nominal-inertia", type=float, default=None,
                    help="a-priori J [kg.m2 or kg]: refuse a fit more than 10x away (mis-declared units)")
+    q.add_argument("--ml", action="store_true",
+                   help="maximum likelihood with the cut-off as a parameter (Abdellatif eq. 24); --cutoff starts it")
+    q.add_argument("--cutoff-range", type=float, nargs=2, default=None, metavar=("LOW", "HIGH"),
+                   help="with --ml: cut-off search interval [Hz] (default cutoff/2 .. 2 cutoff)")
     q.add_argument("--out", type=Path, default=None,
                    help="JSON in the SerialRobotJoint FMU's parameter names (M, k, q_off, beta_*) for "
                         "writeback --values; the regressor estimates beside them")
@@ -319,6 +406,44 @@ def _parser() -> argparse.ArgumentParser:
     q.add_argument("--min-speed", type=float, default=0.0, help="drop samples where a leg is slower [m/s]")
     q.add_argument("--out", type=Path, default=None, help="write estimates, std and covariance as JSON")
     q.set_defaults(func=_identify_hexapod)
+
+    q = kinds.add_parser("projection", help="closed-loop plant y = B/F u by the projection method (Bona eqs. "
+                                            "10-12), printed beside the naive output-error fit")
+    q.add_argument("recording", type=Path, help="recording CSV, uniformly sampled, of a closed-loop experiment")
+    q.add_argument("--reference", default="r", help="reference column the loop is driven by (default r)")
+    q.add_argument("--input", default="u", help="plant input column (default u)")
+    q.add_argument("--output", default="q", help="plant output column (default q)")
+    q.add_argument("--nb", type=int, default=2, help="numerator coefficients of B (default 2)")
+    q.add_argument("--nf", type=int, default=2, help="denominator order of F (default 2)")
+    q.add_argument("--delay", type=int, default=1, help="input delay of B [samples] (default 1)")
+    q.add_argument("--noncausal", type=int, default=0, help="FIR taps on future reference samples, M1 (default 0)")
+    q.add_argument("--causal", type=int, default=100, help="FIR taps on past reference samples, M2 (default 100)")
+    q.add_argument("--periodic", action="store_true", help="the recording holds whole periods: shifts wrap around")
+    q.add_argument("--skip", type=int, default=None, help="initial samples left out of the fits (default --causal)")
+    q.add_argument("--out", type=Path, default=None, help="JSON with both models (B, F, gain, modes)")
+    q.set_defaults(func=_identify_projection)
+
+    p = sub.add_parser("design-excitation", help="optimal periodic Fourier excitation (condition number or "
+                                                 "D-optimality) -> experiment file for excite")
+    designs = p.add_subparsers(dest="plant", required=True)
+    q = designs.add_parser("joint", help="serial joint (inertia, gravity, asymmetric friction), CasADi/IPOPT")
+    q.add_argument("--criterion", choices=("cond", "dopt"), default="dopt",
+                   help="cond: regressor condition number (eq. 21); dopt: D-optimality, log det (eq. 22)")
+    q.add_argument("--f0", type=float, required=True, help="fundamental frequency [Hz]")
+    q.add_argument("--harmonics", type=int, required=True, help="number of harmonics")
+    q.add_argument("--q-center", type=float, default=0.0, help="centre of the position range [rad or m]")
+    q.add_argument("--q-range", type=float, required=True, help="position within q-center +- this [rad or m]")
+    q.add_argument("--v-max", type=float, required=True, help="speed limit [rad/s or m/s]")
+    q.add_argument("--a-max", type=float, required=True, help="acceleration limit [rad/s2 or m/s2]")
+    q.add_argument("--sample-time", type=float, default=1e-3, help="experiment sample time [s] (default 1e-3)")
+    q.add_argument("--periods", type=int, default=10, help="periods in the experiment (default 10)")
+    q.add_argument("--starts", type=int, default=3, help="random IPOPT starts, the best is kept (default 3)")
+    q.add_argument("--seed", type=int, default=0)
+    q.add_argument("--design-samples", type=int, default=100, help="instants per period the limits hold at")
+    q.add_argument("--name", default=None, help="experiment name (default: the file stem)")
+    q.add_argument("--target", default=None, help="port the experiment drives, e.g. r")
+    q.add_argument("--out", type=Path, required=True, help="experiment TOML (kind fourier) for motiontwin excite")
+    q.set_defaults(func=_design_excitation)
 
     p = sub.add_parser("writeback", help="write fitted values into a new FMU's start values (rebuilt binary)")
     p.add_argument("fmu", type=Path, help="an FMU built by motiontwin (it carries its sources)")

@@ -675,6 +675,50 @@ def load_experiment(path: str | os.PathLike) -> Experiment:
     return parse_experiment(doc, path)
 
 
+def fourier_experiment_text(
+    name: str,
+    sample_time: float,
+    f_fundamental: float,
+    n_periods: int,
+    a: Sequence[float],
+    b: Sequence[float],
+    q0: float = 0.0,
+    *,
+    description: str = "",
+    target: str | None = None,
+    comments: Sequence[str] = (),
+    source: str | os.PathLike = "<experiment>",
+) -> str:
+    """An experiment file (TOML) of kind ``fourier`` that :func:`load_experiment` reads back to the same values.
+
+    ``comments`` become leading ``#`` lines (provenance: criterion, metrics). Raises ExperimentError naming
+    ``source`` and the field when the values do not make a valid experiment (e.g. a period that is not a
+    whole number of samples).
+    """
+    def number(x: float) -> str:
+        value = float(x)
+        if not math.isfinite(value):
+            raise ExperimentError(f"{source}: non-finite value {value!r} in the Fourier experiment")
+        return repr(value)
+
+    def string(text: str) -> str:
+        return '"' + text.replace("\\", "\\\\").replace('"', '\\"').replace("\n", " ") + '"'
+
+    lines = [f"# {line}" for line in comments]
+    lines += [f"name = {string(name)}"]
+    if description:
+        lines.append(f"description = {string(description)}")
+    lines.append(f"sample_time = {number(sample_time)}")
+    if target:
+        lines.append(f"target = {string(target)}")
+    lines += ["", "[excitation]", 'kind = "fourier"', f"f_fundamental = {number(f_fundamental)}",
+              f"n_periods = {int(n_periods)}", "a = [" + ", ".join(number(x) for x in a) + "]",
+              "b = [" + ", ".join(number(x) for x in b) + "]", f"q0 = {number(q0)}"]
+    text = "\n".join(lines) + "\n"
+    parse_experiment(tomllib.loads(text), source)
+    return text
+
+
 # ---------------------------------------------------------------- end-effector moves
 
 

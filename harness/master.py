@@ -65,6 +65,7 @@ from tqdm import tqdm
 
 from . import native
 from .fmu_instance import REAL_TYPES, FMUCallError, FMUInstance, PortError
+from .inputs import sample_held
 from .system import INPUT_NAMESPACE, System, load_system, split_port
 from .units import units_compatible, variable_unit
 
@@ -446,8 +447,7 @@ class Master:
                 if t.ndim != 1 or t.shape != v.shape or np.any(np.diff(t) <= 0):
                     raise ValueError(f"external input '{name}': (time, values) must be 1-D, equally long, "
                                      f"with increasing time")
-                index = np.searchsorted(t, grid + 1e-9 * self.system.base_step, side="right") - 1
-                table[:, j] = v[np.clip(index, 0, len(v) - 1)]
+                table[:, j] = sample_held(t, v, grid, self.system.base_step)
             else:
                 v = np.asarray(value, float)
                 if v.ndim == 0:

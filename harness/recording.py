@@ -352,15 +352,21 @@ def atomic_write_texts(files: dict[Path, str]) -> None:
                 Path(backup).unlink(missing_ok=True)
 
 
-def write_recording(path: str | os.PathLike, rec: Recording) -> tuple[Path, Path]:
-    """Validate ``rec`` and write ``NAME.csv`` and ``NAME.json`` atomically; returns both paths."""
+def recording_texts(path: str | os.PathLike, rec: Recording) -> dict[Path, str]:
+    """Validate ``rec`` and return the texts of ``NAME.csv`` and ``NAME.json`` (for atomic_write_texts,
+    so that several recordings can be written all or none)."""
     path = Path(path)
     if path.suffix.lower() != ".csv":
         raise RecordingError(f"{path}: a recording file name must end in .csv")
     validate_recording(rec, source=str(path))
     side_text = json.dumps(_sidecar_document(rec), indent=2, allow_nan=False) + "\n"
-    atomic_write_texts({path: _csv_text(rec), sidecar_path(path): side_text})
-    return path, sidecar_path(path)
+    return {path: _csv_text(rec), sidecar_path(path): side_text}
+
+
+def write_recording(path: str | os.PathLike, rec: Recording) -> tuple[Path, Path]:
+    """Validate ``rec`` and write ``NAME.csv`` and ``NAME.json`` atomically; returns both paths."""
+    atomic_write_texts(recording_texts(path, rec))
+    return Path(path), sidecar_path(Path(path))
 
 
 def write_mat(path: str | os.PathLike, rec: Recording) -> Path:

@@ -23,9 +23,9 @@ Suite file (TOML), paths relative to it::
     stop_time = 0.2              # optional, default: the system's stop_time
     log = "log"                  # optional log group to compare, default: the first
     signals = ["plant.y"]        # optional, default: every logged signal
-    [case.inputs]                # the system's external inputs: constants, or a recording column
-    r = -0.4                     # (held from sample to sample), path relative to the suite file
-    u_ext = {recording = "excitation/sweep.csv", column = "u_ext"}
+    [case.inputs]                # the system's external inputs (harness.inputs): constants, a recording
+    r = -0.4                     # column or an experiment signal (held from sample to sample), paths
+    u_ext = {recording = "excitation/sweep.csv", column = "u_ext"}   # relative to the suite file
     [case.parameters]            # per-run overrides "inst.variable" = value
     "ctrl.add.k1" = 5000.0
 
@@ -324,19 +324,10 @@ def load_suite(path: str | Path) -> list[Case]:
 
 
 def _case_inputs(case: Case, root: Path) -> dict[str, Any]:
-    from .recording import read_recording
+    from .inputs import resolve_input
 
-    inputs: dict[str, Any] = {}
-    for name, value in case.inputs.items():
-        if isinstance(value, dict):
-            if set(value) != {"recording", "column"}:
-                raise SuiteError(f"case '{case.name}': input '{name}' must be a number or "
-                                 f"{{recording = \"FILE.csv\", column = \"NAME\"}}")
-            rec = read_recording(root / value["recording"], required=("time", value["column"]))
-            inputs[name] = (rec.time, rec[value["column"]])
-        else:
-            inputs[name] = value
-    return inputs
+    return {name: resolve_input(value, root, f"case '{case.name}': input '{name}'")
+            for name, value in case.inputs.items()}
 
 
 def _simulate(case: Case, root: Path) -> tuple[np.ndarray, dict[str, Any]]:

@@ -58,7 +58,7 @@ def _single_source_connections(system: System, drop_external_in_sums: bool) -> l
         if len(pairs) != 1:
             raise SSPExportError(
                 f"connection to '{c.to}' sums {list(c.sources)}; SSP 1.0 has no sum junction "
-                f"(pass drop_external_in_sums=True to leave external inputs out of sums)")
+                f"(pass drop_external_in_sums=True, or --drop-external-in-sums, to leave external inputs out of sums)")
         out.append((pairs[0][0], c.to, pairs[0][1]))
     return out
 

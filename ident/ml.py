@@ -21,9 +21,12 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
-from ident.joint import joint_regressor
+from ident.joint import JointIdentification, identify_joint_periodic, joint_regressor
+from ident.leastsquares import LeastSquaresResult
+from ident.signals import lowpass_differentiate, period_average, samples_per_period
+from ident.units import check_inertia, check_motion, checked_columns
 
-__all__ = ["MaximumLikelihoodResult", "ml_joint_with_cutoff"]
+__all__ = ["MaximumLikelihoodResult", "ml_joint_with_cutoff", "JointMaximumLikelihood", "identify_joint_ml_recording"]
 
 
 @dataclass(frozen=True)
@@ -134,3 +137,68 @@ def ml_joint_with_cutoff(
     return MaximumLikelihoodResult(
         x_opt[:-1], names, float(x_opt[-1]), covariance, float(sol["f"]), grid, costs
     )
+
+
+@dataclass(frozen=True)
+class JointMaximumLikelihood:
+    """Result of identify_joint_ml_recording.
+
+    ml: the joint (theta, f_c) estimate; fit: theta alone as a LeastSquaresResult (marginal covariance of
+    theta, torque residual at the ML cut-off) so it prints and converts like a least-squares fit;
+    start: the Gauss-Markov fit at the start cut-off (it sets the speed mask and the noise variances);
+    cutoff_range: the searched interval [Hz].
+    """
+
+    ml: MaximumLikelihoodResult
+    fit: LeastSquaresResult
+    start: JointIdentification
+    cutoff_range: tuple[float, float]
+
+
+def identify_joint_ml_recording(
+    rec,
+    fundamental_frequency: float,
+    cutoff_frequency: float,
+    *,
+    cutoff_range: tuple[float, float] | None = None,
+    position: str = "q",
+    force: str = "u",
+    min_speed: float = 0.0,
+    nominal_inertia: float | None = None,
+    source: str = "recording",
+) -> tuple[JointMaximumLikelihood, list[str]]:
+    """ml_joint_with_cutoff on a harness.recording.Recording (whole number of periods, >= 2), unit-checked.
+
+    ``cutoff_frequency`` is the start value: a Gauss-Markov fit there (ident.joint) gives the samples used
+    (|qd| > ``min_speed``) and the torque noise variance; the position noise variance comes from the spread
+    between periods. f_c is then estimated within ``cutoff_range`` (default cutoff/2 .. 2 cutoff, capped
+    below Nyquist). Only the asymmetric friction model of ident.joint is supported. Returns the result and
+    the notes on unit conversions; raises ident.units.UnitError naming the column.
+    """
+    columns = checked_columns(rec, {position: "position", force: "force"}, source=source)
+    fs = columns.sample_rate
+    nyquist = 0.5 * fs
+    low, high = cutoff_range if cutoff_range is not None else (0.5 * cutoff_frequency, 2.0 * cutoff_frequency)
+    high = min(high, nyquist - fundamental_frequency)
+    if not 0 < low < high:
+        raise ValueError(f"{source}: cut-off search range {low:g}..{high:g} Hz is empty (Nyquist {nyquist:g} Hz)")
+    start = identify_joint_periodic(columns[position], columns[force], fs, fundamental_frequency, cutoff_frequency,
+                                    min_speed=min_speed)
+    q_avg = period_average(columns[position], samples_per_period(fs, fundamental_frequency))
+    position_variance = float(q_avg.mean_covariance[0, 0])
+    if not position_variance > 0 or not start.torque_variance > 0:
+        raise ValueError(f"{source}: columns {position!r} and {force!r} must vary between periods (noise "
+                         "variances from the period spread are zero): ML needs the measurement noise")
+    ml = ml_joint_with_cutoff(q_avg.mean[:, 0], start.torque, fs, position_variance, start.torque_variance,
+                              cutoff_range=(low, high), mask=start.mask)
+    filtered = lowpass_differentiate(q_avg.mean[:, 0], fs, ml.cutoff_frequency)
+    m = start.mask
+    phi, _ = joint_regressor(filtered.position[m], filtered.velocity[m], filtered.acceleration[m])
+    eta = start.torque[m] - phi @ ml.estimate
+    fit = LeastSquaresResult(ml.estimate, ml.covariance[:-1, :-1], list(ml.names),
+                             float(eta @ eta / start.torque_variance), int(m.sum()) - len(ml.names), True,
+                             float(np.linalg.cond(phi)))
+    check_motion(columns, position, source=source, velocity=filtered.velocity, acceleration=filtered.acceleration)
+    check_inertia(float(ml.estimate[0]), "J", position, columns.rotary(position), source=source,
+                  nominal=nominal_inertia)
+    return JointMaximumLikelihood(ml, fit, start, (float(low), float(high))), columns.notes

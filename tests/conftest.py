@@ -2,14 +2,12 @@
 from __future__ import annotations
 
 import os
-import subprocess
-import sys
-import zipfile
 from pathlib import Path
 
 import pytest
 
 from fmus import build
+from tests.fmi_util import gemseo_fmu_folder
 
 MODELS = Path(__file__).parent / "models"
 TEST_MODELS = {
@@ -35,24 +33,9 @@ def built_fmus(fmu_dir: Path) -> dict[tuple[str, str], Path]:
     return out
 
 
-GEMSEO_FMU_WHEEL = "gemseo-fmu==3.1.1"
-
-
 @pytest.fixture(scope="session")
 def gemseo_fmus(request: pytest.FixtureRequest) -> Path:
     """Folder with the Linux FMUs of the gemseo-fmu wheel (``MOTIONTWIN_TEST_FMUS`` if set, else
-    ``pip download gemseo-fmu --no-deps`` once into the pytest cache)."""
+    downloaded once into the pytest cache)."""
     given = os.environ.get("MOTIONTWIN_TEST_FMUS")
-    if given:
-        return Path(given)
-    folder = Path(request.config.cache.mkdir("gemseo_fmus"))
-    if not (folder / "add.fmu").is_file():
-        subprocess.run([sys.executable, "-m", "pip", "download", GEMSEO_FMU_WHEEL, "--no-deps",
-                        "--quiet", "-d", str(folder)], check=True)
-        wheel = next(folder.glob("gemseo_fmu-*.whl"))
-        prefix = "gemseo_fmu/problems/fmu_files/linux/"
-        with zipfile.ZipFile(wheel) as zf:
-            for name in zf.namelist():
-                if name.startswith(prefix) and name.endswith(".fmu"):
-                    (folder / Path(name).name).write_bytes(zf.read(name))
-    return folder
+    return Path(given) if given else gemseo_fmu_folder(Path(request.config.cache.mkdir("gemseo_fmus")))

@@ -1,6 +1,9 @@
 """Test helpers: drive an FMU with fmpy's low-level classes and capture what it logs."""
 from __future__ import annotations
 
+import subprocess
+import sys
+import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -8,6 +11,25 @@ import fmpy
 import numpy as np
 from fmpy.fmi2 import FMU2Model, FMU2Slave, fmi2CallbackFunctions, fmi2CallbackLoggerTYPE
 from fmpy.fmi3 import FMU3Model, FMU3Slave
+
+
+GEMSEO_FMU_WHEEL = "gemseo-fmu==3.1.1"
+
+
+def gemseo_fmu_folder(folder: Path) -> Path:
+    """``folder`` holding the Linux FMUs of the gemseo-fmu wheel (OpenModelica-generated, third-party),
+    fetched once with ``pip download gemseo-fmu --no-deps``."""
+    folder.mkdir(parents=True, exist_ok=True)
+    if not (folder / "add.fmu").is_file():
+        subprocess.run([sys.executable, "-m", "pip", "download", GEMSEO_FMU_WHEEL, "--no-deps",
+                        "--quiet", "-d", str(folder)], check=True)
+        wheel = next(folder.glob("gemseo_fmu-*.whl"))
+        prefix = "gemseo_fmu/problems/fmu_files/linux/"
+        with zipfile.ZipFile(wheel) as zf:
+            for name in zf.namelist():
+                if name.startswith(prefix) and name.endswith(".fmu"):
+                    (folder / Path(name).name).write_bytes(zf.read(name))
+    return folder
 
 
 @dataclass

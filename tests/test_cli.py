@@ -207,3 +207,131 @@ def test_identify_frf_recovers_the_joint_model_from_a_swept_sine_recording(tmp_p
     assert fit["alpha"] == pytest.approx(TRUTH.alpha, rel=0.02)
     assert fit["omega"] == pytest.approx(TRUTH.resonances[0][0], rel=0.02)
     assert fit["omega_bar"] == pytest.approx(TRUTH.antiresonances[0][0], rel=0.02)
+
+
+def test_identify_joint_ml_estimates_the_cutoff_and_the_parameters(tmp_path, capsys):
+    """identify joint --ml on band-limited data (tests/test_ident_ml.py: 10 harmonics of 0.5 Hz, so the
+    likelihood-optimal cut-off lies in [5.0, 5.5) Hz), started at 3 Hz where the plain Gauss-Markov fit is
+    far off: the cut-off is found and the parameters match the truth within 4 std, in SerialRobotJoint names."""
+    import json
+
+    from tests.ident_truth import JOINT_TRUTH
+    from tests.test_ident_ml import FS, NAMES, TRUTH, band_limited_periods
+
+    qs, taus = band_limited_periods(1)
+    path = tmp_path / "band.csv"
+    recording.write_recording(path, recording.make_recording(np.arange(qs.size) / FS, {"q": qs, "u": taus},
+                                                             {"q": "rad", "u": "N.m"}, sample_time=1 / FS))
+    out = tmp_path / "ml.json"
+    assert main(["identify", "joint", str(path), "--f0", "0.5", "--cutoff", "3", "--min-speed", "0.2", "--ml",
+                 "--out", str(out)]) == 0
+    doc = json.loads(out.read_text())
+    assert 5.0 <= doc["cutoff_frequency"] < 5.5 and doc["cutoff_start"] == 3.0
+    estimate = np.array([doc["regressor_parameters"][n] for n in NAMES])
+    std = np.array([doc["regressor_std"][n] for n in NAMES])
+    assert np.all(np.abs(estimate - TRUTH) < 4 * std), (estimate, TRUTH, std)
+    start = np.array([doc["start_regressor_parameters"][n] for n in NAMES])
+    assert np.max(np.abs(start / TRUTH - 1)) > 0.5  # the 3 Hz start alone is wrong: the ML step does the work
+    assert doc["class"] == "MotionTwin.Plants.SerialRobotJoint"
+    assert doc["parameters"]["M"] == pytest.approx(JOINT_TRUTH["J"], rel=0.01)
+    assert doc["parameters"]["k"] == pytest.approx(3.0, rel=0.02)
+    assert doc["parameters"]["q_off"] == pytest.approx(0.3, abs=0.03)
+    capsys.readouterr()
+    bad = tmp_path / "bad.json"
+    assert main(["identify", "joint", str(path), "--f0", "0.5", "--cutoff", "3", "--ml", "--friction", "symmetric",
+                 "--out", str(bad)]) == 1
+    assert "--friction" in capsys.readouterr().err and not bad.exists()
+    assert main(["identify", "joint", str(path), "--f0", "0.5", "--cutoff", "3", "--cutoff-range", "6", "2",
+                 "--ml"]) == 1
+    assert "--cutoff-range" in capsys.readouterr().err
+
+
+def test_identify_projection_removes_the_closed_loop_bias(tmp_path, capsys):
+    """identify projection on the closed-loop truth of tests/test_ident_closedloop.py (5 Hz, zeta 0.3, unit
+    gain plant under PI, coloured output noise fed back): the projection estimate is within a few % of the
+    truth, the naive output-error fit beside it is > 30 % off in gain."""
+    import json
+
+    from tests.test_ident_closedloop import A, B, FS, M_CAUSAL, _closed_loop_data
+
+    r, u, y = _closed_loop_data(0)
+    path = tmp_path / "loop.csv"
+    recording.write_recording(path, recording.make_recording(np.arange(r.size) / FS, {"r": r, "u": u, "y": y},
+                                                             sample_time=1 / FS))
+    out = tmp_path / "pm.json"
+    assert main(["identify", "projection", str(path), "--reference", "r", "--input", "u", "--output", "y",
+                 "--nb", "2", "--nf", "2", "--causal", str(M_CAUSAL), "--out", str(out)]) == 0
+    doc = json.loads(out.read_text())
+    pole = np.log(np.roots(A)[0]) * FS
+    gain, frequency, damping = np.sum(B) / np.sum(A), abs(pole) / (2 * np.pi), -pole.real / abs(pole)
+    pm, naive = doc["projection_model"], doc["naive_model"]
+    assert pm["static_gain"] == pytest.approx(gain, rel=0.08)
+    assert pm["modes"][0]["frequency_hz"] == pytest.approx(frequency, rel=0.03)
+    assert pm["modes"][0]["damping"] == pytest.approx(damping, rel=0.15)
+    assert abs(naive["static_gain"] / gain - 1) > 0.3
+    assert abs(doc["projection"]["correlation"]) < 1e-3
+    capsys.readouterr()
+    assert main(["identify", "projection", str(path), "--reference", "nope", "--output", "y"]) == 1
+    assert "nope" in capsys.readouterr().err
+    assert main(["identify", "projection", str(path), "--output", "y", "--nb", "0"]) == 1
+    assert "--nb" in capsys.readouterr().err
+
+
+def _joint_criteria(q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> tuple[float, float]:
+    """cond and log det(Phi^T Phi) of the joint regressor on one sampled period."""
+    from ident.joint import joint_regressor
+
+    phi, _ = joint_regressor(q, qd, qdd)
+    return float(np.linalg.cond(phi)), float(np.linalg.slogdet(phi.T @ phi)[1])
+
+
+def test_design_excitation_then_excite_then_identify(tmp_path, capsys):
+    """design-excitation -> experiment file -> excite -> recording: the sampled trajectory keeps the limits,
+    each criterion beats 20 random designs under the same limits on its own measure (and the other design);
+    the truth loop of tests/ident_truth.py driven by the D-optimal file identifies within 3 %."""
+    import json
+
+    from harness.excitation import fourier_trajectory, load_experiment
+    from ident.excitation_design import ExcitationLimits, random_design
+    from tests.test_ident_joint import NAMES, TRUTH, noisy_periods, simulate_joint_period
+
+    limits = ["--q-range", "1.5", "--v-max", "6", "--a-max", "40"]
+    criteria = {}
+    for criterion in ("cond", "dopt"):
+        toml, rec_path = tmp_path / f"{criterion}.toml", tmp_path / f"{criterion}.csv"
+        assert main(["design-excitation", "joint", "--criterion", criterion, "--f0", "0.5", "--harmonics", "5",
+                     *limits, "--sample-time", "1e-3", "--periods", "10", "--starts", "2", "--target", "r",
+                     "--out", str(toml)]) == 0
+        assert main(["excite", str(toml), "--out", str(rec_path)]) == 0
+        rec = recording.read_recording(rec_path, required=("time", "position", "velocity", "acceleration"))
+        assert rec["time"].size == 20000 and load_experiment(toml).target == "r"
+        assert np.max(np.abs(rec["position"])) <= 1.5 and np.max(np.abs(rec["velocity"])) <= 6.0
+        assert np.max(np.abs(rec["acceleration"])) <= 40.0
+        criteria[criterion] = _joint_criteria(rec["position"][:2000], rec["velocity"][:2000],
+                                              rec["acceleration"][:2000])
+    t = np.arange(2000) * 1e-3
+    rng = np.random.default_rng(1)
+    randoms = []
+    for _ in range(20):
+        design = random_design(ExcitationLimits(0.0, 1.5, 6.0, 40.0), 0.5, 5, rng)
+        profile = fourier_trajectory(t, 0.5, design.a, design.b, design.q0)
+        randoms.append(_joint_criteria(profile.position, profile.velocity, profile.acceleration))
+    assert criteria["cond"][0] < min(c for c, _ in randoms) and criteria["cond"][0] < criteria["dopt"][0]
+    assert criteria["dopt"][1] > max(d for _, d in randoms) and criteria["dopt"][1] > criteria["cond"][1]
+
+    excitation = load_experiment(tmp_path / "dopt.toml").parameters
+    _, q, u = simulate_joint_period(a=np.array(excitation["a"]), b=np.array(excitation["b"]), q0=excitation["q0"])
+    qs, us = noisy_periods(q, u, 10, 1e-4, 0.5, np.random.default_rng(3))
+    joint = tmp_path / "joint.csv"
+    recording.write_recording(joint, recording.make_recording(np.arange(qs.size) * 1e-3, {"q": qs, "u": us},
+                                                              sample_time=1e-3))
+    fit = tmp_path / "fit.json"
+    assert main(["identify", "joint", str(joint), "--f0", "0.5", "--cutoff", "10", "--min-speed", "0.2",
+                 "--out", str(fit)]) == 0
+    estimate = np.array([json.loads(fit.read_text())["regressor_parameters"][n] for n in NAMES])
+    assert np.all(np.abs(estimate / TRUTH - 1) < 0.03), estimate / TRUTH - 1
+    capsys.readouterr()
+    bad = tmp_path / "bad.toml"
+    assert main(["design-excitation", "joint", "--f0", "0.3", "--harmonics", "5", *limits, "--sample-time", "7e-4",
+                 "--out", str(bad)]) == 1
+    assert "--sample-time" in capsys.readouterr().err and not bad.exists()

@@ -18,9 +18,10 @@ TRUTH = np.array([JOINT_TRUTH[n] for n in NAMES])
 F0, FS, NH, PERIODS = 0.5, 200.0, 10, 10
 
 
-@pytest.fixture(scope="module")
-def data():
-    rng = np.random.default_rng(0)
+def band_limited_periods(seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """PERIODS periods at FS of position [rad] (bandwidth exactly NH * F0 = 5 Hz, noise 1e-3 rad) and
+    torque [N m] (exact inverse dynamics of JOINT_TRUTH, noise 0.3 N m)."""
+    rng = np.random.default_rng(seed)
     scale = 4 / np.sqrt(np.arange(1, NH + 1))
     a, b = rng.standard_normal(NH) * scale, rng.standard_normal(NH) * scale
     t = np.arange(int(FS / F0)) / FS
@@ -30,6 +31,11 @@ def data():
     qs = np.tile(q, PERIODS) + 1e-3 * rng.standard_normal(n)
     taus = np.tile(phi @ TRUTH, PERIODS) + 0.3 * rng.standard_normal(n)
     return qs, taus
+
+
+@pytest.fixture(scope="module")
+def data():
+    return band_limited_periods(0)
 
 
 def test_ml_selects_the_signal_bandwidth_and_matches_gm_there(data):

@@ -4,7 +4,7 @@ harness.comparison) around CheungManipulator, FMI 2.0, Ts = 5e-4 s, the referenc
 (the paper's substrate move, back and forth every 0.25 s). Prints the plant's and the controllers' cost per
 tick (plant split into ticks while the reference moves and at rest) and the plant's solver statistics.
 
-Run: /work/venv/bin/python tests/benchmarks/bench_closed_loop_c.py [SIMULATED_SECONDS] [--callgrind]
+Run: .venv/bin/python tests/benchmarks/bench_closed_loop_c.py [SIMULATED_SECONDS] [--callgrind]
 (--callgrind runs 1 s under valgrind's callgrind and prints the instruction profile: load-independent.)
 """
 from __future__ import annotations

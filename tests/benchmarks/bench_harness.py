@@ -7,9 +7,9 @@ Two closed loops, plant force = controller output + u_ext(t), u_ext seeded noise
 2. the project's FMUs (built here with fmus.build into a temporary folder): ``SampledPI`` (FMI 3.0,
    Ts = 1 ms) around ``LinearMotorJoint`` (FMI 2.0, 0.5 ms, i.e. 2 kHz).
 
-Run: /work/venv/bin/python tests/benchmarks/bench_harness.py [FOLDER_WITH_GEMSEO_FMUS]
-(default: $MOTIONTWIN_TEST_FMUS, else /work/test_fmus; obtain the FMUs with
-``pip download gemseo-fmu==3.1.1 --no-deps`` and unzip gemseo_fmu/problems/fmu_files/linux/*.fmu).
+Run: .venv/bin/python tests/benchmarks/bench_harness.py [FOLDER_WITH_GEMSEO_FMUS]
+(default: $MOTIONTWIN_TEST_FMUS, else the gemseo-fmu wheel's FMUs fetched once into
+~/.cache/motiontwin/gemseo_fmus by tests.fmi_util.gemseo_fmu_folder).
 """
 from __future__ import annotations
 
@@ -30,6 +30,7 @@ from fmpy.fmi3 import FMU3Slave  # noqa: E402
 
 from harness.executor import run_sweep  # noqa: E402
 from harness.master import Master  # noqa: E402
+from tests.fmi_util import gemseo_fmu_folder  # noqa: E402
 
 BASE = 1e-4
 STOP = 2.0
@@ -193,7 +194,8 @@ def project_section(tmp: Path) -> None:
 
 
 def main() -> None:
-    fmus = Path(sys.argv[1] if len(sys.argv) > 1 else os.environ.get("MOTIONTWIN_TEST_FMUS", "/work/test_fmus"))
+    given = sys.argv[1] if len(sys.argv) > 1 else os.environ.get("MOTIONTWIN_TEST_FMUS")
+    fmus = Path(given) if given else gemseo_fmu_folder(Path.home() / ".cache" / "motiontwin" / "gemseo_fmus")
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "loop.toml"
         path.write_text(SYSTEM.format(base=BASE, stop=STOP, ts=SUB * BASE, kp=KP, fmus=fmus))

@@ -21,7 +21,7 @@ per parameter and design, and (--design-figure) a figure like Fig. 5 (dotted: ra
 number, solid: D-optimal). The random baseline of the Monte Carlo is one draw (seed 3); the Gauss-Markov
 prediction of the spread is also printed for --random-draws further draws, to show where that draw lies.
 
-Run: /work/venv/bin/python tests/benchmarks/bench_ident_hexapod.py [--seeds 100] [--workers 2]
+Run: .venv/bin/python tests/benchmarks/bench_ident_hexapod.py [--seeds 100] [--workers 2]
      [--figure out.png] [--design-seeds 100] [--design-starts 3] [--design-iterations 100]
      [--random-draws 20] [--design-figure fig5.png]
 """

@@ -8,7 +8,7 @@
    Abdellatif's Fig. 5: estimated normal densities per parameter and design.
 2. Projection method vs direct output-error fit on closed-loop data: bias table (tests/test_ident_closedloop.py setup).
 
-Run: /work/venv/bin/python tests/benchmarks/bench_ident_montecarlo.py [--seeds 100] [--figure out.png]
+Run: .venv/bin/python tests/benchmarks/bench_ident_montecarlo.py [--seeds 100] [--figure out.png]
 """
 from __future__ import annotations
 

@@ -3,7 +3,7 @@ single shooting, RK4, forward AD sensitivities) against the approach a user woul
 least_squares whose residual runs an fmpy simulation of the FMU, finite-difference Jacobian. Same data,
 same start, same bounds, both in one run; prints wall times, their ratio (target >= 10) and both optima.
 
-Run: /work/venv/bin/python tests/benchmarks/bench_ident_oe.py [--seconds 60] [--model linear|cheung] [--casadi-chain]
+Run: .venv/bin/python tests/benchmarks/bench_ident_oe.py [--seconds 60] [--model linear|cheung] [--casadi-chain]
 """
 from __future__ import annotations
 

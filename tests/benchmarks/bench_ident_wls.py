@@ -6,7 +6,7 @@
    channel covariance: 10^5 samples = 6*10^5 rows.
 Each timing is the best of 3 runs. Target (issue 5): WLS on 10^5 samples under 1 s.
 
-Run: /work/venv/bin/python tests/benchmarks/bench_ident_wls.py
+Run: .venv/bin/python tests/benchmarks/bench_ident_wls.py
 """
 from __future__ import annotations
 

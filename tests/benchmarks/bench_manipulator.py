@@ -6,7 +6,7 @@ Loop: four ``RobustJointController`` channels (FMI 2.0, Ts = 5e-4 s, Table 2 des
 harness.comparison) around ``CheungManipulator`` (FMI 2.0, 5e-4 s steps), the paper's substrate move
 repeated back and forth. Real-time factor = simulated time / wall time (target >= 50x on this 2-core machine).
 
-Run: /work/venv/bin/python tests/benchmarks/bench_manipulator.py [SIMULATED_SECONDS]
+Run: .venv/bin/python tests/benchmarks/bench_manipulator.py [SIMULATED_SECONDS]
 """
 from __future__ import annotations
 
