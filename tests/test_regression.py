@@ -1,4 +1,5 @@
-"""The project's FMUs under its own regression suite (tests/regression/suite.toml, stored references)."""
+"""The project's FMUs (test models and the library's joint and robust controller) under its own regression
+suite (tests/regression/suite.toml, stored references)."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -11,10 +12,14 @@ SUITE = Path(__file__).parent / "regression" / "suite.toml"
 FMU_DIR = Path(__file__).resolve().parents[1] / "build" / "regression-fmus"
 
 
+LIBRARY_CLASSES = ["MotionTwin.Plants.CheungJoint", "MotionTwin.Controllers.RobustJointController"]
+
+
 def build_suite_fmus() -> None:
     for name in ("SampledPI", "FrictionJoint"):
         class_name, source = TEST_MODELS[name]
         build.build([class_name], source, FMU_DIR, workers=1)
+    build.build(LIBRARY_CLASSES, out_dir=FMU_DIR, workers=1)
 
 
 def test_project_fmus_match_their_stored_references(tmp_path):
