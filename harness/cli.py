@@ -481,7 +481,7 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--popsize", type=int, default=12, help="differential evolution population multiplier")
     p.add_argument("--maxiter", type=int, default=80, help="differential evolution generations")
-    p.add_argument("--refine", type=int, default=3, help="Nelder-Mead refinements from the best members")
+    p.add_argument("--refine", type=int, default=3, help="Nelder-Mead then SLSQP (gradient) refinements from the best members")
     p.add_argument("--compare-table2", action="store_true", help="print Cheung Table 2 designs beside the tuned one")
     p.add_argument("--out", type=Path, default=None, help="JSON with parameters, spec, margins (writeback reads it)")
     p.add_argument("--fmu", type=Path, default=None, help="controller FMU to write into (default: build one)")
