@@ -394,7 +394,10 @@ def _parser() -> argparse.ArgumentParser:
     q.add_argument("--output", default="q", help="plant output/state = recording column (default q)")
     q.add_argument("--controller", type=Path, default=None,
                    help="controller JSON (discrete_state_space, or an experiment.json); the recording then needs r")
-    q.add_argument("--max-nfev", type=int, default=50, help="residual evaluations per fit")
+    q.add_argument("--max-nfev", type=int, default=50, help="residual evaluations per fit (single shooting)")
+    q.add_argument("--shooting", choices=("single", "multiple"), default="single",
+                   help="single shooting (Gauss-Newton, default) or multiple shooting (IPOPT, continuity constraints)")
+    q.add_argument("--segments", type=int, default=4, help="segments of the recording for --shooting multiple")
     q.add_argument("--out", type=Path, default=None, help="JSON for writeback --values")
     q.set_defaults(func=_identify_oe)
 

@@ -16,12 +16,13 @@ respect to the free parameters is exact instead of finite differences. Both are 
 compiled C (:mod:`ident.chain`: CasADi-generated code + a model-agnostic loop, cached by source hash), or,
 without a C compiler, with CasADi's ``mapaccum`` (same results, much slower on long recordings).
 
-Shooting: single shooting is the method. For the stable or marginally stable loops of motion systems
+Shooting: single shooting is the default. For the stable or marginally stable loops of motion systems
 (a joint is an integrator with damping; in closed loop the controller stabilises it) the free run stays
 bounded for any parameter value inside the bounds, the Gauss-Newton iteration with exact AD Jacobians
-converges in a few steps, and there are only n_free unknowns. Multiple shooting would add n_x unknowns and
-n_x continuity constraints per node and needs a constrained solver; it pays off for unstable or chaotic
-plants, which this module rejects implicitly by reporting a non-finite free run.
+converges in a few steps, and there are only n_free unknowns. Multiple shooting (:mod:`ident.multipleshooting`,
+``identify(..., shooting="multiple")``) adds n_s unknowns and n_s continuity constraints per segment node,
+solved by IPOPT on the same step function; it can pay off for unstable plants, whose free run from a poor
+start diverges.
 
 Parameter statistics: covariance = s^2 (J^T J)^-1 with J the weighted residual Jacobian at the optimum and
 s^2 = weighted RSS / (rows - free parameters); exact for white output noise in open loop, approximate in
@@ -49,7 +50,8 @@ from ident.controller import Controller
 from ident.leastsquares import LeastSquaresResult, UnidentifiableError, check_identifiability
 
 __all__ = ["Signals", "Loop", "Weights", "Fit", "OutputErrorResult", "build_loop", "default_bounds",
-           "simulate", "residuals", "fit", "statistics", "identify", "cli_identify_oe"]
+           "simulate", "residuals", "fit", "statistics", "identify", "cli_identify_oe", "bound_arrays",
+           "state_indices", "weighted_jacobian"]
 
 
 _LOG = logging.getLogger(__name__)
@@ -84,6 +86,7 @@ class Loop:
     tracking: dict[str, str] = field(default_factory=dict)  # state -> "q" or "u": starts at q_0 or u_0
     signals: Signals = field(default_factory=Signals)
     ts: float = 0.0                     # sample period [s]
+    step: ca.Function | None = field(default=None, repr=False)  # (s, w, theta, pfix) -> (s_next, q, u), one sample
 
     @property
     def closed(self) -> bool:
@@ -104,7 +107,7 @@ class Loop:
         merged = dict(self.values)
         merged.update(values)
         return Loop(self.model, self.controller, self.position_state, self.free, merged, self.substeps,
-                    self.n_samples, self.sim, self.jac, self.tracking, self.signals, self.ts)
+                    self.n_samples, self.sim, self.jac, self.tracking, self.signals, self.ts, self.step)
 
 
 def stable_substeps(model: symbolic.SymbolicModel, values: dict[str, float], ts: float,
@@ -238,7 +241,7 @@ def build_loop(model: symbolic.SymbolicModel, controller: Controller | None, pos
             _LOG.warning("compiled chain unavailable, using CasADi's mapaccum chain: %s", exc)
     sim, jac = pair or _casadi_pair(step, aug, seed, n_samples, JIT_OPTIONS if jit else {})
     return Loop(model, controller, position_state, list(free), values, substeps, n_samples, sim, jac,
-                dict(tracking or {}), signals, ts)
+                dict(tracking or {}), signals, ts, step)
 
 
 def _sensitivity_step(s: ca.SX, w: ca.SX, theta: ca.SX, pfix: ca.SX, s_next: ca.SX,
@@ -406,6 +409,37 @@ def _interior(theta: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
     return np.minimum(np.maximum(theta, lo_in), hi_in)
 
 
+def bound_arrays(loop: Loop, bounds: dict[str, tuple[float, float]] | None) -> tuple[np.ndarray, np.ndarray]:
+    """Lower and upper bounds of ``loop.free`` (``bounds`` over the Modelica min/max); empty ones raise."""
+    names = loop.free
+    bounds = {**default_bounds(loop.model, names), **(bounds or {})}
+    lo = np.array([bounds[n][0] for n in names], dtype=float)
+    hi = np.array([bounds[n][1] for n in names], dtype=float)
+    bad = [n for n, a, b in zip(names, lo, hi) if not a < b]
+    if bad:
+        raise ValueError(f"empty bounds for {', '.join(f'{n} {bounds[n]}' for n in bad)}")
+    return lo, hi
+
+
+def state_indices(loop: Loop, names: list[str] | tuple[str, ...]) -> list[int]:
+    """Indices of the plant states ``names`` in the loop state (unknown names raise)."""
+    state_names = [v.name for v in loop.model.states]
+    unknown = [n for n in names if n not in state_names]
+    if unknown:
+        raise KeyError(f"{loop.model.name} has no state {unknown}; states: {', '.join(state_names)}")
+    return [state_names.index(n) for n in names]
+
+
+def weighted_jacobian(loop: Loop, s0: np.ndarray, W: np.ndarray, theta: np.ndarray, pf: np.ndarray,
+                      idx: list[int], weights: Weights) -> np.ndarray:
+    """Jacobian of the weighted residual of the free run from ``s0`` w.r.t. [theta, s0[idx]]."""
+    jq, ju, jq0, ju0 = loop.jac(s0, W, theta, pf)
+    j = -np.hstack([np.array(jq), np.array(jq0)[:, idx]]) / weights.sigma_q
+    if loop.closed:
+        j = np.vstack([j, -np.hstack([np.array(ju), np.array(ju0)[:, idx]]) / weights.sigma_u])
+    return j
+
+
 def fit(loop: Loop, rec: Recording, weights: Weights, bounds: dict[str, tuple[float, float]] | None = None,
         start: dict[str, float] | None = None, max_nfev: int = 40,
         q_meas: np.ndarray | None = None, u_meas: np.ndarray | None = None,
@@ -418,17 +452,8 @@ def fit(loop: Loop, rec: Recording, weights: Weights, bounds: dict[str, tuple[fl
     known = dict(initial or {})
     values = {**loop.values, **(start or {})}
     names = loop.free
-    bounds = {**default_bounds(loop.model, names), **(bounds or {})}
-    lo = np.array([bounds[n][0] for n in names], dtype=float)
-    hi = np.array([bounds[n][1] for n in names], dtype=float)
-    bad = [n for n, a, b in zip(names, lo, hi) if not a < b]
-    if bad:
-        raise ValueError(f"empty bounds for {', '.join(f'{n} {bounds[n]}' for n in bad)}")
-    state_names = [v.name for v in loop.model.states]
-    unknown = [n for n in estimate_initial if n not in state_names]
-    if unknown:
-        raise KeyError(f"{loop.model.name} has no state {unknown}; states: {', '.join(state_names)}")
-    idx = [state_names.index(n) for n in estimate_initial]
+    lo, hi = bound_arrays(loop, bounds)
+    idx = state_indices(loop, estimate_initial)
     n_th = len(names)
     theta0 = _interior(loop.theta(values), lo, hi)
     base = initial_state(loop, rec, values, known)
@@ -465,11 +490,7 @@ def fit(loop: Loop, rec: Recording, weights: Weights, bounds: dict[str, tuple[fl
 
     def jac(xs: np.ndarray) -> np.ndarray:
         theta, x_init = split(xs)
-        jq, ju, jq0, ju0 = loop.jac(state(theta, x_init), W, theta, pf)
-        j = -np.hstack([np.array(jq), np.array(jq0)[:, idx]]) / weights.sigma_q
-        if loop.closed:
-            j = np.vstack([j, -np.hstack([np.array(ju), np.array(ju0)[:, idx]]) / weights.sigma_u])
-        j = j * scale
+        j = weighted_jacobian(loop, state(theta, x_init), W, theta, pf, idx, weights) * scale
         return np.where(np.isfinite(j), j, 0.0)
 
     nfev = 0
@@ -535,15 +556,20 @@ def identify(model: symbolic.SymbolicModel, rec: Recording, free: list[str], con
              signals: Signals = Signals(), bounds: dict[str, tuple[float, float]] | None = None,
              start: dict[str, float] | None = None, substeps: int | None = None,
              tracking: dict[str, str] | None = None, max_nfev: int = 50,
-             input_name: str | None = None, estimate_initial: list[str] | None = None) -> OutputErrorResult:
+             input_name: str | None = None, estimate_initial: list[str] | None = None,
+             shooting: str = "single", segments: int = 4) -> OutputErrorResult:
     """Refit ``free`` parameters of ``model`` (values of the others: ``start`` or the Modelica start values)
     so that its free run reproduces ``rec``; closed loop when ``controller`` is given.
 
     The recording must be sampled uniformly (at the controller period in closed loop). Each channel is
     weighted by the RMS of its residual after a first fit, then the fit is repeated. ``estimate_initial``:
-    plant states whose initial value is estimated too (default: the output, when it is a state)."""
+    plant states whose initial value is estimated too (default: the output, when it is a state).
+    ``shooting``: "single" (:func:`fit`, ``max_nfev`` free runs per fit) or "multiple"
+    (:func:`ident.multipleshooting.fit` over ``segments`` segments, IPOPT)."""
     if not free:
         raise ValueError("name at least one free parameter")
+    if shooting not in ("single", "multiple"):
+        raise ValueError(f"shooting must be 'single' or 'multiple', not {shooting!r}")
     _check_names(model, free)
     needed = [signals.output, signals.input] + ([signals.reference] if controller is not None else [])
     missing = [c for c in needed if c not in rec.columns]
@@ -566,11 +592,18 @@ def identify(model: symbolic.SymbolicModel, rec: Recording, free: list[str], con
     weights = Weights(_rms_weight(qm - q0), _rms_weight(rec[signals.input] - u0) if loop.closed else 1.0)
     if estimate_initial is None:
         estimate_initial = [signals.output] if signals.output in [v.name for v in model.states] else []
-    result = fit(loop, rec, weights, bounds, max_nfev=max_nfev, estimate_initial=estimate_initial)
+    if shooting == "multiple":
+        from ident import multipleshooting
+
+        def refit(lp: Loop, w: Weights) -> Fit:
+            return multipleshooting.fit(lp, rec, w, segments, bounds, estimate_initial=estimate_initial)
+    else:
+        def refit(lp: Loop, w: Weights) -> Fit:
+            return fit(lp, rec, w, bounds, max_nfev=max_nfev, estimate_initial=estimate_initial)
+    result = refit(loop, weights)
     weights = Weights(_rms_weight(qm - result.q_sim),
                       _rms_weight(rec[signals.input] - result.u_sim) if loop.closed else 1.0)
-    result = fit(loop.with_values(result.values), rec, weights, bounds, max_nfev=max_nfev,
-                 estimate_initial=estimate_initial)
+    result = refit(loop.with_values(result.values), weights)
     loop = loop.with_values(result.values)
     return OutputErrorResult(loop, result, weights, statistics(loop, result))
 
@@ -588,13 +621,18 @@ def cli_identify_oe(args) -> int:
     rec = read_recording(args.recording, required)
     model = build.load_model(args.class_name, args.modelica)
     free = [n.strip() for n in args.free.split(",") if n.strip()]
-    result = identify(model, rec, free, controller, signals, max_nfev=args.max_nfev)
+    shooting, segments = getattr(args, "shooting", "single"), getattr(args, "segments", 4)
+    result = identify(model, rec, free, controller, signals, max_nfev=args.max_nfev, shooting=shooting,
+                      segments=segments)
     stats = result.statistics
     print(stats.summary())
+    how = f"multiple shooting, {segments} segments" if shooting == "multiple" else "single shooting"
     print(f"RMS output error {result.fit.rms_q:.4g}; {'closed' if controller else 'open'} loop, "
-          f"{result.loop.substeps} RK4 substeps per sample")
+          f"{result.loop.substeps} RK4 substeps per sample, {how}")
     if args.out:
-        method = ("output-error refit, CasADi single shooting (RK4, AD Jacobian), "
+        solver = (f"multiple shooting ({segments} segments, IPOPT, " if shooting == "multiple"
+                  else "single shooting (")
+        method = (f"output-error refit, CasADi {solver}RK4, AD Jacobian), "
                   f"{'closed loop' if controller else 'open loop'}")
         doc = {"method": method, "recording": str(args.recording), "modelica": str(args.modelica),
                "class": args.class_name, "parameters": stats.as_dict(),
