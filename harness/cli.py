@@ -379,8 +379,13 @@ def _parser() -> argparse.ArgumentParser:
                    help="fit each recording (one per actuator position) and use the lowest-gain model (Cheung)")
     q.add_argument("--input", default="u", help="force column [N] (default u)")
     q.add_argument("--position", default="q", help="position column [m] (default q)")
-    q.add_argument("--segment", type=int, default=4096, help="Welch segment length [samples]")
+    q.add_argument("--segment", type=int, default=None,
+                   help="Welch segment length [samples] (default: largest power of two <= min(4096, n/4))")
     q.add_argument("--min-coherence", type=float, default=0.9, help="use FRF points above this coherence")
+    q.add_argument("--low-frequency", type=Path, default=None, metavar="MOVE.csv",
+                   help="point-to-point recording (same columns): alpha from the PEM fit of K/(s(s+alpha)) (Cheung)")
+    q.add_argument("--alpha", type=float, default=None,
+                   help="hold alpha [1/s] at this value (default: fitted if the sweep band determines it, else 10)")
     q.add_argument("--out", type=Path, default=None, help="JSON in the CheungJoint FMU's parameter names")
     q.set_defaults(func=_identify_frf)
     q = kinds.add_parser("oe", help="output-error refit of any Modelica plant's parameters (CasADi free run of the "

@@ -29,6 +29,8 @@ from ident.units import check_inertia, check_motion, checked_columns
 __all__ = [
     "FrequencyResponse",
     "estimate_frf",
+    "excited_band",
+    "default_segment_length",
     "acceleration_from_position",
     "second_difference_response",
     "JointModel",
@@ -37,6 +39,7 @@ __all__ = [
     "LowFrequencyFit",
     "fit_low_frequency_model",
     "joint_model_parameters",
+    "DEFAULT_ALPHA",
     "identify_frf_recording",
     "WorstCase",
     "select_worst_case",
@@ -87,6 +90,26 @@ def estimate_frf(
         coh = np.abs(s_uy) ** 2 / (s_uu * s_yy)
     keep = s_uu > 0
     return FrequencyResponse(f[keep], h[keep], np.clip(np.nan_to_num(coh[keep]), 0.0, 1.0))
+
+
+def excited_band(u: np.ndarray, sample_rate: float, segment_length: int, *,
+                 level: float = 1e-3) -> tuple[float, float]:
+    """[Hz] lowest and highest frequency at which the input's power per relative bandwidth f S_uu(f)
+    (Welch) is at least ``level`` times its maximum: the band a swept sine excites (flat for a logarithmic
+    sweep, rising for a linear one); outside it H1 is leakage of the fades over noise."""
+    u = np.asarray(u, dtype=float).reshape(-1)
+    f, s_uu = scipy.signal.welch(u, fs=sample_rate, nperseg=segment_length, detrend="constant")
+    per_octave = f * s_uu
+    excited = np.nonzero(per_octave >= level * per_octave.max())[0] if per_octave.max() > 0 else []
+    if len(excited) == 0:
+        raise ValueError("the input has no power above zero frequency: nothing to identify")
+    return float(f[excited[0]]), float(f[excited[-1]])
+
+
+def default_segment_length(n: int, largest: int = 4096) -> int:
+    """Welch segment: the largest power of two <= min(largest, n / 4), i.e. at least 7 half-overlapping
+    averages, so that the coherence means something (with one segment it is identically 1)."""
+    return int(2 ** np.floor(np.log2(max(min(largest, n / 4), 8))))
 
 
 def acceleration_from_position(position: np.ndarray, sample_rate: float) -> np.ndarray:
@@ -159,31 +182,38 @@ class JointModel:
 
 @dataclass(frozen=True)
 class JointModelFit:
-    """Fitted model, the data it was fitted to and the RMS of the log-ratio residual (dimensionless)."""
+    """Fitted model, the data it was fitted to and the RMS of the log-ratio residual (dimensionless).
+    alpha_fixed: alpha was held (not fitted); alpha_log_std: Gauss-Newton standard deviation of ln(alpha)
+    (about its relative error; nan when fixed)."""
 
     model: JointModel
     data: FrequencyResponse
     rms_log_error: float
     optimizer_message: str = field(repr=False, default="")
+    alpha_fixed: bool = False
+    alpha_log_std: float = float("nan")
 
 
-def _initial_guess(frf: FrequencyResponse, to_position: np.ndarray) -> JointModel:
-    """One resonance pair from peak picking on the acceleration FRF s^2 P."""
+def _initial_guess(frf: FrequencyResponse, to_position: np.ndarray, alpha: float | None = None) -> JointModel:
+    """One resonance pair from peak picking on the acceleration FRF s^2 P: the resonance at the magnitude's
+    maximum, the antiresonance at its minimum below it; alpha from the phase (unless given); K from the
+    magnitude at the lowest frequency divided by the guessed |s/(s+alpha) H|."""
     w = 2 * np.pi * frf.frequency
     acc = frf.response * (-(w**2)) / to_position  # acceleration-like FRF ~ K s/(s+alpha) H
     mag = scipy.ndimage.median_filter(np.abs(acc), size=7, mode="nearest")
     i_r = int(np.argmax(mag))
     i_a = int(np.argmin(mag[: i_r + 1])) if i_r > 0 else 0
-    w_r, w_a = w[i_r], w[max(i_a, 0)]
+    w_r, w_a = w[i_r], w[i_a]
     if w_a >= w_r:
         w_a = 0.7 * w_r
-    phase = np.unwrap(np.angle(acc))
-    below = w < w_a
-    cross = np.nonzero(below & (phase < phase[0] - np.pi / 4))[0]
-    alpha = w[cross[0]] if cross.size else w[0]
-    i_k = int(np.argmin(np.abs(w - np.sqrt(max(alpha, w[0]) * w_a))))
-    gain = mag[i_k] * abs(1j * w[i_k] + alpha) / w[i_k]
-    return JointModel(gain, alpha, ((w_r, 0.05),), ((w_a, 0.05),))
+    if alpha is None:
+        phase = np.unwrap(np.angle(acc))
+        cross = np.nonzero((w < w_a) & (phase < phase[0] - np.pi / 4))[0]
+        alpha = w[cross[0]] if cross.size else w[0]
+    pair = JointModel(1.0, alpha, ((w_r, 0.05),), ((w_a, 0.05),))
+    i_k = int(np.argmin(np.abs(w - np.sqrt(max(alpha, w[0]) * w_a)))) if w[0] < w_a / 2 else 0
+    shape = pair.position_response(frf.frequency[i_k]) * (2j * np.pi * frf.frequency[i_k]) ** 2
+    return JointModel(float(mag[i_k] / abs(shape)), alpha, ((w_r, 0.05),), ((w_a, 0.05),))
 
 
 def fit_joint_frf(
@@ -195,6 +225,7 @@ def fit_joint_frf(
     initial: JointModel | None = None,
     min_coherence: float = 0.8,
     max_evaluations: int = 300,
+    alpha: float | None = None,
 ) -> JointModelFit:
     """Least-squares fit of K/(s(s+alpha)) H(s) to an FRF on log-magnitude and phase.
 
@@ -205,6 +236,8 @@ def fit_joint_frf(
     ``initial``: starting model; default one resonance pair from peak picking. Points with coherence
     below ``min_coherence`` are ignored; the others are weighted by sqrt(coherence / (1 - coherence)),
     which is proportional to the inverse standard deviation of the log FRF.
+    ``alpha`` [rad/s]: hold alpha at this value instead of fitting it (a band far above alpha, such as
+    Cheung's 80-500 Hz sweep, does not determine it).
     """
     if output not in ("position", "acceleration"):
         raise ValueError(f"output must be 'position' or 'acceleration', got {output!r}")
@@ -221,12 +254,22 @@ def fit_joint_frf(
         to_output = second_difference_response(data.frequency, sample_rate)
     else:
         to_output = np.ones_like(data.frequency)
-    start = initial if initial is not None else _initial_guess(data, to_output)
+    start = initial if initial is not None else _initial_guess(data, to_output, alpha)
+    if alpha is not None:
+        start = JointModel(start.gain, alpha, start.resonances, start.antiresonances)
+    free = np.ones(start.to_vector().size, dtype=bool)
+    free[1] = alpha is None
+    full = start.to_vector()
+
+    def expand(x: np.ndarray) -> np.ndarray:
+        v = full.copy()
+        v[free] = x
+        return v
     coh = np.clip(data.coherence, 0.0, 1 - 1e-6)
     weight = np.sqrt(coh / (1 - coh))
 
     def residual(x: np.ndarray) -> np.ndarray:
-        model = JointModel.from_vector(x)
+        model = JointModel.from_vector(expand(x))
         if zero_order_hold:
             response = model.sampled_response(data.frequency, sample_rate)
         else:
@@ -235,10 +278,17 @@ def fit_joint_frf(
         log_ratio = np.log(np.abs(ratio)) + 1j * np.angle(ratio)
         return np.concatenate([weight * log_ratio.real, weight * log_ratio.imag])
 
-    sol = scipy.optimize.least_squares(residual, start.to_vector(), method="trf", max_nfev=max_evaluations)
-    model = JointModel.from_vector(sol.x)
+    sol = scipy.optimize.least_squares(residual, full[free], method="trf", max_nfev=max_evaluations)
+    model = JointModel.from_vector(expand(sol.x))
+    if alpha is not None:
+        model = JointModel(model.gain, float(alpha), model.resonances, model.antiresonances)
     raw = residual(sol.x) / np.concatenate([weight, weight])
-    return JointModelFit(model, data, float(np.sqrt(np.mean(raw**2))), sol.message)
+    alpha_log_std = float("nan")
+    if alpha is None:
+        sigma2 = float(sol.fun @ sol.fun) / max(sol.fun.size - sol.x.size, 1)
+        alpha_log_std = float(np.sqrt(sigma2 * np.linalg.pinv(sol.jac.T @ sol.jac)[1, 1]))
+    return JointModelFit(model, data, float(np.sqrt(np.mean(raw**2))), sol.message, alpha is not None,
+                         alpha_log_std)
 
 
 @dataclass(frozen=True)
@@ -277,6 +327,7 @@ def fit_low_frequency_model(
         gain, alpha = np.exp(x)
         sys_d = control.c2d(control.tf([gain], [1.0, alpha, 0.0]), dt, method="zoh")
         num, den = np.asarray(sys_d.num[0][0]), np.asarray(sys_d.den[0][0])
+        num = np.concatenate([np.zeros(den.size - num.size), num])  # strictly proper: q[n] from u[n-1]
         return scipy.signal.lfilter(num, den, u) + q[0]
 
     def residual(x: np.ndarray) -> np.ndarray:
@@ -306,10 +357,27 @@ def joint_model_parameters(model: JointModel) -> dict[str, float]:
     return values
 
 
-def identify_frf_recording(rec, *, input: str = "u", position: str = "q", segment_length: int = 4096,
+#: alpha [1/s] held when neither the sweep band, --alpha nor a point-to-point move determines it
+#: (the CheungJoint FMU's default); within a band far above alpha it hardly changes the fit.
+DEFAULT_ALPHA = 10.0
+#: alpha is taken from the sweep only if the fitted band reaches down to ALPHA_BAND_RATIO alpha (so that
+#: s/(s+alpha) lags >= 11 deg at the band edge) and its Gauss-Newton relative std is below ALPHA_DETERMINED.
+ALPHA_BAND_RATIO = 5.0
+ALPHA_DETERMINED = 0.05
+
+
+def identify_frf_recording(rec, *, input: str = "u", position: str = "q", segment_length: int | None = None,
                            min_coherence: float = 0.9, source: str = "recording",
-                           nominal_mass: float | None = None) -> tuple[JointModelFit, list[str]]:
+                           nominal_mass: float | None = None, alpha: float | None = None,
+                           low_frequency=None, low_frequency_source: str = "point-to-point recording",
+                           ) -> tuple[JointModelFit, list[str]]:
     """Fit Cheung's joint model to a swept-sine harness.recording.Recording, with unit checks.
+
+    Only the band the input excites (excited_band) is fitted. alpha [1/s] comes from, in this order:
+    ``low_frequency`` (a point-to-point Recording with the same columns; fit_low_frequency_model, as
+    Cheung), ``alpha`` (given), the sweep if its band determines alpha (see ALPHA_BAND_RATIO), else
+    DEFAULT_ALPHA; each choice but the sweep is reported in the notes. ``segment_length``: Welch segment
+    (default default_segment_length; fewer than 4 averages are refused, as the coherence would be ~1).
 
     The force column must be in N or N.m and the position in m or rad (mm, um, deg, kN, ms ...
     converted and reported in the returned notes). The position's span and speed, and the moving mass
@@ -318,12 +386,43 @@ def identify_frf_recording(rec, *, input: str = "u", position: str = "q", segmen
     """
     columns = checked_columns(rec, {input: "force", position: "position"}, source=source)
     check_motion(columns, position, source=source)
+    notes = list(columns.notes)
     fs = columns.sample_rate
-    frf = estimate_frf(columns[input][1:-1], acceleration_from_position(columns[position], fs), fs, segment_length)
-    fit = fit_joint_frf(frf, output="acceleration", sample_rate=fs, min_coherence=min_coherence)
+    u = columns[input][1:-1]
+    n_seg = default_segment_length(u.size) if segment_length is None else segment_length
+    averages = 1 + (u.size - n_seg) // (n_seg - n_seg // 2) if n_seg <= u.size else 0
+    if averages < 4:
+        raise ValueError(f"{source}: segment length {n_seg} gives {averages} Welch average(s) of {u.size} samples, "
+                         f"so the coherence is meaningless: use a segment <= {u.size // 4}")
+    frf = estimate_frf(u, acceleration_from_position(columns[position], fs), fs, n_seg)
+    frf = frf.band(*excited_band(u, fs, n_seg))
+    fixed, how = None, ""
+    if low_frequency is not None:
+        low = checked_columns(low_frequency, {input: "force", position: "position"}, source=low_frequency_source)
+        check_motion(low, position, source=low_frequency_source)
+        notes += low.notes
+        start = fit_joint_frf(frf, output="acceleration", sample_rate=fs, min_coherence=min_coherence,
+                              alpha=alpha or DEFAULT_ALPHA).model  # K of the mass line starts the PEM
+        pem = fit_low_frequency_model(low[input], low[position], low.sample_rate, initial=(start.gain, start.alpha))
+        fixed = pem.alpha
+        how = (f"alpha = {pem.alpha:.6g} 1/s (+- {np.sqrt(pem.covariance[1, 1]):.2g}) from the point-to-point PEM "
+               f"of L(s) on {low_frequency_source} (its K = {pem.gain:.6g}; K below is from the sweep)")
+    elif alpha is not None:
+        fixed, how = alpha, f"alpha = {alpha:.6g} 1/s held as given (--alpha), not fitted"
+    fit = fit_joint_frf(frf, output="acceleration", sample_rate=fs, min_coherence=min_coherence, alpha=fixed)
+    w_low = 2 * np.pi * fit.data.frequency[0]
+    if fixed is None and not (w_low <= ALPHA_BAND_RATIO * fit.model.alpha and fit.alpha_log_std < ALPHA_DETERMINED):
+        band = f"{fit.data.frequency[0]:.4g}-{fit.data.frequency[-1]:.4g} Hz"
+        how = (f"alpha is not determined by the sweep band {band} (starts at {w_low:.4g} rad/s, free fit "
+               f"{fit.model.alpha:.3g} +- {100 * fit.alpha_log_std:.2g} %): held at the default {DEFAULT_ALPHA:g} "
+               f"1/s; give a point-to-point move (--low-frequency MOVE.csv) or --alpha")
+        fit = fit_joint_frf(frf, output="acceleration", sample_rate=fs, min_coherence=min_coherence,
+                            alpha=DEFAULT_ALPHA)
+    if how:
+        notes.append(f"{source}: {how}")
     check_inertia(1.0 / fit.model.gain, "moving mass 1/K", position, columns.rotary(position), source=source,
                   nominal=nominal_mass)
-    return fit, columns.notes
+    return fit, notes
 
 
 @dataclass(frozen=True)
@@ -398,9 +497,11 @@ def frf_document(fit: JointModelFit | WorstCase, recording: str | Sequence[str])
 
 
 def cli_identify_frf(args) -> int:
-    """Handler of ``motiontwin identify frf REC [REC ...] [--worst-case]`` (arguments: recording (list of
-    paths), input, position, segment, min_coherence, worst_case, out). Prints unit conversions, the
-    parameters (and with --worst-case the per-position table) and writes frf_document() to --out."""
+    """Handler of ``motiontwin identify frf REC [REC ...] [--worst-case] [--low-frequency MOVE] [--alpha A]``
+    (arguments: recording (list of paths), input, position, segment (None: automatic), min_coherence,
+    worst_case, out, optional low_frequency (path), alpha). Prints unit conversions, where alpha comes
+    from, the fitted band, the parameters (and with --worst-case the per-position table) and writes
+    frf_document() to --out."""
     import json
 
     from harness import recording
@@ -408,8 +509,12 @@ def cli_identify_frf(args) -> int:
     paths = list(args.recording) if isinstance(args.recording, (list, tuple)) else [args.recording]
     if len(paths) > 1 and not args.worst_case:
         raise ValueError(f"{len(paths)} recordings given: pass --worst-case to fit each and select the lowest gain")
+    low_path = getattr(args, "low_frequency", None)
     options = dict(input=args.input, position=args.position, segment_length=args.segment,
-                   min_coherence=args.min_coherence)
+                   min_coherence=args.min_coherence, alpha=getattr(args, "alpha", None))
+    if low_path is not None:
+        options.update(low_frequency=recording.read_recording(low_path, required=("time", args.input, args.position)),
+                       low_frequency_source=str(low_path))
     recs = [recording.read_recording(p, required=("time", args.input, args.position)) for p in paths]
     if args.worst_case:
         result, notes = identify_frf_worst_case(recs, [str(p) for p in paths], **options)
@@ -419,9 +524,13 @@ def cli_identify_frf(args) -> int:
         fit_rms = result.rms_log_error
     for note in notes:
         print(note)
+    data = (result.fits[result.selected] if args.worst_case else result).data
+    print(f"fitted band {data.frequency[0]:.4g}-{data.frequency[-1]:.4g} Hz ({data.frequency.size} FRF points)")
     if args.worst_case:
         print(result.table())
     doc = frf_document(result, str(paths[0]))
+    if notes:
+        doc["notes"] = notes
     for name, value in doc["parameters"].items():
         print(f"{name:>12} {value:13.6g}")
     print(f"rms log-magnitude error {fit_rms:.3g}")

@@ -159,3 +159,58 @@ def test_cli_handler_writes_the_worst_case_document(tmp_path, capsys):
     assert "worst case (lowest K)" in capsys.readouterr().out
     with pytest.raises(ValueError, match="pass --worst-case"):
         cli_identify_frf(argparse.Namespace(**{**vars(args), "worst_case": False}))
+
+
+CHEUNG_DEFAULTS = JointModel(1.0, 10.0, ((2450.0, 0.05),), ((1885.0, 0.05),))  # CheungJoint FMU defaults
+
+
+def _recording_through(model: JointModel, t: np.ndarray, u: np.ndarray, seed: int):
+    """``u`` (held, ZOH) through ``model`` by lsim, with the encoder noise and resolution, in m and N."""
+    from harness.recording import make_recording
+
+    tf = model.transfer_function()
+    _, q, _ = scipy.signal.lsim((tf.num[0][0], tf.den[0][0]), u, t - t[0], interp=False)
+    q = np.round((q + 2e-7 * np.random.default_rng(seed).standard_normal(q.size)) / RESOLUTION) * RESOLUTION
+    return make_recording(t, {"u": u, "q": q}, {"u": "N", "q": "m"}, sample_time=1 / FS)
+
+
+def test_cli_80_500_hz_sweep_with_point_to_point_move_recovers_cheung_joint_within_2_percent(tmp_path, capsys):
+    """Cheung's split: the 80-500 Hz sweep (harness/experiments/swept_sine_80_500.toml, 2.2 s) gives the mass
+    line and the pair, a point-to-point move gives alpha by PEM (`identify frf SWEEP --low-frequency MOVE`).
+    Without the move alpha is held (given or default) and the output says so."""
+    import json
+    from pathlib import Path
+
+    from harness import excitation
+    from harness.cli import main
+    from harness.recording import write_recording
+    from ident.frf import DEFAULT_ALPHA
+
+    root = Path(__file__).resolve().parents[1]
+    sig = excitation.load_experiment(root / "harness/experiments/swept_sine_80_500.toml").generate()
+    sweep, move = tmp_path / "sweep.csv", tmp_path / "move.csv"
+    write_recording(sweep, _recording_through(CHEUNG_DEFAULTS, sig["time"], sig["value"], 20))
+    t = np.arange(int(0.2 * FS)) / FS
+    u = np.where(t < 0.035, 4.0, np.where(t < 0.07, -4.0, 0.0))  # about 5 mm in 70 ms, then coast
+    write_recording(move, _recording_through(CHEUNG_DEFAULTS, t, u, 21))
+    out = tmp_path / "frf.json"
+    assert main(["identify", "frf", str(sweep), "--low-frequency", str(move), "--out", str(out)]) == 0
+    assert "from the point-to-point PEM" in capsys.readouterr().out
+    fit = json.loads(out.read_text())["parameters"]
+    assert fit["K"] == pytest.approx(CHEUNG_DEFAULTS.gain, rel=0.02)
+    assert fit["alpha"] == pytest.approx(CHEUNG_DEFAULTS.alpha, rel=0.02)
+    assert fit["omega"] == pytest.approx(CHEUNG_DEFAULTS.resonances[0][0], rel=0.02)
+    assert fit["omega_bar"] == pytest.approx(CHEUNG_DEFAULTS.antiresonances[0][0], rel=0.02)
+
+    assert main(["identify", "frf", str(sweep), "--alpha", "12", "--out", str(out)]) == 0
+    assert "alpha = 12 1/s held as given" in capsys.readouterr().out
+    fit = json.loads(out.read_text())["parameters"]
+    assert fit["alpha"] == 12.0 and fit["K"] == pytest.approx(CHEUNG_DEFAULTS.gain, rel=0.02)
+
+    assert main(["identify", "frf", str(sweep), "--out", str(out)]) == 0
+    assert "alpha is not determined by the sweep band" in capsys.readouterr().out
+    doc = json.loads(out.read_text())
+    assert doc["parameters"]["alpha"] == DEFAULT_ALPHA and "held at the default" in doc["notes"][0]
+    assert doc["parameters"]["omega"] == pytest.approx(CHEUNG_DEFAULTS.resonances[0][0], rel=0.02)
+    assert main(["identify", "frf", str(sweep), "--segment", "4096"]) == 1  # one segment: coherence == 1
+    assert "1 Welch average(s)" in capsys.readouterr().err
