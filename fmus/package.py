@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import hashlib
 import os
+import re
 import shutil
 import subprocess
 import tempfile
@@ -41,18 +42,19 @@ def _object_cache() -> Path:
 def compile_binary(src_dir: Path, c_files: list[str], output: Path) -> None:
     """gcc the C files of ``src_dir`` into the shared library ``output`` (only libc and libm needed).
 
-    Object files are cached by the hash of compiler, flags, the C file and every header in ``src_dir``:
-    the runtime compiles once for all models, and a model's generated code once for FMI 2.0 and 3.0.
+    Object files are cached by the hash of compiler, flags, the C file and the headers of ``src_dir`` it
+    includes (directly or through other headers): the runtime compiles once for all models, and a model's
+    generated code (which includes no FMI header) once for FMI 2.0 and 3.0.
     """
     cc = os.environ.get("CC", "gcc")
-    headers = hashlib.sha256()
-    for h in sorted(src_dir.glob("*.h")):
-        headers.update(h.name.encode() + h.read_bytes())
     cache = _object_cache()
     cache.mkdir(parents=True, exist_ok=True)
     objects = []
     for name in c_files:
-        key = hashlib.sha256((cc + " ".join(CFLAGS)).encode() + headers.digest() + (src_dir / name).read_bytes())
+        key = hashlib.sha256((cc + " ".join(CFLAGS)).encode())
+        for h in _local_headers(src_dir, name):
+            key.update(h.encode() + b"\0" + (src_dir / h).read_bytes())
+        key.update((src_dir / name).read_bytes())
         obj = cache / f"{key.hexdigest()}.o"
         if not obj.exists():
             fd, tmp = tempfile.mkstemp(suffix=".o.part", dir=cache)
@@ -61,6 +63,22 @@ def compile_binary(src_dir: Path, c_files: list[str], output: Path) -> None:
             os.replace(tmp, obj)
         objects.append(str(obj))
     _run([cc, "-shared", "-static-libgcc", *objects, "-o", str(output), "-lm"], f"linking {output.name}")
+
+
+_INCLUDE = re.compile(r'^\s*#\s*include\s*"([^"]+)"', re.MULTILINE)
+
+
+def _local_headers(src_dir: Path, name: str) -> list[str]:
+    """Headers of ``src_dir`` that ``name`` includes with ``#include "..."``, transitively, sorted."""
+    found: set[str] = set()
+    pending = [name]
+    while pending:
+        text = (src_dir / pending.pop()).read_text(errors="replace")
+        for header in _INCLUDE.findall(text):
+            if header not in found and (src_dir / header).is_file():
+                found.add(header)
+                pending.append(header)
+    return sorted(found)
 
 
 def _run(cmd: list[str], what: str) -> None:
