@@ -12,6 +12,8 @@ from pathlib import Path
 
 import fmpy
 
+from fmus import clib
+
 RUNTIME_DIR = Path(__file__).parent / "runtime"
 FMI_HEADERS = {
     "2.0": ("fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h"),
@@ -34,11 +36,6 @@ def runtime_sources(fmi_version: str) -> list[Path]:
     return files + [headers / h for h in FMI_HEADERS[fmi_version]]
 
 
-def _object_cache() -> Path:
-    base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
-    return Path(base) / "motiontwin" / "objects"
-
-
 def compile_binary(src_dir: Path, c_files: list[str], output: Path) -> None:
     """gcc the C files of ``src_dir`` into the shared library ``output`` (only libc and libm needed).
 
@@ -47,7 +44,7 @@ def compile_binary(src_dir: Path, c_files: list[str], output: Path) -> None:
     generated code (which includes no FMI header) once for FMI 2.0 and 3.0.
     """
     cc = os.environ.get("CC", "gcc")
-    cache = _object_cache()
+    cache = clib.cache_dir("objects")
     cache.mkdir(parents=True, exist_ok=True)
     objects = []
     for name in c_files:

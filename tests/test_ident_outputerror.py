@@ -106,16 +106,21 @@ def test_open_loop_recovers_fmu_parameters(model, open_loop_data):
     assert result.fit.rms_q == pytest.approx(NOISE, rel=0.1)   # the residual is the encoder noise only
 
 
-def test_closed_loop_recovers_fmu_parameters(model, fmu):
-    """Recording of the loop closed around the FMU (the controller sees the noise); the refit simulates the
-    same sampled loop from r and u_ext and fits the position and force channels."""
-    n = 4000
+def _closed_loop_recording(fmu, n: int = 4000):
+    """The PD controller and a recording of its loop closed around the FMU (truth TRUTH, encoder noise fed
+    back through the controller), driven by multisine r and u_ext."""
     ctrl = pd_controller()
     rng = np.random.default_rng(2)
     r = 1e-3 * multisine(n, 1.0, 10, seed=3)
     u_ext = multisine(n, 5.0, 80, seed=4)
     q, u = fmpy_closed_loop(fmu, ctrl, r, u_ext, NOISE * rng.standard_normal(n), TRUTH)
-    rec = make_recording(np.arange(n) * TS, {"r": r, "u": u, "q": q, "u_ext": u_ext})
+    return ctrl, make_recording(np.arange(n) * TS, {"r": r, "u": u, "q": q, "u_ext": u_ext})
+
+
+def test_closed_loop_recovers_fmu_parameters(model, fmu):
+    """Recording of the loop closed around the FMU (the controller sees the noise); the refit simulates the
+    same sampled loop from r and u_ext and fits the position and force channels."""
+    ctrl, rec = _closed_loop_recording(fmu)
     result = oe.identify(model, rec, ["m", "d"], controller=ctrl)
     est = result.statistics.as_dict()
     std = dict(zip(result.statistics.names, result.statistics.std))
@@ -289,13 +294,7 @@ def test_multiple_shooting_open_loop_recovers_truth_and_matches_single(model, op
 
 def test_multiple_shooting_closed_loop_recovers_truth_and_matches_single(model, fmu):
     """The loop state at each node holds the plant and the controller states."""
-    n = 4000
-    ctrl = pd_controller()
-    rng = np.random.default_rng(2)
-    r = 1e-3 * multisine(n, 1.0, 10, seed=3)
-    u_ext = multisine(n, 5.0, 80, seed=4)
-    q, u = fmpy_closed_loop(fmu, ctrl, r, u_ext, NOISE * rng.standard_normal(n), TRUTH)
-    rec = make_recording(np.arange(n) * TS, {"r": r, "u": u, "q": q, "u_ext": u_ext})
+    ctrl, rec = _closed_loop_recording(fmu)
     single = oe.identify(model, rec, ["m", "d"], controller=ctrl)
     multiple = oe.identify(model, rec, ["m", "d"], controller=ctrl, shooting="multiple", segments=4)
     est, std = multiple.statistics.as_dict(), dict(zip(multiple.statistics.names, multiple.statistics.std))
