@@ -13,8 +13,9 @@ from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
-from fmus import codegen, description, frontend, layout, package, symbolic
+from motiontwin.fmus import codegen, description, frontend, layout, package, symbolic
 
+# modelica/ sits beside fmus/ in the checkout and in the installed package (motiontwin/modelica).
 MODELICA_DIR = Path(__file__).resolve().parent.parent / "modelica"
 DEFAULT_OUT = Path("build") / "fmus"
 FMI_VERSIONS = ("2.0", "3.0")

@@ -14,8 +14,8 @@ from pathlib import Path
 
 import casadi as ca
 
-from fmus.layout import Layout
-from fmus.symbolic import SymbolicModel
+from motiontwin.fmus.layout import Layout
+from motiontwin.fmus.symbolic import SymbolicModel
 
 CASADI_FILE = "model_casadi.c"
 MODEL_FILE = "model.c"

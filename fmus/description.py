@@ -11,7 +11,7 @@ import re
 import xml.etree.ElementTree as ET
 from datetime import datetime, timezone
 
-from fmus.layout import FmuVariable, Layout
+from motiontwin.fmus.layout import FmuVariable, Layout
 
 GENERATION_TOOL = "motiontwin"
 LOG_CATEGORIES = {"logEvents": "events and sample instants", "logStatusError": "errors"}

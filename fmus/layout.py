@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 
 import casadi as ca
 
-from fmus.symbolic import SymbolicModel
+from motiontwin.fmus.symbolic import SymbolicModel
 
 BLOCKS = ("x", "dx", "u", "y", "yd", "z", "p")
 

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import fmpy
 
-from fmus import clib
+from motiontwin.fmus import clib
 
 RUNTIME_DIR = Path(__file__).parent / "runtime"
 FMI_HEADERS = {

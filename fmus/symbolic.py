@@ -23,7 +23,7 @@ from typing import Literal
 
 import casadi as ca
 
-from fmus.frontend import FlatModel, ModelicaError, Variable
+from motiontwin.fmus.frontend import FlatModel, ModelicaError, Variable
 
 Causality = Literal["output", "local", "calculatedParameter"]
 

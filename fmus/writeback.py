@@ -21,7 +21,7 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
 
-from fmus import codegen, description, package
+from motiontwin.fmus import codegen, description, package
 
 PROVENANCE_FILE = "documentation/provenance.json"
 

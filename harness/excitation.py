@@ -56,7 +56,7 @@ import numpy as np
 import scipy.signal
 
 if TYPE_CHECKING:
-    from harness.recording import Recording
+    from motiontwin.harness.recording import Recording
 
 ArrayLike = float | Sequence[float] | np.ndarray
 
@@ -491,7 +491,7 @@ def experiment_recording(
     Columns: ``position``, ``velocity``, ``acceleration``, ``jerk`` (trajectory kinds; ``position_1`` ..
     ``position_n`` for several axes) or ``value``; ``excited`` holds the kind, target and parameters.
     """
-    from harness.recording import make_recording
+    from motiontwin.harness.recording import make_recording
 
     signals = experiment.generate(inverse_kinematics)
     time = signals.pop("time")
@@ -744,6 +744,6 @@ def end_effector_point_to_point(
 
 
 def _default_inverse_kinematics() -> Callable[[np.ndarray], np.ndarray]:
-    from harness import kinematics
+    from motiontwin.harness import kinematics
 
     return kinematics.cheung_inverse

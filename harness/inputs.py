@@ -25,7 +25,7 @@ class InputError(ValueError):
 
 
 def _experiment_signal(path: Path, field: str | None, where: str) -> tuple[np.ndarray, np.ndarray]:
-    from harness import excitation
+    from motiontwin.harness import excitation
 
     signals = excitation.load_experiment(path).generate()
     field = field or ("value" if "value" in signals else "position")
@@ -39,7 +39,7 @@ def _experiment_signal(path: Path, field: str | None, where: str) -> tuple[np.nd
 
 def resolve_input(value: Any, root: Path, where: str) -> Any:
     """A number, or (time, values) for a recording column or an experiment signal (see module docstring)."""
-    from harness.recording import read_recording
+    from motiontwin.harness.recording import read_recording
 
     if isinstance(value, bool) or not isinstance(value, (int, float, dict)):
         raise InputError(f"{where}: expected a number, {{recording, column}} or {{experiment, field}}, "
@@ -74,7 +74,7 @@ def sample_held(t: np.ndarray, v: np.ndarray, grid: np.ndarray, base_step: float
 
 def add_input_noise(value: Any, grid: np.ndarray, base_step: float, std: float, seed: int) -> np.ndarray:
     """``value`` (number, (time, values) held, or None = 0) on the base ``grid`` plus seeded white noise."""
-    from harness.measurement import add_noise
+    from motiontwin.harness.measurement import add_noise
 
     if value is None:
         base = np.zeros(grid.size)

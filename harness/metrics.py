@@ -90,7 +90,7 @@ def end_effector_error(d_measured: np.ndarray, pose_reference: np.ndarray,
     forward: actuators -> pose; default :func:`harness.kinematics.cheung_forward`.
     """
     if forward is None:
-        from harness.kinematics import cheung_forward as forward
+        from motiontwin.harness.kinematics import cheung_forward as forward
     d = np.atleast_2d(np.asarray(d_measured, dtype=float))
     pose = np.array([forward(row) for row in d])
     return np.asarray(pose_reference, dtype=float) - pose

@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from fmus import clib
+from motiontwin.fmus import clib
 
 SOURCE = Path(__file__).with_name("native_loop.c")
 CALLS = ("get", "set", "step", "terminate")

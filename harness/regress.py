@@ -398,7 +398,7 @@ def run_suite(suite: str | Path, update: bool = False, junit: str | Path | None 
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """``python -m harness.regress SUITE [--update] [--junit FILE] [--plots DIR]``."""
+    """``python -m motiontwin.harness.regress SUITE [--update] [--junit FILE] [--plots DIR]``."""
     import argparse
 
     parser = argparse.ArgumentParser(prog="motiontwin regress", description="FMU regression checks with tolerance tubes")

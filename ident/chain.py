@@ -17,7 +17,7 @@ from pathlib import Path
 import casadi as ca
 import numpy as np
 
-from fmus import clib
+from motiontwin.fmus import clib
 
 __all__ = ["available", "compile_functions", "NativeChain", "native_chains"]
 

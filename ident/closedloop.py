@@ -185,7 +185,7 @@ def cli_identify_projection(args) -> int:
     naive output-error one and writes both to --out as JSON."""
     import json
 
-    from harness import recording
+    from motiontwin.harness import recording
 
     rec = recording.read_recording(args.recording, required=("time", args.reference, args.input, args.output))
     source = str(args.recording)

@@ -25,7 +25,7 @@ from typing import Any
 import casadi as ca
 import numpy as np
 
-from fmus import frontend, symbolic
+from motiontwin.fmus import frontend, symbolic
 
 CONTROLLER_KINDS = ("discrete_state_space",)
 LIBRARY_PACKAGE = "MotionTwin.Controllers."   # named controllers: sampled classes of the project's library
@@ -107,7 +107,7 @@ def read_controller(doc: dict, where: str) -> Controller:
 
 @functools.lru_cache(maxsize=8)
 def _library_controller(class_name: str) -> symbolic.SymbolicModel:
-    from fmus import build
+    from motiontwin.fmus import build
 
     return build.load_model(class_name)
 

@@ -31,12 +31,12 @@ from typing import TYPE_CHECKING
 import casadi as ca
 import numpy as np
 
-from ident.joint import joint_regressor
-from ident.trajectory import fourier_basis, fourier_trajectory
+from motiontwin.ident.joint import joint_regressor
+from motiontwin.ident.trajectory import fourier_basis, fourier_trajectory
 
 if TYPE_CHECKING:  # ident.hexapod imports this module lazily; import it only for annotations
-    from ident.hexapod import HexapodLimits, PoseExcitation
-    from ident.leastsquares import BaseParameters
+    from motiontwin.ident.hexapod import HexapodLimits, PoseExcitation
+    from motiontwin.ident.leastsquares import BaseParameters
 
 __all__ = [
     "ExcitationLimits",
@@ -246,7 +246,7 @@ def fit_to_limits(excitation: PoseExcitation, limits: HexapodLimits, *, n_sample
     A fixed-point iteration on the scale (limit use is nearly linear in it), finished by
     ident.hexapod.scale_to_limits so the result is feasible on the grid.
     """
-    from ident.hexapod import PoseExcitation, limit_ratio, scale_to_limits
+    from motiontwin.ident.hexapod import PoseExcitation, limit_ratio, scale_to_limits
 
     scale, trial = 1.0, excitation
     for _ in range(8):
@@ -264,8 +264,8 @@ def predicted_relative_std(excitation: PoseExcitation, base: BaseParameters, for
     """1-sigma relative uncertainty of each base parameter that Gauss-Markov theory predicts for
     ``n_periods`` periods sampled at ``sample_rate`` [Hz] with force covariance per sample [N^2]
     (noise-free regressor): sqrt(diag((Psi^T Sigma^-1 Psi)^-1)) / |theta|, Sigma of the period mean."""
-    from ident.hexapod import stacked_regressor
-    from ident.signals import samples_per_period
+    from motiontwin.ident.hexapod import stacked_regressor
+    from motiontwin.ident.signals import samples_per_period
 
     n = samples_per_period(sample_rate, excitation.fundamental_frequency)
     psi = base.reduce_regressor(stacked_regressor(*excitation.trajectory(np.arange(n) / sample_rate)))
@@ -292,7 +292,7 @@ def optimize_hexapod_excitation(limits: HexapodLimits, fundamental_frequency: fl
     Limits are imposed at ``n_samples`` instants with ``margin``; each start is a random excitation
     scaled into the limits; the best converged start is stretched to the limits (fit_to_limits).
     """
-    from ident.hexapod import (
+    from motiontwin.ident.hexapod import (
         ModelicaHexapod,
         PoseExcitation,
         _SymbolicRegressor,
@@ -366,8 +366,8 @@ def cli_design_excitation(args) -> int:
     Designs the joint's Fourier coefficients, prints its exact criteria beside the median of 20 random
     designs under the same limits, and writes a ``fourier`` experiment file (harness.excitation) that
     ``motiontwin excite`` samples."""
-    from harness.excitation import fourier_experiment_text, periodic_time_grid
-    from harness.recording import atomic_write_texts
+    from motiontwin.harness.excitation import fourier_experiment_text, periodic_time_grid
+    from motiontwin.harness.recording import atomic_write_texts
 
     for flag, value in (("--f0", args.f0), ("--q-range", args.q_range), ("--v-max", args.v_max),
                         ("--a-max", args.a_max), ("--sample-time", args.sample_time)):

@@ -24,7 +24,7 @@ import scipy.ndimage
 import scipy.optimize
 import scipy.signal
 
-from ident.units import check_inertia, check_motion, checked_columns
+from motiontwin.ident.units import check_inertia, check_motion, checked_columns
 
 __all__ = [
     "FrequencyResponse",
@@ -504,7 +504,7 @@ def cli_identify_frf(args) -> int:
     frf_document() to --out."""
     import json
 
-    from harness import recording
+    from motiontwin.harness import recording
 
     paths = list(args.recording) if isinstance(args.recording, (list, tuple)) else [args.recording]
     if len(paths) > 1 and not args.worst_case:

@@ -29,7 +29,7 @@ from dataclasses import dataclass, field
 import casadi as ca
 import numpy as np
 
-from harness.kinematics import (
+from motiontwin.harness.kinematics import (
     HEXAPOD,
     HEXAPOD_HOME,
     HEXAPOD_PARAMETERS,
@@ -40,16 +40,16 @@ from harness.kinematics import (
     hexapod_regressor,
     pose_rates_to_twist,
 )
-from ident.leastsquares import (
+from motiontwin.ident.leastsquares import (
     BaseParameters,
     LeastSquaresResult,
     UnidentifiableError,
     base_parameters,
     gauss_markov,
 )
-from ident.signals import lowpass_differentiate, period_average, samples_per_period
-from ident.trajectory import fourier_basis
-from ident.units import UnitError, check_inertia, checked_columns
+from motiontwin.ident.signals import lowpass_differentiate, period_average, samples_per_period
+from motiontwin.ident.trajectory import fourier_basis
+from motiontwin.ident.units import UnitError, check_inertia, checked_columns
 
 __all__ = [
     "POSE_NAMES",
@@ -160,7 +160,7 @@ class ModelicaHexapod:
 
     def __init__(self, model=None, **parameters: float):
         if model is None:
-            from fmus.build import load_model
+            from motiontwin.fmus.build import load_model
 
             model = load_model("MotionTwin.Plants.Hexapod")
         self.model = model

@@ -18,9 +18,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ident.leastsquares import LeastSquaresResult, gauss_markov
-from ident.signals import lowpass_differentiate, period_average, samples_per_period
-from ident.units import check_inertia, check_motion, checked_columns
+from motiontwin.ident.leastsquares import LeastSquaresResult, gauss_markov
+from motiontwin.ident.signals import lowpass_differentiate, period_average, samples_per_period
+from motiontwin.ident.units import check_inertia, check_motion, checked_columns
 
 __all__ = [
     "FRICTION_MODELS",

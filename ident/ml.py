@@ -21,10 +21,10 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
-from ident.joint import JointIdentification, identify_joint_periodic, joint_regressor
-from ident.leastsquares import LeastSquaresResult
-from ident.signals import lowpass_differentiate, period_average, samples_per_period
-from ident.units import check_inertia, check_motion, checked_columns
+from motiontwin.ident.joint import JointIdentification, identify_joint_periodic, joint_regressor
+from motiontwin.ident.leastsquares import LeastSquaresResult
+from motiontwin.ident.signals import lowpass_differentiate, period_average, samples_per_period
+from motiontwin.ident.units import check_inertia, check_motion, checked_columns
 
 __all__ = ["MaximumLikelihoodResult", "ml_joint_with_cutoff", "JointMaximumLikelihood", "identify_joint_ml_recording"]
 

@@ -26,8 +26,8 @@ import math
 import casadi as ca
 import numpy as np
 
-from harness.recording import Recording
-from ident import outputerror as oe
+from motiontwin.harness.recording import Recording
+from motiontwin.ident import outputerror as oe
 
 __all__ = ["fit", "initial_state_function", "IPOPT_OPTIONS"]
 

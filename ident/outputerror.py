@@ -43,11 +43,11 @@ import casadi as ca
 import numpy as np
 from scipy.optimize import least_squares
 
-from fmus import symbolic
-from harness.recording import Recording
-from ident import chain as native_chain
-from ident.controller import Controller
-from ident.leastsquares import LeastSquaresResult, UnidentifiableError, check_identifiability
+from motiontwin.fmus import symbolic
+from motiontwin.harness.recording import Recording
+from motiontwin.ident import chain as native_chain
+from motiontwin.ident.controller import Controller
+from motiontwin.ident.leastsquares import LeastSquaresResult, UnidentifiableError, check_identifiability
 
 __all__ = ["Signals", "Loop", "Weights", "Fit", "OutputErrorResult", "build_loop", "default_bounds",
            "simulate", "residuals", "fit", "statistics", "identify", "cli_identify_oe", "bound_arrays",
@@ -593,7 +593,7 @@ def identify(model: symbolic.SymbolicModel, rec: Recording, free: list[str], con
     if estimate_initial is None:
         estimate_initial = [signals.output] if signals.output in [v.name for v in model.states] else []
     if shooting == "multiple":
-        from ident import multipleshooting
+        from motiontwin.ident import multipleshooting
 
         def refit(lp: Loop, w: Weights) -> Fit:
             return multipleshooting.fit(lp, rec, w, segments, bounds, estimate_initial=estimate_initial)
@@ -611,9 +611,9 @@ def identify(model: symbolic.SymbolicModel, rec: Recording, free: list[str], con
 def cli_identify_oe(args) -> int:
     """``motiontwin identify oe``: refit, print the table and, with ``--out``, write the JSON that
     ``motiontwin writeback --values`` reads ({"parameters", "std", "covariance", ...})."""
-    from fmus import build
-    from harness.recording import atomic_write_texts, read_recording
-    from ident.controller import load_controller
+    from motiontwin.fmus import build
+    from motiontwin.harness.recording import atomic_write_texts, read_recording
+    from motiontwin.ident.controller import load_controller
 
     controller = load_controller(args.controller) if args.controller else None
     signals = Signals(output=args.output, input=args.input)

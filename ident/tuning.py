@@ -78,7 +78,7 @@ import numpy as np
 import scipy.linalg
 import scipy.optimize
 
-from ident.frf import JointModel
+from motiontwin.ident.frf import JointModel
 
 __all__ = [
     "CONTROLLER_CLASS", "TuningError", "InfeasibleSpecError", "TuningSpec", "LoopMargins", "TuningResult",
@@ -212,7 +212,7 @@ class TuningResult:
 @functools.lru_cache(maxsize=1)
 def _law() -> tuple[ca.Function, tuple[str, ...], dict[str, float]]:
     """casadi Function p -> feedback-path Tustin matrices (input r, output u) of the controller class."""
-    from fmus import build
+    from motiontwin.fmus import build
 
     model = build.load_model(CONTROLLER_CLASS)
     names = tuple(v.name for v in model.parameters)
@@ -226,7 +226,7 @@ def _law() -> tuple[ca.Function, tuple[str, ...], dict[str, float]]:
 @functools.lru_cache(maxsize=1)
 def _feedforward_law() -> ca.Function:
     """casadi Function p -> Tustin matrices of the feedforward path r_dot -> u (F_L F_N times Kv)."""
-    from fmus import build
+    from motiontwin.fmus import build
 
     model = build.load_model(CONTROLLER_CLASS)
     r_dot = [v.name for v in model.inputs].index("r_dot")
@@ -961,7 +961,7 @@ def _write_controller_fmu(args, parameters: dict[str, float], provenance: dict, 
 
     import fmpy
 
-    from fmus import build, writeback
+    from motiontwin.fmus import build, writeback
 
     values = {k: v for k, v in parameters.items() if k != "Ts"}  # Ts is fixed by the FMU's build
     with tempfile.TemporaryDirectory(prefix="motiontwin-tune-") as tmp:
@@ -991,9 +991,9 @@ def _cli_manipulator(args, spec: TuningSpec) -> int:
     import json
     import tempfile
 
-    from fmus import build
-    from harness.recording import atomic_write_texts
-    from ident import tuning_manipulator as tm
+    from motiontwin.fmus import build
+    from motiontwin.harness.recording import atomic_write_texts
+    from motiontwin.ident import tuning_manipulator as tm
 
     plant_model = build.load_model(PLANT_CLASS)
     defaults = {v.name: float(v.start) for v in plant_model.parameters if v.name in _PLANT_KEYS}
@@ -1028,7 +1028,7 @@ def _cli_manipulator(args, spec: TuningSpec) -> int:
         print("\n".join(str(p) for p in files))
     plots = args.plots
     if plots:
-        from ident.tuning_plots import write_loop_figure
+        from motiontwin.ident.tuning_plots import write_loop_figure
 
         for name, result, plants in zip(tm.ACTUATORS, design.results, design.plants):
             print(write_loop_figure(Path(plots) / f"tuning_manipulator_{name}.png", result.parameters, plants,
@@ -1054,8 +1054,8 @@ def cli_tune(args) -> int:
     ``--tau-max`` [s] (bound on the slowest closed-loop time constant; inf: unconstrained)."""
     import json
 
-    from fmus import build
-    from harness.recording import atomic_write_texts
+    from motiontwin.fmus import build
+    from motiontwin.harness.recording import atomic_write_texts
 
     tau_max = args.tau_max
     spec = TuningSpec(args.gm, args.pm_min, args.pm_max, args.ms, args.s_below_bw, args.bw_min,
@@ -1063,7 +1063,7 @@ def cli_tune(args) -> int:
     if args.manipulator:
         return _cli_manipulator(args, spec)
     if args.plant_fmu:  # each --plant gives start values of the FMU, linearised from its directional derivatives
-        from harness.linearize import linearize
+        from motiontwin.harness.linearize import linearize
 
         plants = [linearize(args.plant_fmu, [args.plant_input], [args.plant_output], _start_values(t, k))
                   for k, t in enumerate(args.plant or [""])]
@@ -1092,7 +1092,7 @@ def cli_tune(args) -> int:
         print(args.out)
     plots = args.plots
     if plots:
-        from ident.tuning_plots import write_loop_figure
+        from motiontwin.ident.tuning_plots import write_loop_figure
 
         labels = [f"set {k}: K={p.gain:.3g}" if isinstance(p, JointModel) else f"set {k}"
                   for k, p in enumerate(plants)]

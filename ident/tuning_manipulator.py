@@ -25,9 +25,9 @@ from typing import Sequence
 import control
 import numpy as np
 
-from harness.kinematics import CHEUNG, CHEUNG_START_POSE, cheung_in_range, cheung_inverse
-from ident.frf import JointModel
-from ident.tuning import TuningError, TuningResult, TuningSpec, controller_system, tune
+from motiontwin.harness.kinematics import CHEUNG, CHEUNG_START_POSE, cheung_in_range, cheung_inverse
+from motiontwin.ident.frf import JointModel
+from motiontwin.ident.tuning import TuningError, TuningResult, TuningSpec, controller_system, tune
 
 __all__ = ["MANIPULATOR_CLASS", "ACTUATORS", "POSE_SEGMENT", "workspace_poses", "linearize_poses", "actuator_channel",
            "flexible_mode", "decentralised_radius", "plant_document", "ManipulatorDesign", "tune_manipulator"]
@@ -62,7 +62,7 @@ def workspace_poses(count: int, segment: Sequence[Sequence[float]] = POSE_SEGMEN
 
 def linearize_poses(fmu: str | Path, poses: np.ndarray, gravity: bool = False) -> list[control.StateSpace]:
     """The FMU's 4x4 linearisation u -> q (8 states) at rest at each pose; g = 0 unless ``gravity``."""
-    from harness.linearize import linearize
+    from motiontwin.harness.linearize import linearize
 
     out = []
     for pose in poses:
@@ -143,7 +143,7 @@ def tune_manipulator(fmu: str | Path, poses: np.ndarray, flexible: JointModel | 
     """Tune d1, d3, d5, d7 each on its channel at every pose (times H(s) of ``flexible`` unless None), then
     check the four designs together on the coupled plant at every pose, with and without gravity.
     An infeasible actuator keeps its least-violating design and is listed in ``infeasible``."""
-    from ident.tuning import InfeasibleSpecError
+    from motiontwin.ident.tuning import InfeasibleSpecError
 
     rigid = linearize_poses(fmu, poses, gravity=False)
     heavy = linearize_poses(fmu, poses, gravity=True)

@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from harness.recording import Recording, RecordingError
+from motiontwin.harness.recording import Recording, RecordingError
 
 __all__ = [
     "UnitError",

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from fmus import build
+from motiontwin.fmus import build
 from tests.fmi_util import gemseo_fmu_folder
 
 MODELS = Path(__file__).parent / "models"

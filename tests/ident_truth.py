@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.integrate import solve_ivp
 
-from ident.trajectory import fourier_trajectory
+from motiontwin.ident.trajectory import fourier_trajectory
 
 JOINT_TRUTH = {
     "J": 0.5,

@@ -7,9 +7,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from harness import recording
-from harness.cli import main
-from harness.master import Master
+from motiontwin.harness import recording
+from motiontwin.cli import main
+from motiontwin.harness.master import Master
 from tests.test_master import PI_LOOP
 
 STEP_EXPERIMENT = """
@@ -94,7 +94,7 @@ def test_identify_joint_then_writeback_into_the_serial_joint_fmu(tmp_path):
 
     import fmpy
 
-    from fmus import build
+    from motiontwin.fmus import build
     from tests.ident_truth import JOINT_TRUTH, friction_torque
 
     fit = _identify_joint_recording(tmp_path)
@@ -123,7 +123,7 @@ def test_writeback_rebuilds_the_binary_with_the_new_defaults(built_fmus, tmp_pat
 
     import fmpy
 
-    from fmus import build
+    from motiontwin.fmus import build
     from tests.test_fmu_build import analytic_step
 
     for version in ("2.0", "3.0"):
@@ -171,7 +171,7 @@ def test_tune_writes_its_design_and_a_controller_fmu_with_those_defaults(tmp_pat
 def test_identify_hexapod_from_a_recording_recovers_the_base_parameters(tmp_path):
     import json
 
-    from ident.hexapod import measure_periods
+    from motiontwin.ident.hexapod import measure_periods
     from tests.test_ident_hexapod import F0, FS, N_PERIODS, NH, NOISE, _period, base, truth
 
     _, _, lengths, forces = _period()
@@ -279,7 +279,7 @@ def test_identify_projection_removes_the_closed_loop_bias(tmp_path, capsys):
 
 def _joint_criteria(q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> tuple[float, float]:
     """cond and log det(Phi^T Phi) of the joint regressor on one sampled period."""
-    from ident.joint import joint_regressor
+    from motiontwin.ident.joint import joint_regressor
 
     phi, _ = joint_regressor(q, qd, qdd)
     return float(np.linalg.cond(phi)), float(np.linalg.slogdet(phi.T @ phi)[1])
@@ -291,8 +291,8 @@ def test_design_excitation_then_excite_then_identify(tmp_path, capsys):
     the truth loop of tests/ident_truth.py driven by the D-optimal file identifies within 3 %."""
     import json
 
-    from harness.excitation import fourier_trajectory, load_experiment
-    from ident.excitation_design import ExcitationLimits, random_design
+    from motiontwin.harness.excitation import fourier_trajectory, load_experiment
+    from motiontwin.ident.excitation_design import ExcitationLimits, random_design
     from tests.test_ident_joint import NAMES, TRUTH, noisy_periods, simulate_joint_period
 
     limits = ["--q-range", "1.5", "--v-max", "6", "--a-max", "40"]

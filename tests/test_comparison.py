@@ -14,8 +14,8 @@ import fmpy
 import numpy as np
 import pytest
 
-from harness import cli, comparison, kinematics, metrics
-from harness.recording import read_recording
+from motiontwin.harness import cli, comparison, kinematics, metrics
+from motiontwin.harness.recording import read_recording
 
 STOP = 0.2
 

@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 import scipy.signal as sps
 
-from harness.recording import make_recording
-from ident.diagnosis import BundleError, main, read_bundle
-from ident.diagnosis import benchmark as bench
-from ident import outputerror as sim
+from motiontwin.harness.recording import make_recording
+from motiontwin.ident.diagnosis import BundleError, main, read_bundle
+from motiontwin.ident.diagnosis import benchmark as bench
+from motiontwin.ident import outputerror as sim
 
 
 @pytest.fixture(scope="module")
@@ -158,8 +158,8 @@ def test_augmented_fmu_reproduces_casadi_model(diagnosed):
     """The written FMU (fmpy, its own solver) and the CasADi model of the written Modelica agree open loop."""
     import fmpy
 
-    from ident.diagnosis import effects as fx
-    from ident.controller import Controller
+    from motiontwin.ident.diagnosis import effects as fx
+    from motiontwin.ident.controller import Controller
 
     out, exit_code = diagnosed
     assert exit_code == 0
@@ -201,7 +201,7 @@ def test_named_controller_equals_its_discrete_state_space(small_bundle, tmp_path
     import casadi as ca
     import control
 
-    from fmus import build
+    from motiontwin.fmus import build
 
     named = read_bundle(_named_bundle(small_bundle, tmp_path / "n", {"kind": ROBUST, "parameters": ROBUST_GAINS}))
     law = build.load_model(ROBUST)

@@ -13,9 +13,9 @@ import numpy as np
 import pytest
 from fmpy.fmi2 import FMU2Slave
 
-from harness import measurement
-from ident.diagnosis import benchmark as bench
-from ident.diagnosis.bundle import read_bundle
+from motiontwin.harness import measurement
+from motiontwin.ident.diagnosis import benchmark as bench
+from motiontwin.ident.diagnosis.bundle import read_bundle
 
 
 @pytest.fixture(scope="module")

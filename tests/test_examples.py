@@ -1,7 +1,7 @@
 """Example scripts run and reproduce the figures the README quotes."""
 from __future__ import annotations
 
-from harness.examples import joint_bode
+from motiontwin.harness.examples import joint_bode
 
 
 def test_cheung_joint_bode_matches_the_paper_transfer_function(tmp_path):
@@ -23,9 +23,9 @@ def test_example_loop_and_sweep_files_run_as_the_readme_shows(tmp_path):
 
     import numpy as np
 
-    from fmus import build
-    from harness.cli import main
-    from harness.recording import read_recording
+    from motiontwin.fmus import build
+    from motiontwin.cli import main
+    from motiontwin.harness.recording import read_recording
 
     examples = Path(__file__).resolve().parents[1] / "harness" / "examples"
     folder = tmp_path / "harness" / "examples"

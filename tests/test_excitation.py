@@ -14,8 +14,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from harness import excitation as ex
-from harness import measurement as ms
+from motiontwin.harness import excitation as ex
+from motiontwin.harness import measurement as ms
 
 EXPERIMENTS = Path(__file__).resolve().parents[1] / "harness" / "experiments"
 
@@ -92,7 +92,7 @@ def test_end_effector_move_maps_endpoints_through_inverse_kinematics():
 
 def test_substrate_alignment_move_through_cheung_kinematics():
     """The paper's move: actuator quintics whose end points map back to the poses by the forward kinematics."""
-    from harness import kinematics
+    from motiontwin.harness import kinematics
 
     experiment = ex.load_experiment(EXPERIMENTS / "substrate_alignment.toml")
     signals = experiment.generate()
@@ -320,7 +320,7 @@ def test_example_experiments_load_and_generate():
 
 
 def test_experiment_recording_round_trip(tmp_path):
-    from harness import recording
+    from motiontwin.harness import recording
 
     experiment = ex.load_experiment(EXPERIMENTS / "prbs.toml")
     rec = ex.experiment_recording(experiment)

@@ -7,9 +7,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from harness.executor import make_executor, run_sweep
-from harness.master import Master
-from harness.system import load_system
+from motiontwin.harness.executor import make_executor, run_sweep
+from motiontwin.harness.master import Master
+from motiontwin.harness.system import load_system
 from tests.test_master import P_LOOP
 
 

@@ -15,8 +15,8 @@ import numpy as np
 import pytest
 from fmpy.validation import validate_fmu
 
-from fmus import build
-from fmus.frontend import ModelicaError
+from motiontwin.fmus import build
+from motiontwin.fmus.frontend import ModelicaError
 from tests import fmi_util as fu
 
 VERSIONS = build.FMI_VERSIONS
@@ -206,7 +206,7 @@ def test_failed_build_leaves_nothing_behind(tmp_path):
 
 
 def test_cli_builds_both_versions(tmp_path):
-    from harness.cli import main
+    from motiontwin.cli import main
 
     assert main(["build", "MotionTwin.Plants.LinearMotorJoint", "--out", str(tmp_path)]) == 0
     assert (tmp_path / "fmi2" / "LinearMotorJoint.fmu").is_file()

@@ -10,7 +10,7 @@ from pathlib import Path
 import fmpy
 import pytest
 
-from fmus import package
+from motiontwin.fmus import package
 
 C_DRIVER = Path(__file__).parent / "c" / "fmi_cycle.c"
 FORCE = 3.0

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import scipy.signal
 
-from ident.closedloop import fit_output_error, project_on_reference
+from motiontwin.ident.closedloop import fit_output_error, project_on_reference
 
 FS = 200.0
 N = 20000

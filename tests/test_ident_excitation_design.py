@@ -3,7 +3,7 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from ident.excitation_design import (
+from motiontwin.ident.excitation_design import (
     ExcitationLimits,
     _cholesky_logdet,
     _log_condition_surrogate,
@@ -58,8 +58,8 @@ HEX_RANGE = np.array([0.06, 0.06, 0.05, 0.12, 0.12, 0.15])
 
 
 def test_fit_to_limits_stretches_and_shrinks_to_the_limits():
-    from ident.excitation_design import fit_to_limits
-    from ident.hexapod import HexapodLimits, PoseExcitation, limit_ratio, random_pose_excitation
+    from motiontwin.ident.excitation_design import fit_to_limits
+    from motiontwin.ident.hexapod import HexapodLimits, PoseExcitation, limit_ratio, random_pose_excitation
 
     limits = HexapodLimits(HEX_RANGE, leg_speed=0.3, leg_acceleration=3.0)
     start = random_pose_excitation(HEX_RANGE, 0.5, 5, np.random.default_rng(4))
@@ -74,9 +74,9 @@ def test_fit_to_limits_stretches_and_shrinks_to_the_limits():
 def test_predicted_spread_matches_monte_carlo_of_gauss_markov():
     """The design's predicted relative std vs the empirical spread of Gauss-Markov estimates over 400
     noise draws on the same regressor (correlated leg-force noise of the period mean)."""
-    from ident.excitation_design import predicted_relative_std
-    from ident.hexapod import hexapod_base_parameters, random_pose_excitation, stacked_regressor
-    from ident.leastsquares import gauss_markov
+    from motiontwin.ident.excitation_design import predicted_relative_std
+    from motiontwin.ident.hexapod import hexapod_base_parameters, random_pose_excitation, stacked_regressor
+    from motiontwin.ident.leastsquares import gauss_markov
 
     base = hexapod_base_parameters()
     fs, f0, n_periods = 100.0, 0.5, 10

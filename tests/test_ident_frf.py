@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import scipy.signal
 
-from ident.frf import (
+from motiontwin.ident.frf import (
     JointModel,
     acceleration_from_position,
     estimate_frf,
@@ -93,7 +93,7 @@ def test_point_to_point_pem_recovers_low_frequency_model():
 
 def _sweep_recording(model: JointModel, seed: int):
     """A 40 s logarithmic swept sine through ``model`` (lsim with ZOH input), as a recording in m and N."""
-    from harness.recording import make_recording
+    from motiontwin.harness.recording import make_recording
 
     rng = np.random.default_rng(seed)
     t = np.arange(int(40 * FS)) / FS
@@ -106,7 +106,7 @@ def _sweep_recording(model: JointModel, seed: int):
 
 def test_worst_case_over_positions_selects_the_lowest_gain_within_2_percent():
     """Cheung: the model with the lowest gain over the actuator positions is the design model."""
-    from ident.frf import frf_document, identify_frf_worst_case
+    from motiontwin.ident.frf import frf_document, identify_frf_worst_case
 
     w = 2 * np.pi
     positions = {  # gain and modes change with the position, as the effective inertia does
@@ -139,8 +139,8 @@ def test_cli_handler_writes_the_worst_case_document(tmp_path, capsys):
     import argparse
     import json
 
-    from harness.recording import write_recording
-    from ident.frf import cli_identify_frf
+    from motiontwin.harness.recording import write_recording
+    from motiontwin.ident.frf import cli_identify_frf
 
     w = 2 * np.pi
     models = [JointModel(52.0, 20.0, ((w * 220, 0.04),), ((w * 150, 0.03),)),
@@ -166,7 +166,7 @@ CHEUNG_DEFAULTS = JointModel(1.0, 10.0, ((2450.0, 0.05),), ((1885.0, 0.05),))  #
 
 def _recording_through(model: JointModel, t: np.ndarray, u: np.ndarray, seed: int):
     """``u`` (held, ZOH) through ``model`` by lsim, with the encoder noise and resolution, in m and N."""
-    from harness.recording import make_recording
+    from motiontwin.harness.recording import make_recording
 
     tf = model.transfer_function()
     _, q, _ = scipy.signal.lsim((tf.num[0][0], tf.den[0][0]), u, t - t[0], interp=False)
@@ -181,10 +181,10 @@ def test_cli_80_500_hz_sweep_with_point_to_point_move_recovers_cheung_joint_with
     import json
     from pathlib import Path
 
-    from harness import excitation
-    from harness.cli import main
-    from harness.recording import write_recording
-    from ident.frf import DEFAULT_ALPHA
+    from motiontwin.harness import excitation
+    from motiontwin.cli import main
+    from motiontwin.harness.recording import write_recording
+    from motiontwin.ident.frf import DEFAULT_ALPHA
 
     root = Path(__file__).resolve().parents[1]
     sig = excitation.load_experiment(root / "harness/experiments/swept_sine_80_500.toml").generate()

@@ -12,8 +12,8 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from harness import kinematics as kin
-from ident.hexapod import (
+from motiontwin.harness import kinematics as kin
+from motiontwin.ident.hexapod import (
     HexapodLimits,
     MeasurementNoise,
     ModelicaHexapod,
@@ -28,7 +28,7 @@ from ident.hexapod import (
     simulate_period,
     stacked_regressor,
 )
-from ident.leastsquares import UnidentifiableError, gauss_markov
+from motiontwin.ident.leastsquares import UnidentifiableError, gauss_markov
 
 POSE_RANGE = np.array([0.06, 0.06, 0.05, 0.12, 0.12, 0.15])
 F0, FS, NH, N_PERIODS = 0.5, 100.0, 5, 20

@@ -6,7 +6,7 @@ Stated noise level: position noise 1e-4 rad, torque noise 0.5 N m (peak torque ~
 import numpy as np
 import pytest
 
-from ident.joint import (
+from motiontwin.ident.joint import (
     compare_friction_models,
     gravity_amplitude_offset,
     identify_joint_periodic,

@@ -2,8 +2,8 @@
 import numpy as np
 import pytest
 
-from ident.joint import joint_regressor
-from ident.leastsquares import UnidentifiableError, base_parameters, check_identifiability, gauss_markov
+from motiontwin.ident.joint import joint_regressor
+from motiontwin.ident.leastsquares import UnidentifiableError, base_parameters, check_identifiability, gauss_markov
 
 TRUTH = np.array([2.0, -1.0, 0.5, 3.0])
 NAMES = ["a", "b", "c", "d"]

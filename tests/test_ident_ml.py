@@ -7,10 +7,10 @@ plus white noise, so the likelihood-optimal cut-off must keep the 10 harmonics a
 import numpy as np
 import pytest
 
-from ident.joint import identify_joint_periodic, joint_regressor
-from ident.ml import ml_joint_with_cutoff
-from ident.signals import period_average
-from ident.trajectory import fourier_trajectory
+from motiontwin.ident.joint import identify_joint_periodic, joint_regressor
+from motiontwin.ident.ml import ml_joint_with_cutoff
+from motiontwin.ident.signals import period_average
+from motiontwin.ident.trajectory import fourier_trajectory
 from tests.ident_truth import JOINT_TRUTH
 
 NAMES = list(JOINT_TRUTH)

@@ -13,11 +13,11 @@ import pytest
 import scipy.signal as sps
 from fmpy.fmi2 import FMU2Slave
 
-from fmus import build, writeback
-from harness.recording import RecordingError, make_recording, write_recording
-from ident import multipleshooting as ms
-from ident import outputerror as oe
-from ident.controller import Controller, controller_document
+from motiontwin.fmus import build, writeback
+from motiontwin.harness.recording import RecordingError, make_recording, write_recording
+from motiontwin.ident import multipleshooting as ms
+from motiontwin.ident import outputerror as oe
+from motiontwin.ident.controller import Controller, controller_document
 
 CLASS = "MotionTwin.Plants.LinearMotorJoint"
 TS = 5e-4                      # 2 kHz
@@ -246,7 +246,7 @@ def test_compiled_chain_cached_and_fallback_without_compiler(model, monkeypatch,
     """The library is compiled once per generated source (second build reuses the cached file); without a
     working C compiler the loop falls back to the CasADi chain (unless the compiled one is demanded)."""
     import casadi as ca
-    from ident import chain
+    from motiontwin.ident import chain
 
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
     oe.build_loop(model, None, "x", ["m"], {}, 50, ts=TS, substeps=2)
@@ -306,7 +306,7 @@ def test_multiple_shooting_closed_loop_recovers_truth_and_matches_single(model, 
 
 
 def test_cli_multiple_shooting(open_loop_data, tmp_path, capsys):
-    from harness.cli import main
+    from motiontwin.cli import main
 
     u, q_true = open_loop_data
     q = q_true + NOISE * np.random.default_rng(5).standard_normal(u.size)

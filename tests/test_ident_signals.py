@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from ident.signals import lowpass_differentiate, period_average, samples_per_period
+from motiontwin.ident.signals import lowpass_differentiate, period_average, samples_per_period
 
 
 FS = 1000.0

@@ -9,12 +9,12 @@ import numpy as np
 import pytest
 import scipy.signal
 
-from harness import recording
-from harness.kinematics import HEXAPOD, hexapod_inverse
-from ident.frf import identify_frf_recording
-from ident.hexapod import identify_hexapod_recording, random_pose_excitation
-from ident.joint import identify_joint_recording
-from ident.units import UnitError, checked_columns
+from motiontwin.harness import recording
+from motiontwin.harness.kinematics import HEXAPOD, hexapod_inverse
+from motiontwin.ident.frf import identify_frf_recording
+from motiontwin.ident.hexapod import identify_hexapod_recording, random_pose_excitation
+from motiontwin.ident.joint import identify_joint_recording
+from motiontwin.ident.units import UnitError, checked_columns
 from tests.ident_truth import JOINT_TRUTH, noisy_periods, simulate_joint_period
 from tests.test_ident_frf import FS, TRUTH, _simulate
 
@@ -117,7 +117,7 @@ def test_hexapod_lengths_in_mm_declared_m_are_refused_before_kinematics():
 
 
 def test_hexapod_in_mm_and_kn_gives_the_si_estimates_within_their_intervals():
-    from ident.hexapod import measure_periods
+    from motiontwin.ident.hexapod import measure_periods
     from tests.test_ident_hexapod import F0, FS, N_PERIODS, NH, NOISE, _period, base, truth
 
     _, _, lengths, forces = _period()

@@ -4,7 +4,7 @@ import itertools
 import numpy as np
 import pytest
 
-from harness import kinematics as kin
+from motiontwin.harness import kinematics as kin
 
 
 def _workspace_poses() -> list[np.ndarray]:

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from fmpy.validation import validate_fmu
 
-from fmus import build
+from motiontwin.fmus import build
 
 
 @pytest.fixture(scope="session")

@@ -9,10 +9,10 @@ import pytest
 from scipy.integrate import solve_ivp
 from scipy.linalg import expm
 
-from harness import fmu_instance
-from harness.fmu_instance import FMUCallError, PortError
-from harness.master import Master, StepError, UnitMismatchError
-from harness.system import SystemFileError, load_system, system_from_dict
+from motiontwin.harness import fmu_instance
+from motiontwin.harness.fmu_instance import FMUCallError, PortError
+from motiontwin.harness.master import Master, StepError, UnitMismatchError
+from motiontwin.harness.system import SystemFileError, load_system, system_from_dict
 
 def write(tmp_path: Path, text: str, name: str = "system.toml") -> Path:
     path = tmp_path / name
@@ -252,7 +252,7 @@ def test_ssp_export_validates_and_runs_in_fmpy_ssp(gemseo_fmus: Path, tmp_path: 
     from fmpy.ssp.simulation import simulate_ssp
     from fmpy.ssp.ssd import read_ssd
 
-    from harness.ssp import SSPExportError, export_ssp
+    from motiontwin.harness.ssp import SSPExportError, export_ssp
 
     system = system_from_dict(mass_spring(gemseo_fmus, 1e-3), source=tmp_path / "mass_spring.toml")
     path = export_ssp(system, tmp_path / "out" / "mass_spring.ssp")
@@ -433,7 +433,7 @@ def test_compiled_loop_reports_failing_fmu_like_python_loop(built_fmus: dict, tm
 
 
 def test_without_c_compiler_the_python_loop_runs(built_fmus: dict, tmp_path: Path, monkeypatch) -> None:
-    from harness import native
+    from motiontwin.harness import native
 
     monkeypatch.setenv("CC", "no-such-compiler-motiontwin")
     monkeypatch.setattr(native, "_LIBRARY", [])

@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from harness import kinematics, metrics
+from motiontwin.harness import kinematics, metrics
 
 TS = 5e-4
 

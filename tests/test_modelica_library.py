@@ -14,8 +14,8 @@ import control
 import numpy as np
 import pytest
 
-from fmus import build, frontend, symbolic
-from harness import kinematics as kin
+from motiontwin.fmus import build, frontend, symbolic
+from motiontwin.harness import kinematics as kin
 
 LIBRARY = Path(__file__).resolve().parents[1] / "modelica"
 

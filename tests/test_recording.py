@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 import scipy.io
 
-from harness import recording as rc
+from motiontwin.harness import recording as rc
 
 
 def sample_recording(n: int = 200) -> rc.Recording:

@@ -8,9 +8,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from harness.master import Master
-from harness.recording import make_recording, read_recording, write_recording
-from harness.regress import Tolerance, compare_signal, load_suite, run_suite, tube, write_junit
+from motiontwin.harness.master import Master
+from motiontwin.harness.recording import make_recording, read_recording, write_recording
+from motiontwin.harness.regress import Tolerance, compare_signal, load_suite, run_suite, tube, write_junit
 from tests.test_master import P_LOOP
 
 

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from fmus import build
-from harness import regress
+from motiontwin.fmus import build
+from motiontwin.harness import regress
 from tests.conftest import TEST_MODELS
 
 SUITE = Path(__file__).parent / "regression" / "suite.toml"

@@ -18,7 +18,7 @@ from fmpy import simulate_fmu
 from fmpy.fmi1 import FMICallException
 from scipy.signal import cont2discrete
 
-from fmus import build
+from motiontwin.fmus import build
 from tests import fmi_util as fu
 
 RUNTIME = Path(build.__file__).parent / "runtime"
@@ -129,7 +129,7 @@ def test_cosimulation_of_a_nine_state_closed_loop_matches_cvode(tmp_path):
 def test_hot_path_functions_match_finite_differences_and_the_sample_function():
     """fmus.codegen.runtime_functions: ode_jac = (ode, central differences of ode in x) on the coupled
     4-DOF plant; sample_matrix S(p) reproduces sample(z, u, p) on random z, u; dfdt dropped (autonomous)."""
-    from fmus import codegen
+    from motiontwin.fmus import codegen
     from tests.conftest import TEST_MODELS
 
     model = build.load_model("MotionTwin.Plants.CheungManipulator")

@@ -8,10 +8,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from harness import sweep
-from harness.cli import main
-from harness.master import Master
-from harness.recording import read_recording
+from motiontwin.harness import sweep
+from motiontwin.cli import main
+from motiontwin.harness.master import Master
+from motiontwin.harness.recording import read_recording
 
 SYSTEM = """
 base_step = 1e-4

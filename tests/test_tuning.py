@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 from fmpy.fmi2 import FMU2Slave
 
-from fmus import build, writeback
-from ident import tuning
-from ident.frf import JointModel
+from motiontwin.fmus import build, writeback
+from motiontwin.ident import tuning
+from motiontwin.ident.frf import JointModel
 
 TS = 5e-4
 NOMINAL = JointModel(1.0, 10.0, ((2450.0, 0.05),), ((1885.0, 0.05),))  # CheungJoint defaults (1 kg)
@@ -219,7 +219,7 @@ def test_cli_plant_parsing_defaults_and_errors() -> None:
 def test_plant_from_linearised_fmu_gives_same_margins(tmp_path) -> None:
     """The CheungJoint FMU linearised through its directional derivatives (harness.linearize) is a valid plant
     and gives the margins of the eq. (6)-(8) transfer function."""
-    from harness.linearize import linearize
+    from motiontwin.harness.linearize import linearize
 
     fmu = build.build_fmu(build.load_model(tuning.PLANT_CLASS), tmp_path, "3.0").path
     plant = linearize(fmu, ["u"], ["q"])

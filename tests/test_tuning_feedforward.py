@@ -8,7 +8,7 @@ import control
 import numpy as np
 import pytest
 
-from ident import tuning
+from motiontwin.ident import tuning
 from tests.test_tuning import NOMINAL, TS, paper_controller, paper_plant
 
 DELAY = control.tf([1.0], [1.0, 0.0], dt=TS)

@@ -6,8 +6,8 @@ import control
 import numpy as np
 import pytest
 
-from fmus import build
-from ident import tuning, tuning_manipulator as tm
+from motiontwin.fmus import build
+from motiontwin.ident import tuning, tuning_manipulator as tm
 from tests.test_tuning import NOMINAL, TS
 
 

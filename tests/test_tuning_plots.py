@@ -8,7 +8,7 @@ import matplotlib.image
 import numpy as np
 import pytest
 
-from ident import tuning, tuning_plots
+from motiontwin.ident import tuning, tuning_plots
 from tests.test_tuning import NOMINAL, TS, independent_loop, python_control_margins
 
 PLANTS = tuning.position_sets(NOMINAL)[::2]  # the light and the heavy actuator position
@@ -58,7 +58,7 @@ def test_png_written_atomically(design: dict[str, float], tmp_path) -> None:
 
 
 def test_replot_from_design_file(design: dict[str, float], tmp_path) -> None:
-    """python -m ident.tuning_plots DESIGN.json --out DIR rebuilds the plant sets from the JSON and draws them."""
+    """python -m motiontwin.ident.tuning_plots DESIGN.json --out DIR rebuilds the plant sets from the JSON and draws them."""
     import json
     from dataclasses import asdict
 

@@ -8,8 +8,8 @@ import control
 import numpy as np
 import pytest
 
-from ident import tuning
-from ident.frf import JointModel
+from motiontwin.ident import tuning
+from motiontwin.ident.frf import JointModel
 
 TS = 5e-4
 MASS, DAMPING = 2.0, 40.0  # kg, N s/m: plant 1/(m s + b) (force -> velocity of a damped mass)

@@ -12,8 +12,8 @@ from pathlib import Path
 import control
 import numpy as np
 
-from fmus import build
-from harness.linearize import linearize
+from motiontwin.fmus import build
+from motiontwin.harness.linearize import linearize
 
 CLASS = "MotionTwin.Plants.CheungJoint"
 

@@ -6,8 +6,8 @@ from __future__ import annotations
 import argparse
 import sys
 
-from ident.diagnosis.bundle import BundleError, read_bundle
-from ident.diagnosis.pipeline import diagnose
+from motiontwin.ident.diagnosis.bundle import BundleError, read_bundle
+from motiontwin.ident.diagnosis.pipeline import diagnose
 
 __all__ = ["BundleError", "diagnose", "main", "read_bundle"]
 
@@ -28,7 +28,7 @@ def run(bundle: str, out: str, quiet: bool = False) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """``python -m ident.diagnosis BUNDLE_DIR --out OUT_DIR`` (the same as ``motiontwin diagnose``)."""
+    """``python -m motiontwin.ident.diagnosis BUNDLE_DIR --out OUT_DIR`` (the same as ``motiontwin diagnose``)."""
     parser = argparse.ArgumentParser(prog="motiontwin diagnose",
                                      description="Diagnose the mismatch between a nominal model and a recording.")
     parser.add_argument("bundle", help="bundle directory holding experiment.json")

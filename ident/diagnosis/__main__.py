@@ -1,6 +1,6 @@
-"""``python -m ident.diagnosis BUNDLE --out OUT``."""
+"""``python -m motiontwin.ident.diagnosis BUNDLE --out OUT``."""
 import sys
 
-from ident.diagnosis import main
+from motiontwin.ident.diagnosis import main
 
 sys.exit(main())

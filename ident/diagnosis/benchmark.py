@@ -18,10 +18,10 @@ Every run starts at x = 0 with a pre-roll (a smooth move to the first reference 
 cut off, so recordings start at rest. Recordings hold ``time, r, u, q, u_ext`` at the controller instants; the
 nominal ``plant.mo`` is the rigid axis with mass and damping guesses 20-40 % off. Units: SI (s, m, N, kg).
 
-    python -m ident.diagnosis.benchmark generate OUT_DIR [--set tuning|heldout]
-    python -m ident.diagnosis.benchmark run OUT_DIR [--set tuning|heldout]
-    python -m ident.diagnosis.benchmark conceal OUT_DIR [--set ...] [--case NAME]
-    python -m ident.diagnosis.benchmark verify OUT_DIR [--case coulomb_friction]
+    python -m motiontwin.ident.diagnosis.benchmark generate OUT_DIR [--set tuning|heldout]
+    python -m motiontwin.ident.diagnosis.benchmark run OUT_DIR [--set tuning|heldout]
+    python -m motiontwin.ident.diagnosis.benchmark conceal OUT_DIR [--set ...] [--case NAME]
+    python -m motiontwin.ident.diagnosis.benchmark verify OUT_DIR [--case coulomb_friction]
 """
 from __future__ import annotations
 
@@ -37,12 +37,12 @@ from pathlib import Path
 import numpy as np
 import scipy.signal as sps
 
-from fmus import build
-from harness import measurement
-from harness.master import Master
-from harness.recording import atomic_write_texts, make_recording, write_recording
-from harness.system import system_from_dict
-from ident.diagnosis.bundle import Controller
+from motiontwin.fmus import build
+from motiontwin.harness import measurement
+from motiontwin.harness.master import Master
+from motiontwin.harness.recording import atomic_write_texts, make_recording, write_recording
+from motiontwin.harness.system import system_from_dict
+from motiontwin.ident.diagnosis.bundle import Controller
 
 PLANT_CLASS = "LinearAxis"
 PLANT_TEXT = '''model LinearAxis "Direct-drive linear axis: moving mass with viscous damping, m*der(v) = u - d*v"
@@ -382,10 +382,10 @@ def verify(case: str = "coulomb_friction", seed: int = 10, duration: float = 12.
     same physics written as the diagnosis' augmented model (RK4, 32 substeps per sample), on the same
     drive including the pre-roll; returns max and RMS |q_fmu - q_casadi| [m] and the max |q| [m]."""
     try:
-        from ident import outputerror as sim
+        from motiontwin.ident import outputerror as sim
     except ImportError:
-        from ident.diagnosis import simulate as sim
-    from ident.diagnosis import effects as fx
+        from motiontwin.ident.diagnosis import simulate as sim
+    from motiontwin.ident.diagnosis import effects as fx
 
     plant = truth_plant(case)
     if plant.class_name.endswith("VariableInertiaJoint"):
@@ -425,7 +425,7 @@ VOCABULARY = list(_MAIN)
 
 def run(out: Path, which: str, only: list[str] | None = None) -> int:
     """Diagnose every bundle of the set and print one line per case and the confusion table."""
-    from ident.diagnosis import diagnose
+    from motiontwin.ident.diagnosis import diagnose
 
     names = VOCABULARY
     confusion = {n: {m: 0 for m in names + ["(none)"]} for n in names + ["(none)"]}
@@ -470,7 +470,7 @@ def run(out: Path, which: str, only: list[str] | None = None) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m ident.diagnosis.benchmark")
+    parser = argparse.ArgumentParser(prog="python -m motiontwin.ident.diagnosis.benchmark")
     parser.add_argument("command", choices=["generate", "run", "conceal", "verify"])
     parser.add_argument("out", type=Path)
     parser.add_argument("--set", default="tuning", choices=["tuning", "heldout"])

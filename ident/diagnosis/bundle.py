@@ -22,10 +22,10 @@ from typing import Any
 import casadi as ca
 import numpy as np
 
-from fmus import frontend, symbolic
-from harness.recording import Recording, RecordingError, read_recording
-from ident import controller
-from ident.controller import Controller, field
+from motiontwin.fmus import frontend, symbolic
+from motiontwin.harness.recording import Recording, RecordingError, read_recording
+from motiontwin.ident import controller
+from motiontwin.ident.controller import Controller, field
 
 REQUIRED_COLUMNS = ("time", "r", "u", "q")
 

@@ -16,9 +16,10 @@ from typing import Callable
 
 import numpy as np
 
-from fmus import frontend, symbolic
+from motiontwin.fmus import frontend, symbolic
+from motiontwin.fmus.build import MODELICA_DIR
 
-LIBRARY = Path(__file__).resolve().parents[2] / "modelica" / "MotionTwin"
+LIBRARY = MODELICA_DIR / "MotionTwin"
 FRICTION = "friction"
 
 

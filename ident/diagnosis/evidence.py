@@ -17,9 +17,9 @@ import numpy as np
 from scipy import signal as sps
 from scipy import stats
 
-from fmus import symbolic
-from harness.recording import Recording
-from ident.signals import lowpass_differentiate
+from motiontwin.fmus import symbolic
+from motiontwin.harness.recording import Recording
+from motiontwin.ident.signals import lowpass_differentiate
 
 NULL_QUANTILE = 0.999
 

@@ -16,10 +16,10 @@ from pathlib import Path
 import casadi as ca
 import numpy as np
 
-from ident.diagnosis import effects as fx
-from ident.diagnosis import evidence as ev
-from ident import outputerror as sim
-from ident.diagnosis.bundle import Bundle, read_bundle
+from motiontwin.ident.diagnosis import effects as fx
+from motiontwin.ident.diagnosis import evidence as ev
+from motiontwin.ident import outputerror as sim
+from motiontwin.ident.diagnosis.bundle import Bundle, read_bundle
 
 AUGMENTED_CLASS = "Augmented"
 VALIDATION_GAIN = 0.9        # an effect must reduce the validation RMS by at least 10 %
@@ -399,7 +399,7 @@ def run(bundle: Bundle, work: Path, progress=None) -> dict:
 def diagnose(bundle_dir: str | os.PathLike, out_dir: str | os.PathLike, progress=None) -> dict:
     """Diagnose a bundle and write diagnosis.json, validation_prediction.csv, report.md (+ PNGs), the
     augmented Modelica model and its FMU into ``out_dir``. Nothing is written when the input is bad."""
-    from ident.diagnosis import report
+    from motiontwin.ident.diagnosis import report
 
     bundle = read_bundle(bundle_dir)
     out = Path(out_dir)

@@ -12,9 +12,9 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from fmus.build import build_fmu  # noqa: E402
-from ident.diagnosis import evidence as ev  # noqa: E402
-from ident.diagnosis.pipeline import AUGMENTED_CLASS  # noqa: E402
+from motiontwin.fmus.build import build_fmu  # noqa: E402
+from motiontwin.ident.diagnosis import evidence as ev  # noqa: E402
+from motiontwin.ident.diagnosis.pipeline import AUGMENTED_CLASS  # noqa: E402
 
 
 def _strip(values: dict[str, float]) -> dict[str, float]:

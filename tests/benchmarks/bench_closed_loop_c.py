@@ -24,7 +24,7 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(Path(__file__).parent))
 
 import bench_manipulator  # noqa: E402
-from harness import comparison  # noqa: E402
+from motiontwin import comparison  # noqa: E402
 
 DRIVER = ROOT / "tests" / "c" / "closed_loop_timing.c"
 

@@ -7,7 +7,7 @@ time, the CPU time of this process and the 1-minute load average (other jobs inf
 time of the single-threaded diagnosis does not depend on them).
 
 Run: .venv/bin/python tests/benchmarks/bench_diagnosis.py [BENCH_DIR] [--set heldout|tuning] [--case NAME]
-(bundles are generated into BENCH_DIR by ``python -m ident.diagnosis.benchmark generate`` when missing).
+(bundles are generated into BENCH_DIR by ``python -m motiontwin.ident.diagnosis.benchmark generate`` when missing).
 """
 from __future__ import annotations
 
@@ -18,8 +18,8 @@ import tempfile
 import time
 from pathlib import Path
 
-from ident.diagnosis import diagnose
-from ident.diagnosis import effects as fx
+from motiontwin.ident.diagnosis import diagnose
+from motiontwin.ident.diagnosis import effects as fx
 
 TARGET_S = 120.0
 MAIN_PARAMETER = {"gravity_offset": "F0", "coulomb_friction": "Fc", "asymmetric_friction": "Fc_pos",
@@ -67,7 +67,7 @@ def main() -> int:
     args = parser.parse_args()
     folder = args.bench / args.set
     if not folder.is_dir():
-        from ident.diagnosis import benchmark
+        from motiontwin.ident.diagnosis import benchmark
         benchmark.generate(args.bench, args.set)
     cases = sorted(p.name for p in folder.iterdir() if (p / "experiment.json").is_file())
     print(f"target: {TARGET_S:.0f} s per bundle (12 s + 6 s at 2 kHz), {os.cpu_count()} cores")

@@ -14,7 +14,7 @@ from pathlib import Path
 import fmpy
 from fmpy.fmi2 import FMU2Slave
 
-from fmus import build, package
+from motiontwin.fmus import build, package
 
 STEP = 5e-4
 STEPS = 20000

@@ -28,8 +28,8 @@ sys.path.insert(0, str(ROOT))
 
 from fmpy.fmi3 import FMU3Slave  # noqa: E402
 
-from harness.executor import run_sweep  # noqa: E402
-from harness.master import Master  # noqa: E402
+from motiontwin.harness.executor import run_sweep  # noqa: E402
+from motiontwin.harness.master import Master  # noqa: E402
 from tests.fmi_util import gemseo_fmu_folder  # noqa: E402
 
 BASE = 1e-4
@@ -166,7 +166,7 @@ def raw_project_loop(pi_path: Path, plant_path: Path, r: float, u_ext: np.ndarra
 
 
 def project_section(tmp: Path) -> None:
-    from fmus import build
+    from motiontwin.fmus import build
 
     pi = build.build_fmu(build.load_model("SampledPI", ROOT / "tests" / "models" / "SampledPI.mo"), tmp, "3.0").path
     plant = build.build_fmu(build.load_model("MotionTwin.Plants.LinearMotorJoint", build.MODELICA_DIR), tmp, "2.0").path

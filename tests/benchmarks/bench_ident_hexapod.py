@@ -40,8 +40,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
-from ident.excitation_design import optimize_hexapod_excitation, predicted_relative_std  # noqa: E402
-from ident.hexapod import (  # noqa: E402
+from motiontwin.ident.excitation_design import optimize_hexapod_excitation, predicted_relative_std  # noqa: E402
+from motiontwin.ident.hexapod import (  # noqa: E402
     HexapodLimits,
     MeasurementNoise,
     ModelicaHexapod,

@@ -24,14 +24,14 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
-from ident.closedloop import fit_output_error, project_on_reference  # noqa: E402
-from ident.excitation_design import (  # noqa: E402
+from motiontwin.ident.closedloop import fit_output_error, project_on_reference  # noqa: E402
+from motiontwin.ident.excitation_design import (  # noqa: E402
     ExcitationLimits,
     evaluate_design,
     optimize_excitation,
     random_design,
 )
-from ident.joint import identify_joint_periodic  # noqa: E402
+from motiontwin.ident.joint import identify_joint_periodic  # noqa: E402
 from tests import test_ident_closedloop as cl  # noqa: E402
 from tests.ident_truth import JOINT_TRUTH, noisy_periods, simulate_joint_period  # noqa: E402
 

@@ -16,9 +16,9 @@ import fmpy
 import numpy as np
 from scipy.optimize import least_squares
 
-from fmus import build
-from harness.recording import make_recording
-from ident import outputerror as oe
+from motiontwin.fmus import build
+from motiontwin.harness.recording import make_recording
+from motiontwin.ident import outputerror as oe
 
 TS = 5e-4
 MODELS = {

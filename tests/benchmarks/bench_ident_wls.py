@@ -18,10 +18,10 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
-from ident.joint import joint_regressor  # noqa: E402
-from ident.leastsquares import gauss_markov  # noqa: E402
-from ident.signals import lowpass_differentiate  # noqa: E402
-from ident.trajectory import fourier_trajectory  # noqa: E402
+from motiontwin.ident.joint import joint_regressor  # noqa: E402
+from motiontwin.ident.leastsquares import gauss_markov  # noqa: E402
+from motiontwin.ident.signals import lowpass_differentiate  # noqa: E402
+from motiontwin.ident.trajectory import fourier_trajectory  # noqa: E402
 
 N = 100_000
 FS = 1000.0

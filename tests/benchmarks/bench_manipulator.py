@@ -23,10 +23,10 @@ from fmpy.fmi2 import FMU2Slave
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
-from harness import comparison  # noqa: E402
-from harness.excitation import end_effector_point_to_point  # noqa: E402
-from harness.kinematics import CHEUNG_END_POSE, CHEUNG_START_POSE  # noqa: E402
-from harness.master import Master  # noqa: E402
+from motiontwin import comparison  # noqa: E402
+from motiontwin.harness.excitation import end_effector_point_to_point  # noqa: E402
+from motiontwin.harness.kinematics import CHEUNG_END_POSE, CHEUNG_START_POSE  # noqa: E402
+from motiontwin.harness.master import Master  # noqa: E402
 
 TS = comparison.TS
 TARGET = 50.0

@@ -53,11 +53,11 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from harness import kinematics, metrics
-from harness.excitation import end_effector_point_to_point
-from harness.master import Master
-from harness.recording import Recording, atomic_write_texts, make_recording, write_recording
-from harness.system import System, system_from_dict
+from motiontwin.harness import kinematics, metrics
+from motiontwin.harness.excitation import end_effector_point_to_point
+from motiontwin.harness.master import Master
+from motiontwin.harness.recording import Recording, atomic_write_texts, make_recording, write_recording
+from motiontwin.harness.system import System, system_from_dict
 
 PLANT_CLASS = "MotionTwin.Plants.CheungManipulator"
 ROBUST_CLASS = "MotionTwin.Controllers.RobustJointController"
@@ -94,7 +94,7 @@ PAPER_TABLE4 = {
 
 def build_fmus(out_dir: str | Path, fmi_version: str = "2.0") -> dict[str, Path]:
     """Build (object cache: fast when unchanged) the plant and both controllers; returns role -> FMU path."""
-    from fmus import build
+    from motiontwin.fmus import build
 
     classes = {"plant": PLANT_CLASS, "robust": ROBUST_CLASS, "computed_torque": CT_CLASS}
     built = build.build(list(classes.values()), out_dir=out_dir, fmi_versions=(fmi_version,), workers=1)
@@ -186,8 +186,8 @@ def table2_designs(masses: Sequence[float], damping: float, ts: float = TS,
                    reading: str = "per-sample") -> list[dict[str, float]]:
     """Table 2 columns d1, d3, d5, d7 on our joints (1/(m s^2 + c_v s)), Kp, Ki, Kd rescaled to the paper's CLBW;
     ``reading`` as :func:`ident.tuning.table2_parameters`."""
-    from ident.frf import JointModel
-    from ident.tuning import TABLE2, rescale_to_bandwidth, table2_parameters
+    from motiontwin.ident.frf import JointModel
+    from motiontwin.ident.tuning import TABLE2, rescale_to_bandwidth, table2_parameters
 
     designs = []
     for joint, mass in zip(JOINTS, masses):
@@ -201,7 +201,7 @@ def load_designs(paths: Sequence[str | Path], masses: Sequence[float], damping: 
                  ts: float = TS) -> list[dict[str, float]]:
     """Designs from ``motiontwin tune --out`` JSON files: one for all four joints or one per joint (d1, d3, d5,
     d7 order). Kv/Ka/Kj given in the file are used, otherwise they follow :func:`with_feedforward`."""
-    from ident.tuning import DESIGN_NAMES
+    from motiontwin.ident.tuning import DESIGN_NAMES
 
     if len(paths) not in (1, 4):
         raise ValueError(f"give one design JSON for all joints or four (d1, d3, d5, d7), got {len(paths)}")
@@ -249,8 +249,8 @@ def robust_loop_margins(design: dict[str, float], mass: float, damping: float) -
     delay (as the harness runs it: the controller output is applied over the same sample), from
     ``ident.tuning.loop_margins``. A negative GM is a gain-reduction margin at a phase crossover below the
     gain crossover (conditionally stable loop); the disk margin is then the meaningful figure."""
-    from ident.frf import JointModel
-    from ident.tuning import loop_margins
+    from motiontwin.ident.frf import JointModel
+    from motiontwin.ident.tuning import loop_margins
 
     params = {k: v for k, v in design.items() if k not in ("table2_scale", "Kv", "Ka", "Kj")}
     m = loop_margins(params, JointModel(1.0 / mass, damping / mass), 0)

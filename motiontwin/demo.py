@@ -13,7 +13,7 @@ from pathlib import Path
 import fmpy
 import numpy as np
 
-from fmus import build
+from motiontwin.fmus import build
 
 JOINT = "MotionTwin.Plants.LinearMotorJoint"
 
@@ -32,8 +32,8 @@ def run(out: Path) -> dict[str, float]:
 
 def concealed_friction(out: Path) -> dict[str, float]:
     """Write a concealed Coulomb-friction bundle (6 s + 3 s at 2 kHz) and diagnose it."""
-    from ident import diagnosis
-    from ident.diagnosis import benchmark
+    from motiontwin.ident import diagnosis
+    from motiontwin.ident.diagnosis import benchmark
 
     bundle = out / "bundle" / "coulomb_friction"
     benchmark.write_bundle(bundle, "coulomb_friction", seed=21, durations=(6.0, 3.0))

@@ -1,0 +1,26 @@
+"""``motiontwin compare``: the paper comparison on the coupled 4-DOF plant."""
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+
+def _compare(args: argparse.Namespace) -> int:
+    from motiontwin.comparison import cli_compare
+
+    return cli_compare(args)
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    """Add this module's subcommands to the ``motiontwin`` parser."""
+    p = sub.add_parser("compare", help="Cheung & Hung's point-to-point comparison on the coupled 4-DOF plant: "
+                                       "robust controller vs computed-torque PID, Tables 3/4, Figs. 4-7")
+    p.add_argument("--out", type=Path, required=True, help="output folder (recordings, table.txt/json, figures)")
+    p.add_argument("--design", action="append", default=[], type=Path, metavar="JSON",
+                   help="robust design from 'motiontwin tune --out' (once for all joints, or 4 times: d1 d3 d5 d7)")
+    p.add_argument("--stop-time", type=float, default=0.25, help="[s] run length (default 0.25)")
+    p.add_argument("--ct-pole-hz", type=float, default=20.0, help="computed-torque triple pole [Hz] (default 20)")
+    p.add_argument("--table2-reading", choices=("per-sample", "continuous"), default="per-sample",
+                   help="how Table 2's Kp, Ki, Kd are read (default per-sample: Ki/Ts, Kd*Ts)")
+    p.add_argument("--fmu-dir", type=Path, default=None, help="where to build the FMUs (default: OUT/fmus)")
+    p.set_defaults(func=_compare)

@@ -1,0 +1,21 @@
+"""``motiontwin diagnose``: mismatch diagnosis of a bundle."""
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+
+def _diagnose(args: argparse.Namespace) -> int:
+    from motiontwin.ident import diagnosis
+
+    return diagnosis.run(str(args.bundle), str(args.out), args.quiet)
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    """Add this module's subcommands to the ``motiontwin`` parser."""
+    p = sub.add_parser("diagnose", help="locate and name the physics a recording shows and the model lacks; "
+                                        "refit, rebuild the FMU, validate")
+    p.add_argument("bundle", type=Path, help="bundle folder with experiment.json, plant .mo, train/validation CSV")
+    p.add_argument("--out", type=Path, required=True, help="output folder (diagnosis.json, report.md, FMU, ...)")
+    p.add_argument("--quiet", action="store_true", help="do not print progress")
+    p.set_defaults(func=_diagnose)

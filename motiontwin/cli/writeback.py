@@ -1,0 +1,59 @@
+"""``motiontwin writeback``: write fitted values into a new FMU."""
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+
+def _writeback(args: argparse.Namespace) -> int:
+    import json
+
+    import fmpy
+
+    from motiontwin.fmus import writeback
+    from motiontwin.harness.recording import atomic_write_texts
+
+    values: dict[str, float] = {}
+    provenance: dict[str, object] = {}
+    if args.values:
+        doc = json.loads(args.values.read_text())
+        values = dict(doc.get("parameters", doc))
+        provenance = {k: doc[k] for k in ("method", "recording", "names", "std", "covariance") if k in doc}
+        provenance["values_file"] = str(args.values)
+    for item in args.set:
+        name, sep, value = item.partition("=")
+        if not sep:
+            raise ValueError(f"--set {item!r}: expected NAME=VALUE")
+        values[name] = float(value)
+    for item in args.rename:
+        old, sep, new = item.partition("=")
+        if not sep or old not in values:
+            raise ValueError(f"--rename {item!r}: expected FROM=TO with FROM among {sorted(values)}")
+        values[new] = values.pop(old)
+    values = {k: v for k, v in values.items() if k not in args.drop}
+    if not values:
+        raise ValueError("nothing to write back: give --values FILE and/or --set NAME=VALUE")
+    out = writeback.write_back(args.fmu, values, args.out, provenance)
+    class_name = fmpy.read_model_description(str(out)).modelName
+    modifier = args.modelica_out or args.out.with_suffix(".mo")
+    atomic_write_texts({modifier: writeback.modelica_modifier(class_name, values, provenance),
+                        args.out.with_suffix(".provenance.json"):
+                            json.dumps({"fmu": str(out), "values": values, **provenance}, indent=2) + "\n"})
+    print(out)
+    print(modifier)
+    return 0
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    """Add this module's subcommands to the ``motiontwin`` parser."""
+    p = sub.add_parser("writeback", help="write fitted values into a new FMU's start values (rebuilt binary)")
+    p.add_argument("fmu", type=Path, help="an FMU built by motiontwin (it carries its sources)")
+    p.add_argument("--out", type=Path, required=True, help="the new FMU (never the original)")
+    p.add_argument("--values", type=Path, default=None, help="JSON: {\"parameters\": {...}} as identify writes")
+    p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE", help="a value to write")
+    p.add_argument("--rename", action="append", default=[], metavar="FROM=TO",
+                   help="map an identified parameter name to the FMU's variable name")
+    p.add_argument("--drop", action="append", default=[], metavar="NAME", help="leave this value out")
+    p.add_argument("--modelica-out", type=Path, default=None,
+                   help="Modelica modifier file (default: OUT with suffix .mo)")
+    p.set_defaults(func=_writeback)
