@@ -105,13 +105,23 @@ def build(classes: list[str], modelica: Path | str = MODELICA_DIR, out_dir: Path
           fmi_versions: tuple[str, ...] = FMI_VERSIONS, workers: int | None = None) -> list[BuiltFmu]:
     """Build every class in ``classes`` for every FMI version, one class per process (default: all cores).
 
-    The front end runs first for every class, so a Modelica error stops the build before anything is written.
+    Every class goes through the front end and the compiler in a staging folder beside ``out_dir``; the FMUs
+    move into ``out_dir`` only when all of them built, so a Modelica or compiler error leaves nothing behind.
     """
-    for class_name in classes:
-        load_model(class_name, modelica)
-    jobs = [(c, str(modelica), str(out_dir), tuple(fmi_versions)) for c in classes]
-    workers = min(workers or os.cpu_count() or 1, len(jobs))
-    if workers <= 1:
-        return [fmu for job in jobs for fmu in _build_versions(job)]
-    with ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn")) as pool:
-        return [fmu for fmus in pool.map(_build_versions, jobs) for fmu in fmus]
+    out_dir = Path(out_dir)
+    out_dir.parent.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory(prefix=f".{out_dir.name}-staging-", dir=out_dir.parent) as staging:
+        jobs = [(c, str(modelica), staging, tuple(fmi_versions)) for c in classes]
+        workers = min(workers or os.cpu_count() or 1, len(jobs))
+        if workers <= 1:
+            staged = [fmu for job in jobs for fmu in _build_versions(job)]
+        else:
+            with ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn")) as pool:
+                staged = [fmu for fmus in pool.map(_build_versions, jobs) for fmu in fmus]
+        built = []
+        for fmu in staged:
+            target = out_dir / fmu.path.relative_to(staging)
+            target.parent.mkdir(parents=True, exist_ok=True)
+            os.replace(fmu.path, target)
+            built.append(BuiltFmu(target, fmu.identifier, fmu.fmi_version))
+    return built

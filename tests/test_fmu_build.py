@@ -200,9 +200,14 @@ def test_syntax_error_names_file_line_and_column(tmp_path):
 
 
 def test_failed_build_leaves_nothing_behind(tmp_path):
-    with pytest.raises(ModelicaError):
+    """A class that fails in the front end stops the build: the classes built before it are not written either."""
+    source = Path(__file__).parent / "models" / "FrictionJoint.mo"
+    with pytest.raises(ModelicaError, match="class 'Missing' not found"):
+        build.build(["FrictionJoint", "Missing"], source, tmp_path / "out", workers=1)
+    assert list(tmp_path.iterdir()) == []
+    with pytest.raises(ModelicaError, match=r"Bad\.mo:4:\d+: syntax error"):
         build.build(["Bad"], Path(__file__).parent / "models" / "bad", tmp_path / "out")
-    assert not (tmp_path / "out").exists() or not any((tmp_path / "out").rglob("*.fmu*"))
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_cli_builds_both_versions(tmp_path):
