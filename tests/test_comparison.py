@@ -14,7 +14,8 @@ import fmpy
 import numpy as np
 import pytest
 
-from motiontwin.harness import cli, comparison, kinematics, metrics
+from motiontwin import cli, comparison
+from motiontwin.harness import kinematics, metrics
 from motiontwin.harness.recording import read_recording
 
 STOP = 0.2
