@@ -25,8 +25,10 @@ solved by IPOPT on the same step function; it can pay off for unstable plants, w
 start diverges.
 
 Parameter statistics: covariance = s^2 (J^T J)^-1 with J the weighted residual Jacobian at the optimum and
-s^2 = weighted RSS / (rows - free parameters); exact for white output noise in open loop, approximate in
-closed loop (the residual there is coloured by the loop).
+s^2 = weighted RSS / (rows - free parameters); exact for white output noise in open loop, too small when the
+residual is coloured (closed loop, model error, filtered noise). ``robust_covariance`` of the statistics is
+the HAC sandwich (J^T J)^-1 S (J^T J)^-1 with S the Newey-West long-run covariance of the per-sample scores
+(:func:`ident.leastsquares.hac_covariance`), which holds for coloured residuals; both are printed.
 
 Units: SI (s, m, N), those of the Modelica model.
 """
@@ -47,7 +49,8 @@ from motiontwin.fmus import symbolic
 from motiontwin.harness.recording import Recording
 from motiontwin.ident import chain as native_chain
 from motiontwin.ident.controller import Controller
-from motiontwin.ident.leastsquares import LeastSquaresResult, UnidentifiableError, check_identifiability
+from motiontwin.ident.leastsquares import (LeastSquaresResult, UnidentifiableError, check_identifiability,
+                                          hac_covariance)
 
 __all__ = ["Signals", "Loop", "Weights", "Fit", "OutputErrorResult", "build_loop", "default_bounds",
            "simulate", "residuals", "fit", "statistics", "identify", "cli_identify_oe", "bound_arrays",
@@ -375,6 +378,7 @@ class Fit:
     success: bool
     nfev: int = 0                # residual evaluations (free runs) of the optimiser
     initial: dict[str, float] = field(default_factory=dict)   # estimated initial plant states
+    residual: np.ndarray | None = None   # weighted residual at the optimum, rows as ``jacobian`` (for the HAC std)
 
 
 @dataclass
@@ -513,11 +517,12 @@ def fit(loop: Loop, rec: Recording, weights: Weights, bounds: dict[str, tuple[fl
     j = jac(xs) / scale if xs.size else np.zeros((r.size, 0))
     cost = float(r @ r) if np.all(np.isfinite(r)) else math.inf
     rms = float(np.sqrt(np.mean((qm - q) ** 2))) if np.all(np.isfinite(q)) else math.inf
-    return Fit(final, cost, rms, q, u, j, success, nfev, initial)
+    return Fit(final, cost, rms, q, u, j, success, nfev, initial, r)
 
 
 def statistics(loop: Loop, result: Fit) -> LeastSquaresResult:
-    """Estimate, covariance s^2 (J^T J)^-1, std and correlation of the free parameters at the optimum.
+    """Estimate, covariance s^2 (J^T J)^-1, std and correlation of the free parameters at the optimum, and the
+    HAC (Newey-West) sandwich covariance that holds for coloured residuals (closed loop, model error).
 
     Raises :class:`ident.leastsquares.UnidentifiableError` naming the parameters the recording does not
     determine (a rank-deficient Jacobian)."""
@@ -533,8 +538,15 @@ def statistics(loop: Loop, result: Fit) -> LeastSquaresResult:
     n_th = len(loop.free)
     cov = (np.linalg.inv(jn.T @ jn) / np.outer(col, col) * factor)[:n_th, :n_th]
     sv = np.linalg.svd(j[:, :n_th], compute_uv=False)
+    robust, lags = None, None
+    if result.residual is not None and np.all(np.isfinite(result.residual)):
+        channels = j.shape[0] // loop.n_samples   # rows are channel-major: output samples, then force samples
+        by_sample = j.reshape(channels, loop.n_samples, -1).transpose(1, 0, 2).reshape(j.shape)
+        residual = np.asarray(result.residual).reshape(channels, loop.n_samples).T.ravel()
+        full, lags = hac_covariance(by_sample, residual, rows_per_sample=channels)
+        robust = full[:n_th, :n_th]
     return LeastSquaresResult(loop.theta(result.values), cov, list(loop.free), result.cost, dof, False,
-                              float(sv[0] / sv[-1]))
+                              float(sv[0] / sv[-1]), robust, lags)
 
 
 @dataclass
@@ -637,6 +649,8 @@ def cli_identify_oe(args) -> int:
         doc = {"method": method, "recording": str(args.recording), "modelica": str(args.modelica),
                "class": args.class_name, "parameters": stats.as_dict(),
                "std": dict(zip(stats.names, stats.std.tolist())), "names": stats.names,
+               "std_hac": {n: (float(v) if np.isfinite(v) else None) for n, v in zip(stats.names, stats.robust_std)},
+               "hac_lags": stats.robust_lags,
                "covariance": stats.covariance.tolist(), "correlation_condition": stats.correlation_condition,
                "rms_output_error": result.fit.rms_q, "converged": result.fit.success}
         atomic_write_texts({Path(args.out): json.dumps(doc, indent=2) + "\n"})

@@ -17,6 +17,7 @@ def _report_fit(fit: object, args: argparse.Namespace, method: str) -> int:
     if args.out:
         doc = {"method": method, "recording": str(args.recording), "parameters": fit.as_dict(),
                "std": dict(zip(fit.names, fit.std.tolist())), "names": fit.names,
+               "std_hac": dict(zip(fit.names, fit.robust_std.tolist())), "hac_lags": fit.robust_lags,
                "covariance": fit.covariance.tolist(), "correlation_condition": fit.correlation_condition}
         recording.atomic_write_texts({args.out: json.dumps(doc, indent=2) + "\n"})
         print(args.out)
@@ -28,18 +29,22 @@ def _joint_document(fit: object, method: str, source: Path) -> dict[str, object]
     names of MotionTwin.Effects.JointBase-style axes (m, d, Fc, F0) for a prismatic one; regressor estimates beside."""
     from motiontwin.ident.joint import prismatic_axis_parameters, serial_joint_parameters
 
-    if "g_sin" in fit.names:
-        names, estimate, covariance = serial_joint_parameters(fit)
-        plant = "MotionTwin.Plants.SerialRobotJoint"
-    else:
-        names, estimate, covariance = prismatic_axis_parameters(fit)
-        plant = "MotionTwin.Plants.PrismaticAxis"
+    import dataclasses
+
+    convert = serial_joint_parameters if "g_sin" in fit.names else prismatic_axis_parameters
+    plant = "MotionTwin.Plants.SerialRobotJoint" if "g_sin" in fit.names else "MotionTwin.Plants.PrismaticAxis"
+    names, estimate, covariance = convert(fit)
     std = np.sqrt(np.diag(covariance))
-    return {"method": method, "recording": str(source), "class": plant,
-            "parameters": dict(zip(names, estimate.tolist())), "std": dict(zip(names, std.tolist())),
-            "names": names, "covariance": covariance.tolist(),
-            "regressor_parameters": fit.as_dict(), "regressor_std": dict(zip(fit.names, fit.std.tolist())),
-            "correlation_condition": fit.correlation_condition}
+    doc = {"method": method, "recording": str(source), "class": plant,
+           "parameters": dict(zip(names, estimate.tolist())), "std": dict(zip(names, std.tolist())),
+           "names": names, "covariance": covariance.tolist(),
+           "regressor_parameters": fit.as_dict(), "regressor_std": dict(zip(fit.names, fit.std.tolist())),
+           "correlation_condition": fit.correlation_condition}
+    if fit.robust_covariance is not None:
+        robust = convert(dataclasses.replace(fit, covariance=fit.robust_covariance))[2]
+        doc.update({"std_hac": dict(zip(names, np.sqrt(np.diag(robust)).tolist())), "hac_lags": fit.robust_lags,
+                    "regressor_std_hac": dict(zip(fit.names, fit.robust_std.tolist()))})
+    return doc
 
 
 def _identify_joint_ml(args: argparse.Namespace) -> int:
