@@ -54,7 +54,7 @@ from motiontwin.ident.leastsquares import (LeastSquaresResult, UnidentifiableErr
 
 __all__ = ["Signals", "Loop", "Weights", "Fit", "OutputErrorResult", "build_loop", "default_bounds",
            "simulate", "residuals", "fit", "statistics", "identify", "cli_identify_oe", "bound_arrays",
-           "state_indices", "weighted_jacobian"]
+           "state_indices", "weighted_jacobian", "output_state", "initial_motion_states"]
 
 
 _LOG = logging.getLogger(__name__)
@@ -157,6 +157,27 @@ def _output_expression(model: symbolic.SymbolicModel, name: str) -> ca.SX:
         raise KeyError(f"{model.flat.source}: class {model.name} has no state or output {name!r}; "
                        f"outputs: {', '.join(outputs)}; states: {', '.join(states)}")
     return found[0]
+
+
+def output_state(model: symbolic.SymbolicModel, name: str) -> str | None:
+    """The plant state that output ``name`` is (the state itself, or an output equation ``q = x``), or None."""
+    states = [v.name for v in model.states]
+    if name in states:
+        return name
+    expr = _output_expression(model, name)
+    return next((s for i, s in enumerate(states) if ca.is_equal(expr, model.x[i], 2)), None)
+
+
+def initial_motion_states(model: symbolic.SymbolicModel, output: str) -> list[str]:
+    """The states that fix where a recording starts: the output's state and, when its derivative is a state
+    (der(x) = v), that velocity state too, so a loop already moving at t = 0 is not forced to start at rest."""
+    position = output_state(model, output)
+    if position is None:
+        return []
+    states = [v.name for v in model.states]
+    rate = model.dx[states.index(position)]
+    velocity = next((s for i, s in enumerate(states) if s != position and ca.is_equal(rate, model.x[i], 2)), None)
+    return [position] + ([velocity] if velocity else [])
 
 
 def build_loop(model: symbolic.SymbolicModel, controller: Controller | None, position_state: str, free: list[str],
@@ -314,7 +335,7 @@ def _column(rec: Recording, name: str, optional: bool = False) -> np.ndarray:
 
 def initial_state(loop: Loop, rec: Recording, values: dict[str, float] | None = None,
                   initial: dict[str, float] | None = None) -> np.ndarray:
-    """Start from the first recorded sample at rest: the output state (when the output is a state) = q_0,
+    """Start from the first recorded sample at rest: the output's state (the output, or the state it equals) = q_0,
     other plant states at their start values, tracked states at q_0 or u_0, states in ``initial`` at those
     values, and in closed loop the controller state giving the recorded force u_0 (least-norm solution of
     C z = u_0 - u_ext_0 - D y_0)."""
@@ -324,8 +345,9 @@ def initial_state(loop: Loop, rec: Recording, values: dict[str, float] | None = 
     x0 = np.array(ca.Function("x0", [model.p], [model.x0()])(p)).ravel()
     names = [v.name for v in model.states]
     q_rec = _column(rec, sig.output)
-    if loop.position_state in names:
-        x0[names.index(loop.position_state)] = q_rec[0]
+    position = output_state(model, loop.position_state)
+    if position is not None:
+        x0[names.index(position)] = q_rec[0]
     for state, signal in loop.tracking.items():
         x0[names.index(state)] = q_rec[0] if signal == "q" else _column(rec, sig.input)[0]
     for state, value in (initial or {}).items():
@@ -575,7 +597,8 @@ def identify(model: symbolic.SymbolicModel, rec: Recording, free: list[str], con
 
     The recording must be sampled uniformly (at the controller period in closed loop). Each channel is
     weighted by the RMS of its residual after a first fit, then the fit is repeated. ``estimate_initial``:
-    plant states whose initial value is estimated too (default: the output, when it is a state).
+    plant states whose initial value is estimated too (default: :func:`initial_motion_states`, the output's state
+    and its velocity).
     ``shooting``: "single" (:func:`fit`, ``max_nfev`` free runs per fit) or "multiple"
     (:func:`ident.multipleshooting.fit` over ``segments`` segments, IPOPT)."""
     if not free:
@@ -603,7 +626,7 @@ def identify(model: symbolic.SymbolicModel, rec: Recording, free: list[str], con
     qm = rec[signals.output]
     weights = Weights(_rms_weight(qm - q0), _rms_weight(rec[signals.input] - u0) if loop.closed else 1.0)
     if estimate_initial is None:
-        estimate_initial = [signals.output] if signals.output in [v.name for v in model.states] else []
+        estimate_initial = initial_motion_states(model, signals.output)
     if shooting == "multiple":
         from motiontwin.ident import multipleshooting
 

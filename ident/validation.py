@@ -5,8 +5,8 @@ A fitted model (a Modelica class with parameter values: the JSON ``identify oe -
 ``writeback``/``diagnose``, whose modelName and start values give the class and values, or a class with
 ``--set`` values) is re-simulated along the recording with the output-error free run of :mod:`ident.outputerror`
 (same equations, same RK4 chain): open loop from the measured input, or closed loop with the sampled controller.
-Only the initial value of the output state is estimated (as SITB's ``compare`` estimates initial conditions);
-no parameter is changed.
+Only the initial position and velocity of the plant are estimated (as SITB's ``compare`` estimates initial
+conditions; :func:`ident.outputerror.initial_motion_states`); no parameter is changed.
 
 Measures (e = measured - simulated output, N samples):
 
@@ -226,7 +226,7 @@ def validate(model: symbolic.SymbolicModel, spec: ModelSpec, rec: Recording, *, 
     controller : closed loop when given (the recording then needs the reference column).
     signals : recording column names.
     lags : correlation lags M.
-    estimate_initial : estimate the initial value of the output state (else start at the first sample).
+    estimate_initial : estimate the initial position and velocity (else start at the first sample, at rest).
 
     Returns
     -------
@@ -248,13 +248,10 @@ def validate(model: symbolic.SymbolicModel, spec: ModelSpec, rec: Recording, *, 
         i = int(bad[0])
         raise ValueError(f"recording row {i + 3}, column 'time': step {steps[i]!r} s differs from the sample period "
                          f"{ts} s (the re-simulation needs uniform sampling)")
-    states = [v.name for v in model.states]
-    output_state = signals.output if signals.output in states else next(
-        (s for s in states if s in ("x", "q")), None)
     loop = oe.build_loop(model, controller, signals.output, [], dict(spec.values), rec.time.size, ts=ts,
                          signals=signals, input_name=signals.input if signals.input in
                          [v.name for v in model.inputs] else None)
-    estimated = [output_state] if estimate_initial and output_state else []
+    estimated = oe.initial_motion_states(model, signals.output) if estimate_initial else []
     q0, u0 = oe.simulate(loop, rec)
     scale_q = oe._rms_weight(rec[signals.output] - q0)
     # the output alone decides the initial state: the force channel (closed loop) is weighted down by 1e6

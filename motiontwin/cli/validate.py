@@ -58,8 +58,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                        description="MODEL is a values JSON (identify oe --out), an FMU (writeback, diagnose: "
                                    "modelName and parameter start values), or '-' with --class. The model is "
                                    "re-simulated with the output-error free run (ident.outputerror), open loop from "
-                                   "the measured input or closed loop with --controller; only the initial output "
-                                   "state is estimated. See ident/validation.py for the tests.")
+                                   "the measured input or closed loop with --controller; only the initial position "
+                                   "and velocity are estimated. See ident/validation.py for the tests.")
     p.add_argument("model", help="values JSON, FMU, or '-' (then --class)")
     p.add_argument("recording", type=Path, help="recording CSV, uniformly sampled (a different one than fitted on)")
     p.add_argument("--class", dest="class_name", default=None, help="Modelica class (default: the model file's)")
@@ -73,7 +73,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--reference", default="r", help="reference column in closed loop (default r)")
     p.add_argument("--lags", type=int, default=25, help="correlation lags M (default 25, as SITB resid)")
     p.add_argument("--initial-from-data", action="store_true",
-                   help="start at the first sample instead of estimating the initial output state")
+                   help="start at the first sample at rest instead of estimating the initial position "
+                        "and velocity")
     p.add_argument("--out", type=Path, default=None, help="JSON with fit %%, RMS and both tests")
     p.add_argument("--plot", type=Path, default=None, help="PNG: compare plot and the two correlation plots")
     p.set_defaults(func=_validate)
