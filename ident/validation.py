@@ -281,8 +281,8 @@ def validation_document(result: Validation, recording_path: str) -> dict[str, An
 
 
 def plot_validation(result: Validation, path: Path) -> Path:
-    """Three panels: measured vs simulated output (compare), residual autocorrelation and input-residual
-    cross-correlation with their 99 % bands (resid). Written atomically (temporary file, then rename)."""
+    """Four panels: measured vs simulated output (compare), the residual over time, residual autocorrelation
+    and input-residual cross-correlation with their 99 % bands (resid). Written atomically (temporary file, then rename)."""
     import os
     import tempfile
 
@@ -291,20 +291,26 @@ def plot_validation(result: Validation, path: Path) -> Path:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(3, 1, figsize=(8, 9))
+    fig, axes = plt.subplots(4, 1, figsize=(8, 11))
     ax = axes[0]
     ax.plot(result.time, result.measured, label=f"measured {result.output}", lw=1)
-    ax.plot(result.time, result.simulated, "--", label=f"simulated (fit {result.fit_percent:.2f} %)", lw=1)
+    ax.plot(result.time, result.simulated, "--", label=f"simulated (fit {result.fit_percent:.3f} %)", lw=1)
     ax.set_xlabel("time [s]")
     ax.set_ylabel(f"{result.output} [m]")
     ax.legend(loc="best")
     ax.set_title(f"{result.spec.class_name}: RMS error {result.rms:.3g} m")
-    for ax, test, title in ((axes[1], result.autocorrelation, "residual autocorrelation"),
-                            (axes[2], result.cross_correlation, f"cross-correlation {result.input} -> residual")):
+    ax = axes[1]
+    ax.plot(result.time, 1e6 * result.residual, lw=0.7)
+    ax.set_xlabel("time [s]")
+    ax.set_ylabel("measured - simulated [um]")
+    ax.set_title("output residual")
+    for ax, test, title, measure in (
+            (axes[2], result.autocorrelation, "residual autocorrelation", "Q"),
+            (axes[3], result.cross_correlation, f"cross-correlation {result.input} -> residual", "max |r|/sigma")):
         ax.stem(test.lags, test.values, basefmt=" ")
         ax.axhspan(-test.band, test.band, color="tab:blue", alpha=0.15, label="99 % band")
         verdict = "passed" if test.passed else "failed"
-        ax.set_title(f"{title}: Q = {test.statistic:.1f}, 99 % limit {test.threshold:.1f} ({verdict})")
+        ax.set_title(f"{title}: {measure} = {test.statistic:.3g}, 99 % limit {test.threshold:.3g} ({verdict})")
         ax.set_xlabel("lag [samples]")
         ax.legend(loc="upper right")
     fig.tight_layout()
