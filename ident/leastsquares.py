@@ -230,57 +230,61 @@ def andrews_bandwidth(scores: np.ndarray) -> float:
     """
     v = np.asarray(scores, dtype=float)
     v = v[:, None] if v.ndim == 1 else v
-    n = v.shape[0]
-    numerator = denominator = 0.0
-    for column in v.T:
-        x0, x1 = column[:-1], column[1:]
-        ss = float(x0 @ x0)
-        if ss <= 0:
-            continue
-        rho = min(max(float(x0 @ x1) / ss, -0.97), 0.97)
-        s2 = float(np.mean((x1 - rho * x0) ** 2))
-        numerator += 4 * rho**2 * s2**2 / ((1 - rho) ** 6 * (1 + rho) ** 2)
-        denominator += s2**2 / (1 - rho) ** 4
-    alpha = numerator / denominator if denominator > 0 else 0.0
-    return 1.1447 * (alpha * n) ** (1 / 3)
+    x0, x1 = v[:-1], v[1:]
+    ss = np.einsum("ij,ij->j", x0, x0)
+    used = ss > 0
+    if not np.any(used):
+        return 0.0
+    rho = np.clip(np.einsum("ij,ij->j", x0, x1)[used] / ss[used], -0.97, 0.97)
+    s2 = np.mean((x1[:, used] - rho * x0[:, used]) ** 2, axis=0)
+    denominator = float(np.sum(s2**2 / (1 - rho) ** 4))
+    alpha = float(np.sum(4 * rho**2 * s2**2 / ((1 - rho) ** 6 * (1 + rho) ** 2))) / denominator
+    return 1.1447 * (alpha * v.shape[0]) ** (1 / 3)
 
 
 def hac_covariance(regressor: np.ndarray, residual: np.ndarray, *, lags: int | None = None,
-                   rows_per_sample: int = 1) -> tuple[np.ndarray, int]:
+                   rows_per_sample: int = 1, bread: np.ndarray | None = None) -> tuple[np.ndarray, int]:
     """Newey-West HAC sandwich covariance of a least-squares estimate, and the bandwidth used.
 
     Parameters
     ----------
     regressor : (rows, parameters) whitened regressor (or residual Jacobian) Psi at the estimate.
     residual : (rows,) whitened residual e at the estimate.
-    lags : Bartlett bandwidth [samples]; None: Andrews' AR(1) plug-in (:func:`andrews_bandwidth`).
+    lags : Bartlett bandwidth L [samples]; None: Andrews' AR(1) plug-in (:func:`andrews_bandwidth`).
     rows_per_sample : channels stacked sample-major per time sample (their scores are summed per sample).
-        For channel-major stacking (all of channel 1, then channel 2, ...) pass the channels' blocks summed
-        by the caller instead.
+    bread : (Psi^T Psi)^-1 if the caller has it (computed here otherwise).
 
     Returns
     -------
     (covariance, lags): (Psi^T Psi)^-1 S (Psi^T Psi)^-1 with S = G_0 + sum_{l=1}^{L} (1 - l/(L+1)) (G_l + G_l^T),
     G_l = sum_k g_k g_{k-l}^T, g_k = Psi_k^T e_k; it is consistent for residuals correlated over time.
+    S is computed as sum_t h_t h_t^T / (L+1) with the moving sums h_t = g_t + ... + g_{t-L} over the zero-padded
+    scores, which is the Bartlett sum exactly (the kernel is the autocorrelation of a box of L+1 ones), at the
+    cost of one product instead of L.
     """
     psi = np.asarray(regressor, dtype=float)
     e = np.asarray(residual, dtype=float).reshape(-1)
     if psi.ndim != 2 or psi.shape[0] != e.size:
         raise ValueError(f"regressor {psi.shape} and residual {e.shape} do not match")
-    scores = (psi * e[:, None])
+    scores = psi * e[:, None]
     if rows_per_sample > 1:
         scores = scores.reshape(-1, rows_per_sample, psi.shape[1]).sum(axis=1)
     n = scores.shape[0]
     if lags is None:
         lags = int(np.floor(andrews_bandwidth(scores)))
     lags = int(min(max(lags, 0), n - 1))
-    long_run = scores.T @ scores
-    for lag in range(1, lags + 1):
-        gamma = scores[lag:].T @ scores[:-lag]
-        long_run += (1.0 - lag / (lags + 1.0)) * (gamma + gamma.T)
-    col = np.linalg.norm(psi, axis=0)
-    col = np.where(col > 0, col, 1.0)
-    bread = np.linalg.inv((psi / col).T @ (psi / col)) / np.outer(col, col)
+    if lags:
+        padded = np.vstack([np.zeros((1, scores.shape[1])), scores, np.zeros((lags, scores.shape[1]))])
+        cumulative = np.cumsum(padded, axis=0)
+        ends = np.arange(1, n + lags + 1)
+        moving = cumulative[ends] - cumulative[np.maximum(ends - lags - 1, 0)]
+        long_run = moving.T @ moving / (lags + 1)
+    else:
+        long_run = scores.T @ scores
+    if bread is None:
+        col = np.linalg.norm(psi, axis=0)
+        col = np.where(col > 0, col, 1.0)
+        bread = np.linalg.inv((psi / col).T @ (psi / col)) / np.outer(col, col)
     return bread @ long_run @ bread, lags
 
 
@@ -376,7 +380,8 @@ def gauss_markov(
     gram_eig = np.linalg.eigvalsh(psi.T @ psi)
     regressor_condition = float(np.sqrt(gram_eig[-1] / gram_eig[0])) if gram_eig[0] > 0 else float("inf")
     rows_per_sample = 1 if channel_covariance is None else np.atleast_2d(channel_covariance).shape[0]
-    robust, lags = hac_covariance(psi_w, gamma_w - psi_w @ estimate, rows_per_sample=rows_per_sample)
+    robust, lags = hac_covariance(psi_w, gamma_w - psi_w @ estimate, rows_per_sample=rows_per_sample,
+                                  bread=unscaled_cov)
     return LeastSquaresResult(
         estimate, covariance, labels, rss, dof, noise_known, regressor_condition, robust, lags
     )

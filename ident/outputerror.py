@@ -558,14 +558,15 @@ def statistics(loop: Loop, result: Fit) -> LeastSquaresResult:
     col = np.linalg.norm(j, axis=0)
     jn = j / col
     n_th = len(loop.free)
-    cov = (np.linalg.inv(jn.T @ jn) / np.outer(col, col) * factor)[:n_th, :n_th]
+    bread = np.linalg.inv(jn.T @ jn) / np.outer(col, col)
+    cov = (bread * factor)[:n_th, :n_th]
     sv = np.linalg.svd(j[:, :n_th], compute_uv=False)
     robust, lags = None, None
     if result.residual is not None and np.all(np.isfinite(result.residual)):
         channels = j.shape[0] // loop.n_samples   # rows are channel-major: output samples, then force samples
         by_sample = j.reshape(channels, loop.n_samples, -1).transpose(1, 0, 2).reshape(j.shape)
         residual = np.asarray(result.residual).reshape(channels, loop.n_samples).T.ravel()
-        full, lags = hac_covariance(by_sample, residual, rows_per_sample=channels)
+        full, lags = hac_covariance(by_sample, residual, rows_per_sample=channels, bread=bread)
         robust = full[:n_th, :n_th]
     return LeastSquaresResult(loop.theta(result.values), cov, list(loop.free), result.cost, dof, False,
                               float(sv[0] / sv[-1]), robust, lags)
