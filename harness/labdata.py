@@ -6,7 +6,8 @@ before the header are skipped), and writes ``NAME.csv`` + ``NAME.json`` through 
 
 * **columns**: ``mapping`` recording name -> source name (``{"q": "pos_enc"}``); struct fields of a .mat and
   datasets in HDF5 groups are named by their path (``run1.pos``, ``/group/pos``), matrix columns by a 1-based
-  MATLAB index (``data(:,2)``). Without a mapping every vector of the time's length is imported.
+  MATLAB index (``data(:,2)``). Without a mapping every vector of the time's length is imported, under its name
+  made CSV-safe (``data(:,2)`` -> ``data_2``, ``/group/pos`` -> ``group_pos``).
 * **units and gains**: ``units`` gives the recorded unit of a source column (``{"u": "V"}``), ``gains`` a
   factor with its unit (``{"u": "40 N/V"}``): the column is multiplied by the gain and gets the gain's
   numerator unit; then time, positions and forces in other scales (ms, mm, deg, kN, ...) are converted to SI
@@ -250,7 +251,8 @@ def _converted(source: LabSource, name: str, target: str, values: np.ndarray, ra
         elif raw is None:
             raw = denominator
             info["raw_unit"] = raw
-        elif not units_compatible(raw, denominator) or (raw != denominator and si_scale(raw) is None):
+            notes.append(f"{where}: recorded unit taken from the gain: {raw}")
+        elif not units_compatible(raw, denominator):
             raise ValueError(f"gain of {target!r}: {gain!r} converts from {denominator}, but the column is "
                              f"recorded in {raw} (--unit {target}={raw})")
         values = values * value
@@ -270,6 +272,11 @@ def _converted(source: LabSource, name: str, target: str, values: np.ndarray, ra
     elif unit and scale is None:
         notes.append(f"{where} -> {target}: unit {unit!r} kept (no SI conversion known; give a gain to convert it)")
     return values, unit, info
+
+
+def _column_name(source_name: str) -> str:
+    """A CSV-safe recording column name for a source path (``data(:,2)`` -> ``data_2``, ``/axis/pos`` -> ``axis_pos``)."""
+    return re.sub(r"[^A-Za-z0-9_.]+", "_", source_name).strip("_") or "column"
 
 
 def _check_finite(source: LabSource, name: str, values: np.ndarray) -> None:
@@ -314,7 +321,7 @@ def import_lab_file(path: str | Path, *, mapping: dict[str, str] | None = None, 
         raise RecordingError(f"{source.path}: no time vector {TIME_NAMES[0]!r} or {TIME_NAMES[1]!r}; name it "
                              f"(--time NAME); vectors are {list(source.vectors)}")
     t_raw = source.get(time_name)
-    mapping = dict(mapping) if mapping else {n: n for n, v in source.vectors.items()
+    mapping = dict(mapping) if mapping else {_column_name(n): n for n, v in source.vectors.items()
                                              if n != time_name and v.size == t_raw.size}
     unknown = [k for k in [*units, *gains] if k not in mapping and k != "time"]
     if unknown:

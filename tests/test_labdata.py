@@ -101,6 +101,9 @@ def test_hdf5_and_matlab_v73(tmp_path):
     rec = labdata.import_lab_file(mat, mapping={"q": "data(:,1)", "u": "data(:,2)"}, units={"q": "mm"}).recording
     np.testing.assert_allclose(rec["q"], pos_mm * 1e-3, rtol=1e-15)
     np.testing.assert_array_equal(rec["u"], cmd_v)
+    everything = labdata.import_lab_file(mat).recording          # no mapping: CSV-safe source names
+    assert everything.names == ["time", "data_1", "data_2"]
+    np.testing.assert_array_equal(everything["data_2"], cmd_v)
 
 
 def test_resampling_only_on_request_and_stated(tmp_path):
