@@ -173,11 +173,16 @@ def identify_joint_ml_recording(
     ``cutoff_frequency`` is the start value: a Gauss-Markov fit there (ident.joint) gives the samples used
     (|qd| > ``min_speed``) and the torque noise variance; the position noise variance comes from the spread
     between periods. f_c is then estimated within ``cutoff_range`` (default cutoff/2 .. 2 cutoff, capped
-    below Nyquist). Only the asymmetric friction model of ident.joint is supported. Returns the result and
-    the notes on unit conversions; raises ident.units.UnitError naming the column.
+    below Nyquist). Only the revolute model of ident.joint (asymmetric friction, sine gravity) is supported, so a
+    linear axis (positions in m) is refused. The record is cut to whole periods (ident.joint.periodic_record).
+    Returns the result and the notes on unit conversions; raises ident.units.UnitError naming the column.
     """
     data = periodic_record(rec, fundamental_frequency, position=position, force=force, source=source)
     columns, fs = data.columns, data.sample_rate
+    if not columns.rotary(position):
+        raise ValueError(f"{source}: column {position!r} is a linear position ({columns.units[position]}); the "
+                         "maximum-likelihood fit models a revolute joint (sine gravity, asymmetric friction), "
+                         "meaningless on a linear axis: identify without --ml (constant force, symmetric friction)")
     nyquist = 0.5 * fs
     low, high = cutoff_range if cutoff_range is not None else (0.5 * cutoff_frequency, 2.0 * cutoff_frequency)
     high = min(high, nyquist - fundamental_frequency)

@@ -12,6 +12,7 @@ import pytest
 from motiontwin.cli import main
 from motiontwin.harness import recording
 from motiontwin.ident.joint import identify_joint_recording
+from motiontwin.ident.ml import identify_joint_ml_recording
 from motiontwin.ident.trajectory import fourier_trajectory
 
 TRUTH = {"m": 95.0, "d": 60.0, "Fc": 20.6, "F0": -3.2}
@@ -70,6 +71,8 @@ def test_record_problems_are_one_message(tmp_path, capsys):
         short = lab_axis()
         identify_joint_recording(recording.make_recording(short.time[:2400], {k: v[:2400] for k, v in
                                                                               short.columns.items()}), F0, 10.0)
+    with pytest.raises(ValueError, match=r"linear position \(m\); the maximum-likelihood fit models a revolute"):
+        identify_joint_ml_recording(lab_axis(), F0, 10.0)
     with pytest.raises(SystemExit):
         main(["identify", "joint", "--help"])
     text = capsys.readouterr().out
