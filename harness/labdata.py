@@ -28,7 +28,6 @@ jitter and trimming under ``metadata.import``.
 from __future__ import annotations
 
 import csv
-import io
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
