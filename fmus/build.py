@@ -74,8 +74,14 @@ def build_fmu(model: symbolic.SymbolicModel, out_dir: Path | str = DEFAULT_OUT, 
 
 
 def load_model(class_name: str, modelica: Path | str = MODELICA_DIR,
-               libraries: tuple[Path, ...] = ()) -> symbolic.SymbolicModel:
-    """Front end + symbolic model of one class (what identification uses too)."""
+               libraries: tuple[Path, ...] | None = None) -> symbolic.SymbolicModel:
+    """Front end + symbolic model of one class (what identification uses too).
+
+    ``libraries`` default: the project's Modelica library when ``modelica`` lies outside it, so that a file of
+    one's own (or the ``OUT.mo`` that writeback writes) may extend ``MotionTwin.*`` classes."""
+    if libraries is None:
+        source, library = Path(modelica).resolve(), Path(MODELICA_DIR).resolve()
+        libraries = () if source == library or library in source.parents else (Path(MODELICA_DIR),)
     return symbolic.build(frontend.load(modelica, class_name, libraries))
 
 

@@ -9,6 +9,8 @@ from __future__ import annotations
 import re
 from typing import Any
 
+import numpy as np
+
 _DERIVED_SI = {
     "N": {"kg": 1, "m": 1, "s": -2},
     "J": {"kg": 1, "m": 2, "s": -2},
@@ -17,6 +19,35 @@ _DERIVED_SI = {
     "Hz": {"s": -1},
 }
 _FACTOR = re.compile(r"^([A-Za-z_]+)(-?\d+)?$")
+
+#: quantity -> unit string -> (SI unit, factor to SI). Spellings follow Modelica ("N.m", "um").
+SCALES: dict[str, dict[str, tuple[str, float]]] = {
+    "time": {"s": ("s", 1.0), "ms": ("s", 1e-3), "us": ("s", 1e-6)},
+    "position": {
+        "m": ("m", 1.0), "mm": ("m", 1e-3), "um": ("m", 1e-6), "nm": ("m", 1e-9),
+        "rad": ("rad", 1.0), "mrad": ("rad", 1e-3), "urad": ("rad", 1e-6), "deg": ("rad", np.pi / 180),
+    },
+    "length": {"m": ("m", 1.0), "mm": ("m", 1e-3), "um": ("m", 1e-6), "nm": ("m", 1e-9)},
+    "force": {
+        "N": ("N", 1.0), "kN": ("N", 1e3), "mN": ("N", 1e-3),
+        "N.m": ("N.m", 1.0), "Nm": ("N.m", 1.0), "kN.m": ("N.m", 1e3), "mN.m": ("N.m", 1e-3),
+    },
+}
+
+
+def si_scale(unit: str) -> tuple[str, float] | None:
+    """(SI unit, factor to SI) of a time, position or force unit of :data:`SCALES`, or of a rate of one
+    (``"mm/s"`` -> ``("m/s", 1e-3)``, ``"deg/s2"``); None when the unit is not one of these."""
+    unit = unit.strip()
+    for table in SCALES.values():
+        if unit in table:
+            return table[unit]
+    head, slash, tail = unit.partition("/")
+    if slash and tail in ("s", "s2"):
+        base = si_scale(head)
+        if base is not None and base[0] != "s":
+            return f"{base[0]}/{tail}", base[1]
+    return None
 
 
 def canonical_unit(unit: str) -> tuple[tuple[str, int], ...] | None:

@@ -10,20 +10,38 @@ Eq. 2 prints "+ beta_c-" for qd < 0; Table 2 lists positive Coulomb values for b
 Coulomb torque is read as opposing the motion (- fc_neg), which makes fc_neg > 0 physically.
 For one joint moved alone J, g_sin, g_cos and the friction coefficients are already base parameters.
 
-Units: q [rad], qd [rad/s], qdd [rad/s^2], tau [N m], J [kg m^2], g_* [N m], fv_* [N m s/rad], fc_* [N m].
+A prismatic axis (positions in m, forces in N) has no sine gravity: ``gravity="constant"`` models a constant
+force F0 instead (the weight on a vertical or inclined axis, a cable or hose preload, a force-sensor or
+amplifier offset): tau = m*qdd + F0 + f(qd). With a constant force, asymmetric Coulomb friction is not
+identifiable (fc_pos - fc_neg and F0 enter the data the same way while moving), so the prismatic default is
+symmetric friction plus the constant force; its equivalent asymmetric levels are fc_pos = fc + F0 and
+fc_neg = fc - F0. Sine gravity on metres is the reason the revolute default gives meaningless values on a
+linear axis: over a stroke of a few cm, cos(q) is a constant to within q^2/2 and so nearly collinear with the
+two Coulomb columns, and sin(q) ~ q acts as a spring.
+
+Units: q [rad], qd [rad/s], qdd [rad/s^2], tau [N m], J [kg m^2], g_* [N m], fv_* [N m s/rad], fc_* [N m];
+prismatic: m, m/s, m/s^2, N, kg, F0 [N], fv [N s/m], fc [N].
 """
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
 
+from motiontwin.harness.labdata import jitter_report
+from motiontwin.harness.recording import SAMPLE_TIME_TOLERANCE
 from motiontwin.ident.leastsquares import LeastSquaresResult, gauss_markov
 from motiontwin.ident.signals import lowpass_differentiate, period_average, samples_per_period
 from motiontwin.ident.units import check_inertia, check_motion, checked_columns
 
 __all__ = [
     "FRICTION_MODELS",
+    "GRAVITY_MODELS",
+    "PERIOD_RTOL",
+    "PeriodicRecord",
+    "periodic_record",
+    "default_model",
     "joint_parameter_names",
     "joint_regressor",
     "joint_torque",
@@ -35,9 +53,12 @@ __all__ = [
     "compare_friction_models",
     "identify_joint_recording",
     "serial_joint_parameters",
+    "prismatic_axis_parameters",
 ]
 
 FRICTION_MODELS = ("asymmetric", "symmetric", "viscous", "none")
+GRAVITY_MODELS = ("sine", "constant", "none")   # revolute k*sin(q + q_off); constant force F0; nothing
+PERIOD_RTOL = 1e-6   # accepted relative deviation of (sample rate / f0) from a whole number of samples
 
 _FRICTION_NAMES = {
     "asymmetric": ["fv_pos", "fc_pos", "fv_neg", "fc_neg"],
@@ -47,11 +68,23 @@ _FRICTION_NAMES = {
 }
 
 
-def joint_parameter_names(friction: str = "asymmetric", gravity: bool = True) -> list[str]:
+def _gravity_kind(gravity: bool | str) -> str:
+    """``True``/``False`` (revolute or none, the original flag) or one of GRAVITY_MODELS."""
+    if gravity is True:
+        return "sine"
+    if gravity is False:
+        return "none"
+    if gravity not in GRAVITY_MODELS:
+        raise ValueError(f"gravity must be one of {GRAVITY_MODELS}, got {gravity!r}")
+    return gravity
+
+
+def joint_parameter_names(friction: str = "asymmetric", gravity: bool | str = True) -> list[str]:
     """Parameter names in regressor column order."""
     if friction not in FRICTION_MODELS:
         raise ValueError(f"friction must be one of {FRICTION_MODELS}, got {friction!r}")
-    return ["J"] + (["g_sin", "g_cos"] if gravity else []) + _FRICTION_NAMES[friction]
+    kind = _gravity_kind(gravity)
+    return ["J"] + {"sine": ["g_sin", "g_cos"], "constant": ["F0"], "none": []}[kind] + _FRICTION_NAMES[friction]
 
 
 def joint_regressor(
@@ -60,16 +93,21 @@ def joint_regressor(
     qdd: np.ndarray,
     *,
     friction: str = "asymmetric",
-    gravity: bool = True,
+    gravity: bool | str = True,
 ) -> tuple[np.ndarray, list[str]]:
-    """Regressor Phi (n_samples x n_parameters) with tau = Phi @ theta, and the parameter names."""
+    """Regressor Phi (n_samples x n_parameters) with tau = Phi @ theta, and the parameter names.
+
+    gravity: True / "sine" (revolute), "constant" (a constant force F0), False / "none"."""
     q, qd, qdd = (np.asarray(a, dtype=float).reshape(-1) for a in (q, qd, qdd))
     if not (q.shape == qd.shape == qdd.shape):
         raise ValueError(f"q, qd, qdd must have the same length, got {q.shape}, {qd.shape}, {qdd.shape}")
     names = joint_parameter_names(friction, gravity)
     columns = [qdd]
-    if gravity:
+    kind = _gravity_kind(gravity)
+    if kind == "sine":
         columns += [np.sin(q), np.cos(q)]
+    elif kind == "constant":
+        columns += [np.ones_like(q)]
     positive = (qd > 0).astype(float)
     negative = (qd < 0).astype(float)
     if friction == "asymmetric":
@@ -88,7 +126,7 @@ def joint_torque(
     qdd: np.ndarray,
     *,
     friction: str = "asymmetric",
-    gravity: bool = True,
+    gravity: bool | str = True,
 ) -> np.ndarray:
     """Inverse dynamics tau(q, qd, qdd) for named parameters (missing names raise KeyError)."""
     phi, names = joint_regressor(q, qd, qdd, friction=friction, gravity=gravity)
@@ -129,7 +167,8 @@ class JointIdentification:
 
     fit: LeastSquaresResult; gravity: amplitude/offset form; mask: samples used (|qd| > v_min);
     position, velocity, acceleration: filtered averaged period [rad, rad/s, rad/s^2];
-    torque: averaged period [N m]; torque_variance: variance of one averaged torque sample [N^2 m^2].
+    torque: averaged period [N m]; torque_variance: variance of one averaged torque sample [N^2 m^2];
+    record_notes: what identify_joint_recording did to the record (sample time, jitter, trimming, model).
     """
 
     fit: LeastSquaresResult
@@ -140,6 +179,7 @@ class JointIdentification:
     acceleration: np.ndarray
     torque: np.ndarray
     torque_variance: float
+    record_notes: tuple[str, ...] = ()
 
 
 def identify_joint_periodic(
@@ -151,7 +191,7 @@ def identify_joint_periodic(
     *,
     min_speed: float = 0.0,
     friction: str = "asymmetric",
-    gravity: bool = True,
+    gravity: bool | str = True,
 ) -> JointIdentification:
     """Identify a joint from a periodic recording (whole number of periods, >= 2).
 
@@ -174,7 +214,7 @@ def identify_joint_periodic(
     tau = tau_avg.mean[:, 0]
     fit = gauss_markov(phi, tau[mask], names=names, noise_covariance=variance if variance > 0 else None)
     grav = None
-    if gravity:
+    if _gravity_kind(gravity) == "sine":
         i, j = names.index("g_sin"), names.index("g_cos")
         grav = gravity_amplitude_offset(
             fit.estimate[i], fit.estimate[j], fit.covariance[np.ix_([i, j], [i, j])]
@@ -227,6 +267,70 @@ def compare_friction_models(
     return rows
 
 
+@dataclass(frozen=True)
+class PeriodicRecord:
+    """Unit-checked columns of a recording cut to whole periods: position and force [SI], the sample rate
+    n_per * f0 [Hz] the frequency-domain processing uses, samples per period, and the notes on sample time,
+    jitter and trimming (the unit conversions are in ``columns.notes``)."""
+
+    columns: object            # ident.units.CheckedColumns of the whole recording
+    position: np.ndarray
+    force: np.ndarray
+    sample_rate: float
+    samples_per_period: int
+    notes: list[str]
+
+
+def periodic_record(rec, fundamental_frequency: float, *, position: str = "q", force: str = "u",
+                    source: str = "recording") -> PeriodicRecord:
+    """The columns of ``rec`` as whole periods of the excitation at ``fundamental_frequency`` [Hz].
+
+    Sample time Ts: the sidecar's ``sample_time`` when present, else the median step; the jitter of the time
+    stamps (deviation of each step from Ts) is reported and accepted up to the recording format's tolerance
+    (``SAMPLE_TIME_TOLERANCE`` of Ts; larger jitter: resample with ``motiontwin import --resample``).
+    1/(Ts f0) must be a whole number of samples within PERIOD_RTOL (1e-6). Samples after the last whole
+    period are dropped (at least 2 periods must remain), and the notes say how many.
+    """
+    columns = checked_columns(rec, {position: "position", force: "force"}, source=source)
+    notes: list[str] = []
+    jitter = jitter_report(columns.time)
+    declared = rec.meta.get("sample_time") if isinstance(rec.meta, dict) else None
+    ts = float(declared) if declared else jitter.sample_time
+    origin = "the sidecar's sample_time" if declared else "the median time step"
+    largest = float(np.max(np.abs(np.diff(columns.time) - ts)))
+    if largest > SAMPLE_TIME_TOLERANCE * ts:
+        raise ValueError(f"{source}: column 'time': steps deviate from the sample time {ts:.9g} s by up to "
+                         f"{largest:.3g} s ({largest / ts:.3g} of Ts, accepted {SAMPLE_TIME_TOLERANCE:g}); "
+                         "resample it onto a uniform grid (motiontwin import --resample)")
+    notes.append(f"{source}: sample time {ts:.9g} s from {origin}; time-stamp jitter up to {largest:.3g} s "
+                 f"({largest / ts:.3g} of Ts, RMS {jitter.rms_deviation:.3g} s)")
+    if not fundamental_frequency > 0:
+        raise ValueError(f"fundamental frequency must be > 0 Hz, got {fundamental_frequency}")
+    ratio = 1.0 / (ts * fundamental_frequency)
+    n_per = int(round(ratio))
+    if n_per < 2 or abs(ratio - n_per) > PERIOD_RTOL * ratio:
+        raise ValueError(f"{source}: one period of f0 = {fundamental_frequency:g} Hz is {ratio:.9g} samples of "
+                         f"{ts:.9g} s, not a whole number (within {PERIOD_RTOL:g}); check --f0 against the "
+                         "sample time")
+    n = columns.time.size
+    periods = n // n_per
+    if periods < 2:
+        raise ValueError(f"{source}: {n} samples hold {n / n_per:.3g} periods of {n_per} samples; "
+                         "at least 2 whole periods are needed")
+    keep = periods * n_per
+    if keep < n:
+        notes.append(f"{source}: trimmed to {periods} whole periods of {n_per} samples: dropped the last "
+                     f"{n - keep} samples ({(n - keep) * ts:.6g} s, t > {columns.time[keep - 1]:.9g} s)")
+    return PeriodicRecord(columns, columns[position][:keep], columns[force][:keep],
+                          n_per * fundamental_frequency, n_per, notes)
+
+
+def default_model(rotary: bool) -> tuple[str, str]:
+    """(friction, gravity) of ``"auto"``: Bona's revolute joint (asymmetric friction, sine gravity) for a
+    rotary axis, symmetric friction with a constant force for a prismatic one (see the module docstring)."""
+    return ("asymmetric", "sine") if rotary else ("symmetric", "constant")
+
+
 def identify_joint_recording(
     rec,
     fundamental_frequency: float,
@@ -235,28 +339,42 @@ def identify_joint_recording(
     position: str = "q",
     force: str = "u",
     min_speed: float = 0.0,
-    friction: str = "asymmetric",
-    gravity: bool = True,
+    friction: str = "auto",
+    gravity: bool | str = "auto",
     nominal_inertia: float | None = None,
     source: str = "recording",
 ) -> tuple[JointIdentification, list[str]]:
     """identify_joint_periodic on a harness.recording.Recording, with unit checks (ident.units).
 
     The position and force columns are checked against their declared units (m with N, or rad with N.m;
-    mm, deg, kN, ms ... are converted and reported), the filtered motion and the fitted J are checked for
-    plausibility (and against ``nominal_inertia`` within 10x if given). Returns the identification and
-    the notes on conversions; raises ident.units.UnitError naming the column otherwise.
-    ``min_speed`` is in SI (m/s or rad/s).
+    mm, deg, kN, ms ... are converted and reported), the record is cut to whole periods (:func:`periodic_record`:
+    sample time, jitter and trimming are reported), the filtered motion and the fitted J are checked for
+    plausibility (and against ``nominal_inertia`` within 10x if given). ``friction``/``gravity`` "auto": by the
+    axis kind (:func:`default_model`). Returns the identification and the notes; raises
+    ident.units.UnitError naming the column otherwise. ``min_speed`` is in SI (m/s or rad/s).
+    The notes are the unit conversions; the record's handling is in ``result.record_notes``.
     """
-    columns = checked_columns(rec, {position: "position", force: "force"}, source=source)
+    data = periodic_record(rec, fundamental_frequency, position=position, force=force, source=source)
+    columns, notes = data.columns, list(data.notes)
+    rotary = columns.rotary(position)
+    auto_friction, auto_gravity = default_model(rotary)
+    if friction == "auto" or gravity == "auto":
+        friction = auto_friction if friction == "auto" else friction
+        gravity = auto_gravity if gravity == "auto" else gravity
+        notes.append(f"{source}: {'rotary' if rotary else 'linear'} axis ({columns.units[position]}): friction "
+                     f"{friction!r}, gravity {_gravity_kind(gravity)!r}")
     result = identify_joint_periodic(
-        columns[position], columns[force], columns.sample_rate, fundamental_frequency, cutoff_frequency,
+        data.position, data.force, data.sample_rate, fundamental_frequency, cutoff_frequency,
         min_speed=min_speed, friction=friction, gravity=gravity,
     )
+    fit = result.fit
+    if "F0" in fit.names and "fc" in fit.names:
+        level = fit.as_dict()
+        notes.append(f"{source}: the same fit as asymmetric Coulomb friction: fc_pos = fc + F0 = "
+                     f"{level['fc'] + level['F0']:.6g}, fc_neg = fc - F0 = {level['fc'] - level['F0']:.6g}")
     check_motion(columns, position, source=source, velocity=result.velocity, acceleration=result.acceleration)
-    check_inertia(float(result.fit.estimate[0]), "J", position, columns.rotary(position), source=source,
-                  nominal=nominal_inertia)
-    return result, columns.notes
+    check_inertia(float(fit.estimate[0]), "J", position, rotary, source=source, nominal=nominal_inertia)
+    return dataclasses.replace(result, record_notes=tuple(notes)), list(columns.notes)
 
 
 def serial_joint_parameters(fit: LeastSquaresResult) -> tuple[list[str], np.ndarray, np.ndarray]:
@@ -291,3 +409,19 @@ def serial_joint_parameters(fit: LeastSquaresResult) -> tuple[list[str], np.ndar
     estimate = jacobian @ fit.estimate
     estimate[1], estimate[2] = grav.amplitude, grav.offset
     return out, estimate, jacobian @ fit.covariance @ jacobian.T
+
+
+def prismatic_axis_parameters(fit: LeastSquaresResult) -> tuple[list[str], np.ndarray, np.ndarray]:
+    """A prismatic fit (constant force or no gravity; symmetric, viscous or no friction) in the parameter names of
+    ``MotionTwin.Plants.PrismaticAxis`` (m, d, Fc, F0: m*der(v) = u - d*v - Fc*tanh(v/v_eps) - F0), a linear
+    change of variables with its covariance. Returns (names, estimate, covariance)."""
+    index = {n: i for i, n in enumerate(fit.names)}
+    if "g_sin" in index or "fc_pos" in index:
+        raise ValueError("PrismaticAxis has symmetric friction and a constant force: identify with "
+                         "--friction symmetric (or viscous, none) and --gravity constant (or none)")
+    out = {"m": "J", "d": "fv", "Fc": "fc", "F0": "F0"}
+    jacobian = np.zeros((len(out), len(fit.names)))
+    for row, column in enumerate(out.values()):
+        if column in index:
+            jacobian[row, index[column]] = 1.0
+    return list(out), jacobian @ fit.estimate, jacobian @ fit.covariance @ jacobian.T

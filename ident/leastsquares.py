@@ -7,6 +7,13 @@ UnidentifiableError naming the parameters (and linear combinations) the data can
 of returning a silent wrong answer. base_parameters() regroups parameters into an identifiable base set
 by QR with column pivoting (Gautier & Khalil's numerical method, Bona sec. 2.1).
 
+Coloured residuals: P assumes white noise of the stated (or estimated) variance. Model error and loop
+dynamics colour the residual, and then P is too small by roughly the residual's correlation time in samples.
+Every fit therefore also carries a heteroskedasticity- and autocorrelation-consistent (HAC) sandwich
+covariance, ``robust_covariance`` = B^-1 S B^-1 with B = Psi^T Psi (whitened) and S the Newey-West (Bartlett
+kernel) long-run covariance of the scores psi_k e_k, its bandwidth chosen by Andrews' (1991) AR(1) plug-in
+rule (:func:`hac_covariance`); for white residuals it agrees with P within sampling error.
+
 Units: whatever the caller's regressor and measurement use; the covariance is in (parameter unit)^2.
 Rows of a stacked multi-channel problem are sample-major: row = sample * n_channels + channel.
 """
@@ -20,6 +27,8 @@ import scipy.linalg
 
 __all__ = [
     "UnidentifiableError",
+    "andrews_bandwidth",
+    "hac_covariance",
     "IdentifiabilityReport",
     "check_identifiability",
     "LeastSquaresResult",
@@ -145,7 +154,9 @@ class LeastSquaresResult:
     residual_variance_factor: weighted_rss/dof (close to 1 when the stated noise covariance is right);
     noise_known: True if a noise covariance was given (covariance not rescaled);
     regressor_condition: cond of the raw (unweighted) regressor, from its Gram matrix (a diagnostic,
-    accurate up to ~1e7; identifiability is decided on the column-scaled SVD instead).
+    accurate up to ~1e7; identifiability is decided on the column-scaled SVD instead);
+    robust_covariance: HAC (Newey-West) sandwich covariance that holds for coloured residuals, or None;
+    robust_lags: its Bartlett bandwidth [samples]; robust_std: sqrt(diag robust_covariance) (NaN if None).
     """
 
     estimate: np.ndarray
@@ -155,6 +166,8 @@ class LeastSquaresResult:
     dof: int
     noise_known: bool
     regressor_condition: float
+    robust_covariance: np.ndarray | None = None
+    robust_lags: int | None = None
     std: np.ndarray = field(init=False)
     relative_std: np.ndarray = field(init=False)
     correlation: np.ndarray = field(init=False)
@@ -168,6 +181,13 @@ class LeastSquaresResult:
         corr = self.covariance / np.outer(std, std)
         object.__setattr__(self, "correlation", corr)
         object.__setattr__(self, "correlation_condition", float(np.linalg.cond(corr)))
+
+    @property
+    def robust_std(self) -> np.ndarray:
+        """HAC standard deviations (coloured residuals), NaN when not computed."""
+        if self.robust_covariance is None:
+            return np.full(len(self.names), np.nan)
+        return np.sqrt(np.diag(self.robust_covariance))
 
     @property
     def residual_variance_factor(self) -> float:
@@ -185,15 +205,87 @@ class LeastSquaresResult:
         return np.column_stack([self.estimate - z * self.std, self.estimate + z * self.std])
 
     def summary(self) -> str:
-        """Plain-text table: name, estimate, std, relative std in %."""
-        lines = [f"{'parameter':>12} {'estimate':>13} {'std':>11} {'rel.std %':>9}"]
-        for name, p, s, r in zip(self.names, self.estimate, self.std, self.relative_std):
-            lines.append(f"{name:>12} {p:13.6g} {s:11.3g} {100 * r:9.3f}")
+        """Plain-text table: name, estimate, std, relative std in %, and the HAC std when computed."""
+        robust = self.robust_covariance is not None
+        lines = [f"{'parameter':>12} {'estimate':>13} {'std':>11} {'rel.std %':>9}"
+                 + (f" {'HAC std':>11} {'HAC rel %':>9}" if robust else "")]
+        for name, p, s, r, h in zip(self.names, self.estimate, self.std, self.relative_std, self.robust_std):
+            line = f"{name:>12} {p:13.6g} {s:11.3g} {100 * r:9.3f}"
+            lines.append(line + (f" {h:11.3g} {100 * h / abs(p) if p else np.inf:9.3f}" if robust else ""))
         lines.append(
             f"cond(correlation) = {self.correlation_condition:.3g}, cond(regressor) = "
             f"{self.regressor_condition:.3g}, weighted RSS/dof = {self.residual_variance_factor:.3g}"
         )
+        if robust:
+            lines.append(f"HAC std: Newey-West sandwich, Bartlett bandwidth {self.robust_lags} samples "
+                         "(holds for coloured residuals; std assumes white noise)")
         return "\n".join(lines)
+
+
+def andrews_bandwidth(scores: np.ndarray) -> float:
+    """Andrews' (1991) AR(1) plug-in bandwidth of the Bartlett kernel for the score series (rows = samples).
+
+    Each column gets an AR(1) fit (rho_a, innovation variance s_a^2); alpha = sum 4 rho^2 s^4 / ((1-rho)^6
+    (1+rho)^2) / sum s^4 / (1-rho)^4 and the bandwidth is 1.1447 (alpha n)^(1/3) samples.
+    """
+    v = np.asarray(scores, dtype=float)
+    v = v[:, None] if v.ndim == 1 else v
+    x0, x1 = v[:-1], v[1:]
+    ss = np.einsum("ij,ij->j", x0, x0)
+    used = ss > 0
+    if not np.any(used):
+        return 0.0
+    rho = np.clip(np.einsum("ij,ij->j", x0, x1)[used] / ss[used], -0.97, 0.97)
+    s2 = np.mean((x1[:, used] - rho * x0[:, used]) ** 2, axis=0)
+    denominator = float(np.sum(s2**2 / (1 - rho) ** 4))
+    alpha = float(np.sum(4 * rho**2 * s2**2 / ((1 - rho) ** 6 * (1 + rho) ** 2))) / denominator
+    return 1.1447 * (alpha * v.shape[0]) ** (1 / 3)
+
+
+def hac_covariance(regressor: np.ndarray, residual: np.ndarray, *, lags: int | None = None,
+                   rows_per_sample: int = 1, bread: np.ndarray | None = None) -> tuple[np.ndarray, int]:
+    """Newey-West HAC sandwich covariance of a least-squares estimate, and the bandwidth used.
+
+    Parameters
+    ----------
+    regressor : (rows, parameters) whitened regressor (or residual Jacobian) Psi at the estimate.
+    residual : (rows,) whitened residual e at the estimate.
+    lags : Bartlett bandwidth L [samples]; None: Andrews' AR(1) plug-in (:func:`andrews_bandwidth`).
+    rows_per_sample : channels stacked sample-major per time sample (their scores are summed per sample).
+    bread : (Psi^T Psi)^-1 if the caller has it (computed here otherwise).
+
+    Returns
+    -------
+    (covariance, lags): (Psi^T Psi)^-1 S (Psi^T Psi)^-1 with S = G_0 + sum_{l=1}^{L} (1 - l/(L+1)) (G_l + G_l^T),
+    G_l = sum_k g_k g_{k-l}^T, g_k = Psi_k^T e_k; it is consistent for residuals correlated over time.
+    S is computed as sum_t h_t h_t^T / (L+1) with the moving sums h_t = g_t + ... + g_{t-L} over the zero-padded
+    scores, which is the Bartlett sum exactly (the kernel is the autocorrelation of a box of L+1 ones), at the
+    cost of one product instead of L.
+    """
+    psi = np.asarray(regressor, dtype=float)
+    e = np.asarray(residual, dtype=float).reshape(-1)
+    if psi.ndim != 2 or psi.shape[0] != e.size:
+        raise ValueError(f"regressor {psi.shape} and residual {e.shape} do not match")
+    scores = psi * e[:, None]
+    if rows_per_sample > 1:
+        scores = scores.reshape(-1, rows_per_sample, psi.shape[1]).sum(axis=1)
+    n = scores.shape[0]
+    if lags is None:
+        lags = int(np.floor(andrews_bandwidth(scores)))
+    lags = int(min(max(lags, 0), n - 1))
+    if lags:
+        padded = np.vstack([np.zeros((1, scores.shape[1])), scores, np.zeros((lags, scores.shape[1]))])
+        cumulative = np.cumsum(padded, axis=0)
+        ends = np.arange(1, n + lags + 1)
+        moving = cumulative[ends] - cumulative[np.maximum(ends - lags - 1, 0)]
+        long_run = moving.T @ moving / (lags + 1)
+    else:
+        long_run = scores.T @ scores
+    if bread is None:
+        col = np.linalg.norm(psi, axis=0)
+        col = np.where(col > 0, col, 1.0)
+        bread = np.linalg.inv((psi / col).T @ (psi / col)) / np.outer(col, col)
+    return bread @ long_run @ bread, lags
 
 
 def _whiten(psi, gamma, noise_covariance, channel_covariance):
@@ -287,8 +379,11 @@ def gauss_markov(
     covariance = unscaled_cov if noise_known else unscaled_cov * (rss / dof if dof > 0 else np.nan)
     gram_eig = np.linalg.eigvalsh(psi.T @ psi)
     regressor_condition = float(np.sqrt(gram_eig[-1] / gram_eig[0])) if gram_eig[0] > 0 else float("inf")
+    rows_per_sample = 1 if channel_covariance is None else np.atleast_2d(channel_covariance).shape[0]
+    robust, lags = hac_covariance(psi_w, gamma_w - psi_w @ estimate, rows_per_sample=rows_per_sample,
+                                  bread=unscaled_cov)
     return LeastSquaresResult(
-        estimate, covariance, labels, rss, dof, noise_known, regressor_condition
+        estimate, covariance, labels, rss, dof, noise_known, regressor_condition, robust, lags
     )
 
 

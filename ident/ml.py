@@ -16,15 +16,16 @@ Units: rad, rad/s, rad/s^2, N m, Hz. Joint model: ident.joint (asymmetric fricti
 """
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import casadi as ca
 import numpy as np
 
-from motiontwin.ident.joint import JointIdentification, identify_joint_periodic, joint_regressor
+from motiontwin.ident.joint import JointIdentification, identify_joint_periodic, joint_regressor, periodic_record
 from motiontwin.ident.leastsquares import LeastSquaresResult
-from motiontwin.ident.signals import lowpass_differentiate, period_average, samples_per_period
-from motiontwin.ident.units import check_inertia, check_motion, checked_columns
+from motiontwin.ident.signals import lowpass_differentiate, period_average
+from motiontwin.ident.units import check_inertia, check_motion
 
 __all__ = ["MaximumLikelihoodResult", "ml_joint_with_cutoff", "JointMaximumLikelihood", "identify_joint_ml_recording"]
 
@@ -172,19 +173,25 @@ def identify_joint_ml_recording(
     ``cutoff_frequency`` is the start value: a Gauss-Markov fit there (ident.joint) gives the samples used
     (|qd| > ``min_speed``) and the torque noise variance; the position noise variance comes from the spread
     between periods. f_c is then estimated within ``cutoff_range`` (default cutoff/2 .. 2 cutoff, capped
-    below Nyquist). Only the asymmetric friction model of ident.joint is supported. Returns the result and
-    the notes on unit conversions; raises ident.units.UnitError naming the column.
+    below Nyquist). Only the revolute model of ident.joint (asymmetric friction, sine gravity) is supported, so a
+    linear axis (positions in m) is refused. The record is cut to whole periods (ident.joint.periodic_record).
+    Returns the result and the notes on unit conversions; raises ident.units.UnitError naming the column.
     """
-    columns = checked_columns(rec, {position: "position", force: "force"}, source=source)
-    fs = columns.sample_rate
+    data = periodic_record(rec, fundamental_frequency, position=position, force=force, source=source)
+    columns, fs = data.columns, data.sample_rate
+    if not columns.rotary(position):
+        raise ValueError(f"{source}: column {position!r} is a linear position ({columns.units[position]}); the "
+                         "maximum-likelihood fit models a revolute joint (sine gravity, asymmetric friction), "
+                         "meaningless on a linear axis: identify without --ml (constant force, symmetric friction)")
     nyquist = 0.5 * fs
     low, high = cutoff_range if cutoff_range is not None else (0.5 * cutoff_frequency, 2.0 * cutoff_frequency)
     high = min(high, nyquist - fundamental_frequency)
     if not 0 < low < high:
         raise ValueError(f"{source}: cut-off search range {low:g}..{high:g} Hz is empty (Nyquist {nyquist:g} Hz)")
-    start = identify_joint_periodic(columns[position], columns[force], fs, fundamental_frequency, cutoff_frequency,
+    start = identify_joint_periodic(data.position, data.force, fs, fundamental_frequency, cutoff_frequency,
                                     min_speed=min_speed)
-    q_avg = period_average(columns[position], samples_per_period(fs, fundamental_frequency))
+    start = dataclasses.replace(start, record_notes=tuple(data.notes))
+    q_avg = period_average(data.position, data.samples_per_period)
     position_variance = float(q_avg.mean_covariance[0, 0])
     if not position_variance > 0 or not start.torque_variance > 0:
         raise ValueError(f"{source}: columns {position!r} and {force!r} must vary between periods (noise "

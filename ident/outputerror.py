@@ -25,8 +25,10 @@ solved by IPOPT on the same step function; it can pay off for unstable plants, w
 start diverges.
 
 Parameter statistics: covariance = s^2 (J^T J)^-1 with J the weighted residual Jacobian at the optimum and
-s^2 = weighted RSS / (rows - free parameters); exact for white output noise in open loop, approximate in
-closed loop (the residual there is coloured by the loop).
+s^2 = weighted RSS / (rows - free parameters); exact for white output noise in open loop, too small when the
+residual is coloured (closed loop, model error, filtered noise). ``robust_covariance`` of the statistics is
+the HAC sandwich (J^T J)^-1 S (J^T J)^-1 with S the Newey-West long-run covariance of the per-sample scores
+(:func:`ident.leastsquares.hac_covariance`), which holds for coloured residuals; both are printed.
 
 Units: SI (s, m, N), those of the Modelica model.
 """
@@ -47,11 +49,12 @@ from motiontwin.fmus import symbolic
 from motiontwin.harness.recording import Recording
 from motiontwin.ident import chain as native_chain
 from motiontwin.ident.controller import Controller
-from motiontwin.ident.leastsquares import LeastSquaresResult, UnidentifiableError, check_identifiability
+from motiontwin.ident.leastsquares import (LeastSquaresResult, UnidentifiableError, check_identifiability,
+                                          hac_covariance)
 
 __all__ = ["Signals", "Loop", "Weights", "Fit", "OutputErrorResult", "build_loop", "default_bounds",
            "simulate", "residuals", "fit", "statistics", "identify", "cli_identify_oe", "bound_arrays",
-           "state_indices", "weighted_jacobian"]
+           "state_indices", "weighted_jacobian", "output_state", "initial_motion_states"]
 
 
 _LOG = logging.getLogger(__name__)
@@ -154,6 +157,27 @@ def _output_expression(model: symbolic.SymbolicModel, name: str) -> ca.SX:
         raise KeyError(f"{model.flat.source}: class {model.name} has no state or output {name!r}; "
                        f"outputs: {', '.join(outputs)}; states: {', '.join(states)}")
     return found[0]
+
+
+def output_state(model: symbolic.SymbolicModel, name: str) -> str | None:
+    """The plant state that output ``name`` is (the state itself, or an output equation ``q = x``), or None."""
+    states = [v.name for v in model.states]
+    if name in states:
+        return name
+    expr = _output_expression(model, name)
+    return next((s for i, s in enumerate(states) if ca.is_equal(expr, model.x[i], 2)), None)
+
+
+def initial_motion_states(model: symbolic.SymbolicModel, output: str) -> list[str]:
+    """The states that fix where a recording starts: the output's state and, when its derivative is a state
+    (der(x) = v), that velocity state too, so a loop already moving at t = 0 is not forced to start at rest."""
+    position = output_state(model, output)
+    if position is None:
+        return []
+    states = [v.name for v in model.states]
+    rate = model.dx[states.index(position)]
+    velocity = next((s for i, s in enumerate(states) if s != position and ca.is_equal(rate, model.x[i], 2)), None)
+    return [position] + ([velocity] if velocity else [])
 
 
 def build_loop(model: symbolic.SymbolicModel, controller: Controller | None, position_state: str, free: list[str],
@@ -311,7 +335,7 @@ def _column(rec: Recording, name: str, optional: bool = False) -> np.ndarray:
 
 def initial_state(loop: Loop, rec: Recording, values: dict[str, float] | None = None,
                   initial: dict[str, float] | None = None) -> np.ndarray:
-    """Start from the first recorded sample at rest: the output state (when the output is a state) = q_0,
+    """Start from the first recorded sample at rest: the output's state (the output, or the state it equals) = q_0,
     other plant states at their start values, tracked states at q_0 or u_0, states in ``initial`` at those
     values, and in closed loop the controller state giving the recorded force u_0 (least-norm solution of
     C z = u_0 - u_ext_0 - D y_0)."""
@@ -321,8 +345,9 @@ def initial_state(loop: Loop, rec: Recording, values: dict[str, float] | None = 
     x0 = np.array(ca.Function("x0", [model.p], [model.x0()])(p)).ravel()
     names = [v.name for v in model.states]
     q_rec = _column(rec, sig.output)
-    if loop.position_state in names:
-        x0[names.index(loop.position_state)] = q_rec[0]
+    position = output_state(model, loop.position_state)
+    if position is not None:
+        x0[names.index(position)] = q_rec[0]
     for state, signal in loop.tracking.items():
         x0[names.index(state)] = q_rec[0] if signal == "q" else _column(rec, sig.input)[0]
     for state, value in (initial or {}).items():
@@ -375,6 +400,7 @@ class Fit:
     success: bool
     nfev: int = 0                # residual evaluations (free runs) of the optimiser
     initial: dict[str, float] = field(default_factory=dict)   # estimated initial plant states
+    residual: np.ndarray | None = None   # weighted residual at the optimum, rows as ``jacobian`` (for the HAC std)
 
 
 @dataclass
@@ -513,11 +539,12 @@ def fit(loop: Loop, rec: Recording, weights: Weights, bounds: dict[str, tuple[fl
     j = jac(xs) / scale if xs.size else np.zeros((r.size, 0))
     cost = float(r @ r) if np.all(np.isfinite(r)) else math.inf
     rms = float(np.sqrt(np.mean((qm - q) ** 2))) if np.all(np.isfinite(q)) else math.inf
-    return Fit(final, cost, rms, q, u, j, success, nfev, initial)
+    return Fit(final, cost, rms, q, u, j, success, nfev, initial, r)
 
 
 def statistics(loop: Loop, result: Fit) -> LeastSquaresResult:
-    """Estimate, covariance s^2 (J^T J)^-1, std and correlation of the free parameters at the optimum.
+    """Estimate, covariance s^2 (J^T J)^-1, std and correlation of the free parameters at the optimum, and the
+    HAC (Newey-West) sandwich covariance that holds for coloured residuals (closed loop, model error).
 
     Raises :class:`ident.leastsquares.UnidentifiableError` naming the parameters the recording does not
     determine (a rank-deficient Jacobian)."""
@@ -531,10 +558,18 @@ def statistics(loop: Loop, result: Fit) -> LeastSquaresResult:
     col = np.linalg.norm(j, axis=0)
     jn = j / col
     n_th = len(loop.free)
-    cov = (np.linalg.inv(jn.T @ jn) / np.outer(col, col) * factor)[:n_th, :n_th]
+    bread = np.linalg.inv(jn.T @ jn) / np.outer(col, col)
+    cov = (bread * factor)[:n_th, :n_th]
     sv = np.linalg.svd(j[:, :n_th], compute_uv=False)
+    robust, lags = None, None
+    if result.residual is not None and np.all(np.isfinite(result.residual)):
+        channels = j.shape[0] // loop.n_samples   # rows are channel-major: output samples, then force samples
+        by_sample = j.reshape(channels, loop.n_samples, -1).transpose(1, 0, 2).reshape(j.shape)
+        residual = np.asarray(result.residual).reshape(channels, loop.n_samples).T.ravel()
+        full, lags = hac_covariance(by_sample, residual, rows_per_sample=channels, bread=bread)
+        robust = full[:n_th, :n_th]
     return LeastSquaresResult(loop.theta(result.values), cov, list(loop.free), result.cost, dof, False,
-                              float(sv[0] / sv[-1]))
+                              float(sv[0] / sv[-1]), robust, lags)
 
 
 @dataclass
@@ -563,7 +598,8 @@ def identify(model: symbolic.SymbolicModel, rec: Recording, free: list[str], con
 
     The recording must be sampled uniformly (at the controller period in closed loop). Each channel is
     weighted by the RMS of its residual after a first fit, then the fit is repeated. ``estimate_initial``:
-    plant states whose initial value is estimated too (default: the output, when it is a state).
+    plant states whose initial value is estimated too (default: :func:`initial_motion_states`, the output's state
+    and its velocity).
     ``shooting``: "single" (:func:`fit`, ``max_nfev`` free runs per fit) or "multiple"
     (:func:`ident.multipleshooting.fit` over ``segments`` segments, IPOPT)."""
     if not free:
@@ -591,7 +627,7 @@ def identify(model: symbolic.SymbolicModel, rec: Recording, free: list[str], con
     qm = rec[signals.output]
     weights = Weights(_rms_weight(qm - q0), _rms_weight(rec[signals.input] - u0) if loop.closed else 1.0)
     if estimate_initial is None:
-        estimate_initial = [signals.output] if signals.output in [v.name for v in model.states] else []
+        estimate_initial = initial_motion_states(model, signals.output)
     if shooting == "multiple":
         from motiontwin.ident import multipleshooting
 
@@ -637,6 +673,8 @@ def cli_identify_oe(args) -> int:
         doc = {"method": method, "recording": str(args.recording), "modelica": str(args.modelica),
                "class": args.class_name, "parameters": stats.as_dict(),
                "std": dict(zip(stats.names, stats.std.tolist())), "names": stats.names,
+               "std_hac": {n: (float(v) if np.isfinite(v) else None) for n, v in zip(stats.names, stats.robust_std)},
+               "hac_lags": stats.robust_lags,
                "covariance": stats.covariance.tolist(), "correlation_condition": stats.correlation_condition,
                "rms_output_error": result.fit.rms_q, "converged": result.fit.success}
         atomic_write_texts({Path(args.out): json.dumps(doc, indent=2) + "\n"})

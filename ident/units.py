@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from motiontwin.harness.recording import Recording, RecordingError
+from motiontwin.harness.units import SCALES
 
 __all__ = [
     "UnitError",
@@ -35,19 +36,6 @@ class UnitError(RecordingError):
     """A column's declared unit is wrong for the identification, or the data are implausible in it."""
 
 
-#: quantity -> unit string -> (SI unit, factor to SI). Spellings follow Modelica ("N.m", "um").
-SCALES: dict[str, dict[str, tuple[str, float]]] = {
-    "time": {"s": ("s", 1.0), "ms": ("s", 1e-3), "us": ("s", 1e-6)},
-    "position": {
-        "m": ("m", 1.0), "mm": ("m", 1e-3), "um": ("m", 1e-6), "nm": ("m", 1e-9),
-        "rad": ("rad", 1.0), "mrad": ("rad", 1e-3), "urad": ("rad", 1e-6), "deg": ("rad", np.pi / 180),
-    },
-    "length": {"m": ("m", 1.0), "mm": ("m", 1e-3), "um": ("m", 1e-6), "nm": ("m", 1e-9)},
-    "force": {
-        "N": ("N", 1.0), "kN": ("N", 1e3), "mN": ("N", 1e-3),
-        "N.m": ("N.m", 1.0), "Nm": ("N.m", 1.0), "kN.m": ("N.m", 1e3), "mN.m": ("N.m", 1e-3),
-    },
-}
 _EXPECTED = {"time": "s", "position": "m or rad", "length": "m", "force": "N or N.m"}
 _ROTARY = {"m": False, "rad": True, "N": False, "N.m": True}
 

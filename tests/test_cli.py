@@ -71,7 +71,8 @@ def _identify_joint_recording(tmp_path) -> Path:
     qs, us = noisy_periods(q, u, 10, 1e-4, 0.5, np.random.default_rng(3))
     time = np.arange(qs.size) * 1e-3
     path = tmp_path / "joint.csv"
-    recording.write_recording(path, recording.make_recording(time, {"q": qs, "u": us}, sample_time=1e-3))
+    recording.write_recording(path, recording.make_recording(time, {"q": qs, "u": us}, {"q": "rad", "u": "N.m"},
+                                                             sample_time=1e-3))
     out = tmp_path / "fit.json"
     assert main(["identify", "joint", str(path), "--f0", "0.5", "--cutoff", "10", "--min-speed", "0.2",
                  "--out", str(out)]) == 0
@@ -324,7 +325,7 @@ def test_design_excitation_then_excite_then_identify(tmp_path, capsys):
     qs, us = noisy_periods(q, u, 10, 1e-4, 0.5, np.random.default_rng(3))
     joint = tmp_path / "joint.csv"
     recording.write_recording(joint, recording.make_recording(np.arange(qs.size) * 1e-3, {"q": qs, "u": us},
-                                                              sample_time=1e-3))
+                                                              {"q": "rad", "u": "N.m"}, sample_time=1e-3))
     fit = tmp_path / "fit.json"
     assert main(["identify", "joint", str(joint), "--f0", "0.5", "--cutoff", "10", "--min-speed", "0.2",
                  "--out", str(fit)]) == 0

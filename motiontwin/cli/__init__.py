@@ -9,9 +9,10 @@ import argparse
 import sys
 from typing import Callable
 
-from motiontwin.cli import build, compare, demo, diagnose, identify, simulate, tune, writeback
+from motiontwin.cli import (build, compare, demo, diagnose, identify, labdata, simulate, tune, validate,
+                            writeback)
 
-SUBCOMMAND_MODULES = (build, simulate, identify, writeback, tune, compare, diagnose, demo)
+SUBCOMMAND_MODULES = (build, simulate, labdata, identify, validate, writeback, tune, compare, diagnose, demo)
 
 
 def parser() -> argparse.ArgumentParser:

@@ -17,6 +17,7 @@ def _report_fit(fit: object, args: argparse.Namespace, method: str) -> int:
     if args.out:
         doc = {"method": method, "recording": str(args.recording), "parameters": fit.as_dict(),
                "std": dict(zip(fit.names, fit.std.tolist())), "names": fit.names,
+               "std_hac": dict(zip(fit.names, fit.robust_std.tolist())), "hac_lags": fit.robust_lags,
                "covariance": fit.covariance.tolist(), "correlation_condition": fit.correlation_condition}
         recording.atomic_write_texts({args.out: json.dumps(doc, indent=2) + "\n"})
         print(args.out)
@@ -24,16 +25,26 @@ def _report_fit(fit: object, args: argparse.Namespace, method: str) -> int:
 
 
 def _joint_document(fit: object, method: str, source: Path) -> dict[str, object]:
-    """The --out JSON of identify joint: SerialRobotJoint names (for writeback --values), regressor estimates beside."""
-    from motiontwin.ident.joint import serial_joint_parameters
+    """The --out JSON of identify joint: SerialRobotJoint names (for writeback --values) for a revolute fit, the
+    names of MotionTwin.Effects.JointBase-style axes (m, d, Fc, F0) for a prismatic one; regressor estimates beside."""
+    from motiontwin.ident.joint import prismatic_axis_parameters, serial_joint_parameters
 
-    names, estimate, covariance = serial_joint_parameters(fit)
+    import dataclasses
+
+    convert = serial_joint_parameters if "g_sin" in fit.names else prismatic_axis_parameters
+    plant = "MotionTwin.Plants.SerialRobotJoint" if "g_sin" in fit.names else "MotionTwin.Plants.PrismaticAxis"
+    names, estimate, covariance = convert(fit)
     std = np.sqrt(np.diag(covariance))
-    return {"method": method, "recording": str(source), "class": "MotionTwin.Plants.SerialRobotJoint",
-            "parameters": dict(zip(names, estimate.tolist())), "std": dict(zip(names, std.tolist())),
-            "names": names, "covariance": covariance.tolist(),
-            "regressor_parameters": fit.as_dict(), "regressor_std": dict(zip(fit.names, fit.std.tolist())),
-            "correlation_condition": fit.correlation_condition}
+    doc = {"method": method, "recording": str(source), "class": plant,
+           "parameters": dict(zip(names, estimate.tolist())), "std": dict(zip(names, std.tolist())),
+           "names": names, "covariance": covariance.tolist(),
+           "regressor_parameters": fit.as_dict(), "regressor_std": dict(zip(fit.names, fit.std.tolist())),
+           "correlation_condition": fit.correlation_condition}
+    if fit.robust_covariance is not None:
+        robust = convert(dataclasses.replace(fit, covariance=fit.robust_covariance))[2]
+        doc.update({"std_hac": dict(zip(names, np.sqrt(np.diag(robust)).tolist())), "hac_lags": fit.robust_lags,
+                    "regressor_std_hac": dict(zip(fit.names, fit.robust_std.tolist()))})
+    return doc
 
 
 def _identify_joint_ml(args: argparse.Namespace) -> int:
@@ -44,15 +55,16 @@ def _identify_joint_ml(args: argparse.Namespace) -> int:
     from motiontwin.harness import recording
     from motiontwin.ident.ml import identify_joint_ml_recording
 
-    if args.friction != "asymmetric":
-        raise ValueError(f"--ml models asymmetric friction only (ident.ml), got --friction {args.friction!r}")
+    if args.friction not in ("auto", "asymmetric") or args.gravity not in ("auto", "sine"):
+        raise ValueError(f"--ml models the revolute joint with asymmetric friction and sine gravity only (ident.ml), "
+                         f"got --friction {args.friction!r} --gravity {args.gravity!r}")
     if args.cutoff_range is not None and not 0 < args.cutoff_range[0] < args.cutoff_range[1]:
         raise ValueError(f"--cutoff-range LOW HIGH must satisfy 0 < LOW < HIGH [Hz], got {args.cutoff_range}")
     rec = recording.read_recording(args.recording, required=("time", args.position, args.force))
     result, notes = identify_joint_ml_recording(rec, args.f0, args.cutoff, cutoff_range=args.cutoff_range,
                                                 position=args.position, force=args.force, min_speed=args.min_speed,
                                                 nominal_inertia=args.nominal_inertia, source=str(args.recording))
-    for note in notes:
+    for note in [*notes, *result.start.record_notes]:
         print(note)
     ml, (low, high) = result.ml, result.cutoff_range
     print(f"cut-off: start {args.cutoff:g} Hz, searched {low:g}..{high:g} Hz, ML estimate "
@@ -81,9 +93,9 @@ def _identify_joint(args: argparse.Namespace) -> int:
         raise ValueError("--cutoff-range is the search interval of --ml: add --ml or drop it")
     rec = recording.read_recording(args.recording, required=("time", args.position, args.force))
     result, notes = identify_joint_recording(rec, args.f0, args.cutoff, position=args.position, force=args.force,
-                                             min_speed=args.min_speed, friction=args.friction,
+                                             min_speed=args.min_speed, friction=args.friction, gravity=args.gravity,
                                              nominal_inertia=args.nominal_inertia, source=str(args.recording))
-    for note in notes:
+    for note in [*notes, *result.record_notes]:
         print(note)
     method = "inverse-dynamics Gauss-Markov least squares (Abdellatif, Bona eq. 2)"
     if not args.out:
@@ -139,15 +151,28 @@ def register(sub: argparse._SubParsersAction) -> None:
 
     p = sub.add_parser("identify", help="identify plant parameters from a recording")
     kinds = p.add_subparsers(dest="kind", required=True)
-    q = kinds.add_parser("joint", help="serial joint (inertia, gravity, friction) from a periodic recording by "
-                                       "inverse-dynamics weighted least squares")
-    q.add_argument("recording", type=Path, help="recording CSV (whole number of periods)")
+    q = kinds.add_parser("joint", help="serial joint or prismatic axis (inertia, gravity or constant force, "
+                                       "friction) from a periodic recording by inverse-dynamics weighted least squares",
+                         description="Inverse-dynamics Gauss-Markov least squares on the period-averaged, "
+                                     "frequency-domain filtered recording (ident.joint). The sample time is the "
+                                     "sidecar's (else the median step); time-stamp jitter up to 1e-3 of it is "
+                                     "accepted and reported; samples after the last whole period are dropped and "
+                                     "reported.")
+    q.add_argument("recording", type=Path, help="recording CSV (at least 2 periods; the rest is trimmed)")
     q.add_argument("--position", default="q", help="position column [rad or m] (default q)")
     q.add_argument("--force", default="u", help="force/torque column [N or N.m] (default u)")
     q.add_argument("--f0", type=float, required=True, help="fundamental frequency of the excitation [Hz]")
     q.add_argument("--cutoff", type=float, required=True, help="low-pass cut-off of the derivatives [Hz]")
-    q.add_argument("--min-speed", type=float, default=0.0, help="drop samples slower than this (Coulomb sign)")
-    q.add_argument("--friction", default="asymmetric", help="friction parametrisation (see ident.joint)")
+    q.add_argument("--min-speed", type=float, default=0.0,
+                   help="drop samples slower than this [m/s or rad/s] (sign of Coulomb unreliable there)")
+    q.add_argument("--friction", default="auto", choices=("auto", "asymmetric", "symmetric", "viscous", "none"),
+                   help="asymmetric: fv_pos*v + fc_pos for v > 0, fv_neg*v - fc_neg for v < 0 (Bona eq. 2); "
+                        "symmetric: fv*v + fc*sign(v); viscous: fv*v; none. auto (default): asymmetric on a "
+                        "rotary axis, symmetric on a linear one")
+    q.add_argument("--gravity", default="auto", choices=("auto", "sine", "constant", "none"),
+                   help="sine: k*sin(q + q_off) of a revolute joint; constant: a constant force F0 (weight of an "
+                        "inclined axis, preload, offset); none. auto (default): sine on a rotary axis (rad), "
+                        "constant on a linear one (m)")
     q.add_argument("--nominal-inertia", type=float, default=None,
                    help="a-priori J [kg.m2 or kg]: refuse a fit more than 10x away (mis-declared units)")
     q.add_argument("--ml", action="store_true",

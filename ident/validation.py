@@ -1,0 +1,326 @@
+"""Model validation on a new recording (``motiontwin validate``), like System Identification Toolbox's
+``compare`` and ``resid``.
+
+A fitted model (a Modelica class with parameter values: the JSON ``identify oe --out`` writes, an FMU written by
+``writeback``/``diagnose``, whose modelName and start values give the class and values, or a class with
+``--set`` values) is re-simulated along the recording with the output-error free run of :mod:`ident.outputerror`
+(same equations, same RK4 chain): open loop from the measured input, or closed loop with the sampled controller.
+Only the initial position and velocity of the plant are estimated (as SITB's ``compare`` estimates initial
+conditions; :func:`ident.outputerror.initial_motion_states`); no parameter is changed.
+
+Measures (e = measured - simulated output, N samples):
+
+* fit % = 100 (1 - ||e|| / ||y - mean(y)||) (SITB's NRMSE fit), RMS of e;
+* residual autocorrelation r_e(tau), tau = 1..M, with the 99 % band +-2.576/sqrt(N); the whiteness decision is
+  the portmanteau statistic Q = N sum r_e(tau)^2 against the chi-square 99 % quantile with M degrees of freedom;
+* input-residual cross-correlation r_ue(tau), tau = -M..M, with the per-lag 99 % band 2.576 sqrt(P/N),
+  P = sum_{|k|<=M} rho_u(k) rho_e(k) (the variance of a cross-correlation of two independent series, as SITB's
+  ``resid``; P = 1 for a white residual); r_ue at different lags are correlated when the input is coloured, so
+  the decision is simultaneous: max |r_ue| / sqrt(P/N) against the normal quantile of 1 - 0.01/(2M+1)
+  (Bonferroni). Positive tau: the residual lags the input (input at t-tau vs residual at t).
+
+Units: those of the recording and model (SI).
+"""
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from scipy.stats import chi2
+
+from motiontwin.fmus import symbolic
+from motiontwin.harness.recording import Recording
+from motiontwin.ident import outputerror as oe
+from motiontwin.ident.controller import Controller
+
+__all__ = ["ModelSpec", "CorrelationTest", "Validation", "load_model_spec", "fit_percent", "autocorrelation_test",
+           "cross_correlation_test", "validate", "validation_document", "plot_validation",
+           "CONFIDENCE"]
+
+CONFIDENCE = 0.99
+
+
+@dataclass
+class ModelSpec:
+    """A model to validate: Modelica class (and the file or library it lives in) and parameter values."""
+
+    class_name: str
+    modelica: Path
+    values: dict[str, float]
+    source: str          # where the values came from, for the report
+
+
+def load_model_spec(path: Path | None, *, class_name: str | None = None, modelica: Path | None = None,
+                    values: dict[str, float] | None = None) -> ModelSpec:
+    """The model described by ``path``: a values JSON (``class``, ``modelica``, ``parameters``, as ``identify oe
+    --out`` writes), an FMU (modelName = class, parameter start values), or None (then ``class_name`` is required).
+
+    ``class_name``/``modelica`` override the file's; ``values`` (``--set``) override its parameters.
+    """
+    from motiontwin.fmus.build import MODELICA_DIR
+
+    found: dict[str, float] = {}
+    name, library, source = class_name, modelica, "Modelica start values"
+    if path is not None:
+        path = Path(path)
+        if not path.is_file():
+            raise FileNotFoundError(f"{path}: model file not found")
+        if path.suffix.lower() == ".fmu":
+            import fmpy
+
+            md = fmpy.read_model_description(str(path))
+            name = class_name or md.modelName
+            for var in md.modelVariables:
+                if var.causality == "parameter" and var.variability in ("fixed", "tunable") and var.start is not None:
+                    try:
+                        found[var.name] = float(var.start)
+                    except ValueError:
+                        continue
+            source = f"start values of {path}"
+        elif path.suffix.lower() == ".json":
+            try:
+                doc = json.loads(path.read_text(encoding="utf-8"))
+            except json.JSONDecodeError as exc:
+                raise ValueError(f"{path}, line {exc.lineno}, column {exc.colno}: invalid JSON ({exc.msg})") from None
+            if not isinstance(doc, dict) or not isinstance(doc.get("parameters"), dict):
+                raise ValueError(f"{path}: field 'parameters' (an object of name: value) missing")
+            for key, value in doc["parameters"].items():
+                if isinstance(value, bool) or not isinstance(value, (int, float)):
+                    raise ValueError(f"{path}: field 'parameters.{key}' must be a number, got {value!r}")
+                found[key] = float(value)
+            name = class_name or doc.get("class")
+            if library is None and doc.get("modelica"):
+                library = Path(doc["modelica"])
+            source = str(path)
+            if not name:
+                raise ValueError(f"{path}: field 'class' missing; give --class")
+        else:
+            raise ValueError(f"{path}: a model is a values JSON (identify oe --out) or an FMU (.fmu)")
+    if not name:
+        raise ValueError("name the model: a values JSON or FMU, or --class")
+    found.update(values or {})
+    return ModelSpec(name, Path(library) if library is not None else MODELICA_DIR, found, source)
+
+
+def fit_percent(measured: np.ndarray, simulated: np.ndarray) -> float:
+    """SITB's NRMSE fit: 100 (1 - ||y - y_sim|| / ||y - mean(y)||) [%]."""
+    y = np.asarray(measured, dtype=float)
+    spread = float(np.linalg.norm(y - y.mean()))
+    if spread == 0:
+        raise ValueError("the measured output is constant: fit % is undefined")
+    return 100.0 * (1.0 - float(np.linalg.norm(y - simulated)) / spread)
+
+
+@dataclass(frozen=True)
+class CorrelationTest:
+    """Correlation coefficients at ``lags``, the per-lag 99 % band, the test statistic with its 99 % threshold
+    (autocorrelation: portmanteau vs chi-square; cross-correlation: largest standardised value vs the Bonferroni
+    normal quantile), lags outside the band, and the decision ``passed`` (statistic <= threshold)."""
+
+    lags: np.ndarray
+    values: np.ndarray
+    band: float
+    statistic: float
+    threshold: float
+    outside: list[int]
+
+    @property
+    def passed(self) -> bool:
+        return self.statistic <= self.threshold
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"lags": self.lags.tolist(), "values": self.values.tolist(), "band": self.band,
+                "statistic": self.statistic, "threshold": self.threshold, "lags_outside_band": self.outside,
+                "passed": self.passed}
+
+
+def _correlation(a: np.ndarray, b: np.ndarray, lag: int) -> float:
+    """sum_t a[t - lag] b[t] / sqrt(sum a^2 sum b^2) (a, b zero-mean; lag may be negative)."""
+    n = a.size
+    if lag >= 0:
+        value = float(a[:n - lag] @ b[lag:])
+    else:
+        value = float(a[-lag:] @ b[:n + lag])
+    return value / math.sqrt(float(a @ a) * float(b @ b))
+
+
+def autocorrelation_test(residual: np.ndarray, lags: int = 25, confidence: float = CONFIDENCE) -> CorrelationTest:
+    """Whiteness of the residual: r_e(1..lags), band and portmanteau decision (module docstring)."""
+    e = np.asarray(residual, dtype=float) - np.mean(residual)
+    n = e.size
+    taus = np.arange(1, lags + 1)
+    values = np.array([_correlation(e, e, int(k)) for k in taus])
+    band = float(_normal_quantile(confidence) / math.sqrt(n))
+    statistic = float(n * np.sum(values ** 2))
+    return CorrelationTest(taus, values, band, statistic, float(chi2.ppf(confidence, lags)),
+                           [int(k) for k, v in zip(taus, values) if abs(v) > band])
+
+
+def _normal_quantile(confidence: float) -> float:
+    from scipy.stats import norm
+
+    return float(norm.ppf(0.5 + confidence / 2))
+
+
+def _autocorrelations(x: np.ndarray, lags: int) -> np.ndarray:
+    """rho_x(0..lags) of a zero-mean series."""
+    return np.array([_correlation(x, x, k) for k in range(lags + 1)])
+
+
+def cross_correlation_test(inputs: np.ndarray, residual: np.ndarray, lags: int = 25,
+                           confidence: float = CONFIDENCE) -> CorrelationTest:
+    """Independence of residual and input: r_ue(-lags..lags), per-lag band and decision (module docstring)."""
+    u = np.asarray(inputs, dtype=float) - np.mean(inputs)
+    e = np.asarray(residual, dtype=float) - np.mean(residual)
+    if not np.any(u):
+        raise ValueError("the input is constant: no cross-correlation test")
+    n = u.size
+    taus = np.arange(-lags, lags + 1)
+    values = np.array([_correlation(u, e, int(k)) for k in taus])
+    rho_u, rho_e = _autocorrelations(u, lags), _autocorrelations(e, lags)
+    spread = max(float(rho_u[0] * rho_e[0] + 2 * np.sum(rho_u[1:] * rho_e[1:])), 1e-3)
+    sigma = math.sqrt(spread / n)
+    band = _normal_quantile(confidence) * sigma
+    simultaneous = _normal_quantile(1 - (1 - confidence) / taus.size)
+    return CorrelationTest(taus, values, float(band), float(np.max(np.abs(values)) / sigma), float(simultaneous),
+                           [int(k) for k, v in zip(taus, values) if abs(v) > band])
+
+
+@dataclass
+class Validation:
+    """Re-simulation of a model on a recording: measured and simulated output, residual, fit %, RMS, the two
+    correlation tests, the estimated initial states and the controller/loop used."""
+
+    spec: ModelSpec
+    time: np.ndarray
+    measured: np.ndarray
+    simulated: np.ndarray
+    inputs: np.ndarray
+    fit_percent: float
+    rms: float
+    autocorrelation: CorrelationTest
+    cross_correlation: CorrelationTest
+    initial: dict[str, float]
+    closed_loop: bool
+    output: str
+    input: str
+
+    @property
+    def residual(self) -> np.ndarray:
+        return self.measured - self.simulated
+
+
+def validate(model: symbolic.SymbolicModel, spec: ModelSpec, rec: Recording, *, controller: Controller | None = None,
+             signals: oe.Signals = oe.Signals(), lags: int = 25, estimate_initial: bool = True) -> Validation:
+    """Re-simulate ``model`` at ``spec.values`` along ``rec`` and compute the compare/resid measures.
+
+    Parameters
+    ----------
+    model : the symbolic model of ``spec.class_name`` (fmus.build.load_model).
+    spec : class and parameter values (unknown names raise, naming the class's parameters).
+    rec : recording with the input (open loop) or the reference (closed loop) and the measured output.
+    controller : closed loop when given (the recording then needs the reference column).
+    signals : recording column names.
+    lags : correlation lags M.
+    estimate_initial : estimate the initial position and velocity (else start at the first sample, at rest).
+
+    Returns
+    -------
+    Validation with fit %, RMS, both correlation tests and the simulated output.
+    """
+    names = [v.name for v in model.parameters]
+    unknown = sorted(set(spec.values) - set(names))
+    if unknown:
+        raise KeyError(f"{spec.source}: class {spec.class_name} has no parameter {', '.join(map(repr, unknown))}; "
+                       f"its parameters are {', '.join(names)}")
+    needed = [signals.output, signals.input] + ([signals.reference] if controller is not None else [])
+    missing = [c for c in needed if c not in rec.columns]
+    if missing:
+        raise KeyError(f"recording has no column {', '.join(map(repr, missing))} (columns: {', '.join(rec.columns)})")
+    steps = np.diff(rec.time)
+    ts = controller.Ts if controller is not None else float(rec.sample_time or np.median(steps))
+    bad = np.flatnonzero(np.abs(steps - ts) > 1e-3 * ts)
+    if bad.size:
+        i = int(bad[0])
+        raise ValueError(f"recording row {i + 3}, column 'time': step {steps[i]!r} s differs from the sample period "
+                         f"{ts} s (the re-simulation needs uniform sampling)")
+    loop = oe.build_loop(model, controller, signals.output, [], dict(spec.values), rec.time.size, ts=ts,
+                         signals=signals, input_name=signals.input if signals.input in
+                         [v.name for v in model.inputs] else None)
+    estimated = oe.initial_motion_states(model, signals.output) if estimate_initial else []
+    q0, u0 = oe.simulate(loop, rec)
+    scale_q = oe._rms_weight(rec[signals.output] - q0)
+    # the output alone decides the initial state: the force channel (closed loop) is weighted down by 1e6
+    weights = oe.Weights(scale_q, 1e6 * oe._rms_weight(rec[signals.input] - u0) if controller is not None else 1.0)
+    result = oe.fit(loop, rec, weights, estimate_initial=estimated)
+    measured = rec[signals.output]
+    if not np.all(np.isfinite(result.q_sim)):
+        raise ValueError(f"{spec.class_name} at {spec.source}: the re-simulation diverged (non-finite output); "
+                         "check the parameter values and, in closed loop, the controller")
+    residual = measured - result.q_sim
+    u = rec[signals.input] if controller is None else rec[signals.reference]
+    return Validation(spec, rec.time, measured, result.q_sim, u, fit_percent(measured, result.q_sim),
+                      float(np.sqrt(np.mean(residual ** 2))), autocorrelation_test(residual, lags),
+                      cross_correlation_test(u, residual, lags), result.initial, controller is not None,
+                      signals.output, signals.input if controller is None else signals.reference)
+
+
+def validation_document(result: Validation, recording_path: str) -> dict[str, Any]:
+    """The JSON ``motiontwin validate --out`` writes."""
+    return {"model": {"class": result.spec.class_name, "modelica": str(result.spec.modelica),
+                      "values": result.spec.values, "values_from": result.spec.source},
+            "recording": recording_path, "loop": "closed" if result.closed_loop else "open",
+            "output": result.output, "input": result.input, "samples": int(result.time.size),
+            "fit_percent": result.fit_percent, "rms": result.rms, "initial_states": result.initial,
+            "confidence": CONFIDENCE, "residual_autocorrelation": result.autocorrelation.as_dict(),
+            "input_residual_cross_correlation": result.cross_correlation.as_dict()}
+
+
+def plot_validation(result: Validation, path: Path) -> Path:
+    """Four panels: measured vs simulated output (compare), the residual over time, residual autocorrelation
+    and input-residual cross-correlation with their 99 % bands (resid). Written atomically (temporary file, then rename)."""
+    import os
+    import tempfile
+
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(4, 1, figsize=(8, 11))
+    ax = axes[0]
+    ax.plot(result.time, result.measured, label=f"measured {result.output}", lw=1)
+    ax.plot(result.time, result.simulated, "--", label=f"simulated (fit {result.fit_percent:.3f} %)", lw=1)
+    ax.set_xlabel("time [s]")
+    ax.set_ylabel(f"{result.output} [m]")
+    ax.legend(loc="best")
+    ax.set_title(f"{result.spec.class_name}: RMS error {result.rms:.3g} m")
+    ax = axes[1]
+    ax.plot(result.time, 1e6 * result.residual, lw=0.7)
+    ax.set_xlabel("time [s]")
+    ax.set_ylabel("measured - simulated [um]")
+    ax.set_title("output residual")
+    for ax, test, title, measure in (
+            (axes[2], result.autocorrelation, "residual autocorrelation", "Q"),
+            (axes[3], result.cross_correlation, f"cross-correlation {result.input} -> residual", "max |r|/sigma")):
+        ax.stem(test.lags, test.values, basefmt=" ")
+        ax.axhspan(-test.band, test.band, color="tab:blue", alpha=0.15, label="99 % band")
+        verdict = "passed" if test.passed else "failed"
+        ax.set_title(f"{title}: {measure} = {test.statistic:.3g}, 99 % limit {test.threshold:.3g} ({verdict})")
+        ax.set_xlabel("lag [samples]")
+        ax.legend(loc="upper right")
+    fig.tight_layout()
+    path = Path(path)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=path.suffix)
+    os.close(fd)
+    try:
+        fig.savefig(tmp, dpi=110)
+        os.replace(tmp, path)
+    finally:
+        plt.close(fig)
+        Path(tmp).unlink(missing_ok=True)
+    return path
