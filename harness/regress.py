@@ -395,24 +395,3 @@ def run_suite(suite: str | Path, update: bool = False, junit: str | Path | None 
     failed = sum(not r.passed for r in results)
     log(f"{len(results) - failed} passed, {failed} failed, {len(errors)} errors")
     return 1 if failed or errors else 0
-
-
-def main(argv: Sequence[str] | None = None) -> int:
-    """``python -m motiontwin.harness.regress SUITE [--update] [--junit FILE] [--plots DIR]``."""
-    import argparse
-
-    parser = argparse.ArgumentParser(prog="motiontwin regress", description="FMU regression checks with tolerance tubes")
-    parser.add_argument("suite", type=Path, help="suite file (TOML)")
-    parser.add_argument("--update", action="store_true", help="rewrite the reference recordings from this run")
-    parser.add_argument("--junit", type=Path, default=None, help="write JUnit XML here")
-    parser.add_argument("--plots", type=Path, default=None, help="folder for one PNG per failing signal")
-    args = parser.parse_args(argv)
-    try:
-        return run_suite(args.suite, update=args.update, junit=args.junit, plots=args.plots)
-    except (SuiteError, FileNotFoundError) as exc:
-        print(f"motiontwin regress: {exc}")
-        return 2
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

@@ -69,7 +69,6 @@ import functools
 import math
 import warnings
 from dataclasses import asdict, dataclass, field, replace
-from pathlib import Path
 from typing import Callable, Iterable, Sequence
 
 import casadi as ca
@@ -85,7 +84,7 @@ __all__ = [
     "DESIGN_BOUNDS", "TABLE2", "controller_defaults", "controller_matrices", "controller_system", "check_plant",
     "discrete_plant", "loop_system", "margins_from_response", "loop_margins", "position_sets", "tune",
     "rescale_to_bandwidth", "table2_comparison", "format_comparison", "format_margins", "violations",
-    "frequency_grid", "DESIGN_NAMES", "parse_plant", "cli_tune", "FeedforwardFit", "feedforward_gains",
+    "frequency_grid", "DESIGN_NAMES", "parse_plant", "cheung_joint_defaults", "FeedforwardFit", "feedforward_gains",
     "feedforward_path_response", "comparison_markdown", "closed_loop_modes", "slowest_time_constant",
     "disk_margin_from_response",
 ]
@@ -919,7 +918,7 @@ def format_margins(result: TuningResult, plants: Sequence[JointModel | control.L
     return "\n".join(lines)
 
 
-# ---------------------------------------------------------------- command line (motiontwin tune)
+# ---------------------------------------------------------------- plant sets from text (motiontwin tune --plant)
 
 PLANT_CLASS = "MotionTwin.Plants.CheungJoint"
 _PLANT_KEYS = ("K", "alpha", "omega", "zeta", "omega_bar", "zeta_bar")
@@ -941,166 +940,8 @@ def parse_plant(text: str, defaults: dict[str, float], where: str = "--plant") -
                       ((values["omega_bar"], values["zeta_bar"]),))
 
 
-def _start_values(text: str, index: int) -> dict[str, float]:
-    """``NAME=VALUE,...`` -> dict (start values of a plant FMU)."""
-    out = {}
-    for item in filter(None, (t.strip() for t in text.split(","))):
-        key, sep, value = item.partition("=")
-        try:
-            out[key.strip()] = float(value) if sep else float("nan")
-        except ValueError:
-            raise TuningError(f"--plant #{index + 1}: field {item!r} must be NAME=VALUE with a number") from None
-        if not sep:
-            raise TuningError(f"--plant #{index + 1}: field {item!r} must be NAME=VALUE")
-    return out
-
-
-def _write_controller_fmu(args, parameters: dict[str, float], provenance: dict, out: Path) -> Path:
-    """A new controller FMU (``args.fmu`` or one built now) with ``parameters`` as start values."""
-    import tempfile
-
-    import fmpy
-
-    from motiontwin.fmus import build, writeback
-
-    values = {k: v for k, v in parameters.items() if k != "Ts"}  # Ts is fixed by the FMU's build
-    with tempfile.TemporaryDirectory(prefix="motiontwin-tune-") as tmp:
-        source = args.fmu or build.build_fmu(build.load_model(CONTROLLER_CLASS), tmp, args.fmi).path
-        fmu_ts = next(float(v.start) for v in fmpy.read_model_description(str(source)).modelVariables
-                      if v.name == "Ts")
-        if not math.isclose(fmu_ts, args.ts, rel_tol=1e-12):
-            raise TuningError(f"{source}: the controller FMU samples at Ts = {fmu_ts} s but the design used "
-                              f"--ts {args.ts} s; rebuild the controller with that period")
-        return writeback.write_back(source, values, out, provenance)
-
-
-def _suffixed(path: Path, suffix: str) -> Path:
-    """build/x.json, "d1" -> build/x_d1.json."""
-    return path.with_name(f"{path.stem}_{suffix}{path.suffix}")
-
-
-def _tune_options(args) -> dict:
-    """Keyword arguments of :func:`tune` from the parsed command line (new options read with defaults)."""
-    return dict(tau=args.tau, seed=args.seed, popsize=args.popsize, maxiter=args.maxiter, refine=args.refine,
-                progress=True, feedforward=not args.no_feedforward,
-                jerk=not args.no_jerk)
-
-
-def _cli_manipulator(args, spec: TuningSpec) -> int:
-    """``motiontwin tune --manipulator``: per-actuator design on the CheungManipulator FMU at --poses poses."""
-    import json
-    import tempfile
-
+def cheung_joint_defaults() -> dict[str, float]:
+    """The start values of ``MotionTwin.Plants.CheungJoint``'s K, alpha, omega, zeta, omega_bar, zeta_bar."""
     from motiontwin.fmus import build
-    from motiontwin.harness.recording import atomic_write_texts
-    from motiontwin.ident import tuning_manipulator as tm
 
-    plant_model = build.load_model(PLANT_CLASS)
-    defaults = {v.name: float(v.start) for v in plant_model.parameters if v.name in _PLANT_KEYS}
-    flexible = None if args.rigid else parse_plant((args.plant or [""])[0], defaults,
-                                                                      "--plant #1")
-    poses = tm.workspace_poses(args.poses)
-    with tempfile.TemporaryDirectory(prefix="motiontwin-tune-") as tmp:
-        fmu = args.plant_fmu or build.build_fmu(build.load_model(tm.MANIPULATOR_CLASS), tmp, "3.0").path
-        design = tm.tune_manipulator(fmu, poses, flexible, args.ts, spec, args.delay, **_tune_options(args))
-    labels = [f"pose {k}: x={p[0] * 1e3:.1f} y={p[1] * 1e3:.1f} z={p[2] * 1e3:.1f} mm" for k, p in enumerate(poses)]
-    for name, result, plants in zip(tm.ACTUATORS, design.results, design.plants):
-        print(f"actuator {name}")
-        print(format_margins(result, plants))
-        print("parameters: " + ", ".join(f"{k}={v:.6g}" for k, v in result.parameters.items()))
-    print("coupled closed loop, 1 - spectral radius per pose (> 0 is stable): without gravity "
-          + ", ".join(f"{1 - r:.2e}" for r in design.radius_without_gravity) + "; with gravity "
-          + ", ".join(f"{1 - r:.2e}" for r in design.radius_with_gravity))
-    print("coupled closed loop, slowest time constant -Ts/ln(radius) per pose [ms]: without gravity "
-          + ", ".join(f"{slowest_time_constant(np.array([r]), args.ts) * 1e3:.3g}"
-                      for r in design.radius_without_gravity) + "; with gravity "
-          + ", ".join(f"{slowest_time_constant(np.array([r]), args.ts) * 1e3:.3g}"
-                      for r in design.radius_with_gravity))
-    for line in design.infeasible:
-        print(f"infeasible spec: {line}")
-    doc = design.as_dict()
-    if args.out:
-        out = Path(args.out)
-        out.parent.mkdir(parents=True, exist_ok=True)
-        files = {out: json.dumps(doc, indent=2) + "\n"}
-        files |= {_suffixed(out, a): json.dumps(d, indent=2) + "\n" for a, d in doc["joints"].items()}
-        atomic_write_texts(files)
-        print("\n".join(str(p) for p in files))
-    plots = args.plots
-    if plots:
-        from motiontwin.ident.tuning_plots import write_loop_figure
-
-        for name, result, plants in zip(tm.ACTUATORS, design.results, design.plants):
-            print(write_loop_figure(Path(plots) / f"tuning_manipulator_{name}.png", result.parameters, plants,
-                                    args.delay, labels, f"CheungManipulator actuator {name} (FMU linearised, "
-                                    f"{'rigid' if flexible is None else 'times eq. (8) H(s)'})", spec,
-                                    result.margins))
-    stable = max(design.radius_without_gravity + design.radius_with_gravity) < 1
-    if args.fmu_out and not design.infeasible and stable:
-        for name, result in zip(tm.ACTUATORS, design.results):
-            print(_write_controller_fmu(args, result.parameters, {"method": doc["method"], "actuator": name,
-                                                                   "poses": doc["poses"], "spec": asdict(spec),
-                                                                   "margins": doc["joints"][name]["margins"]},
-                                        _suffixed(Path(args.fmu_out), name)))
-    return 0 if not design.infeasible and stable else 2
-
-
-def cli_tune(args) -> int:
-    """Handler of ``motiontwin tune`` (arguments: see the report / harness.cli). Exit code 2 if infeasible.
-
-    Options added after the first parser (read with defaults): ``--manipulator`` with ``--poses N`` and
-    ``--rigid`` (per-actuator design on the CheungManipulator FMU), ``--plots DIR`` (Bode/Nyquist/sensitivity
-    PNG per joint), ``--no-feedforward`` and ``--no-jerk`` (keep Kv, Ka, Kj at the FMU defaults / Kj = 0),
-    ``--tau-max`` [s] (bound on the slowest closed-loop time constant; inf: unconstrained)."""
-    import json
-
-    from motiontwin.fmus import build
-    from motiontwin.harness.recording import atomic_write_texts
-
-    tau_max = args.tau_max
-    spec = TuningSpec(args.gm, args.pm_min, args.pm_max, args.ms, args.s_below_bw, args.bw_min,
-                      None if tau_max is None or not math.isfinite(tau_max) else tau_max)
-    if args.manipulator:
-        return _cli_manipulator(args, spec)
-    if args.plant_fmu:  # each --plant gives start values of the FMU, linearised from its directional derivatives
-        from motiontwin.harness.linearize import linearize
-
-        plants = [linearize(args.plant_fmu, [args.plant_input], [args.plant_output], _start_values(t, k))
-                  for k, t in enumerate(args.plant or [""])]
-    else:
-        plant_model = build.load_model(PLANT_CLASS)
-        defaults = {v.name: float(v.start) for v in plant_model.parameters if v.name in _PLANT_KEYS}
-        plants = [parse_plant(t, defaults, f"--plant #{k + 1}") for k, t in enumerate(args.plant or [""])]
-        if len(plants) == 1 and (args.gain_spread or args.resonance_spread):
-            plants = position_sets(plants[0], args.gain_spread, args.resonance_spread)
-    try:
-        result = tune(plants, args.ts, spec, args.delay, **_tune_options(args))
-        feasible = True
-    except InfeasibleSpecError as err:
-        print(f"infeasible spec: {err}")
-        result, feasible = err.result, False
-    print(format_margins(result, plants))
-    print("parameters: " + ", ".join(f"{k}={v:.6g}" for k, v in result.parameters.items()))
-    if args.compare_table2:
-        rows = table2_comparison(plants[len(plants) // 2], args.ts, args.delay, result)
-        print(format_comparison(rows))
-        print(comparison_markdown(rows))
-    doc = result.as_dict() | {"plants": [asdict(p) if isinstance(p, JointModel) else str(p) for p in plants]}
-    if args.out:
-        Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-        atomic_write_texts({Path(args.out): json.dumps(doc, indent=2) + "\n"})
-        print(args.out)
-    plots = args.plots
-    if plots:
-        from motiontwin.ident.tuning_plots import write_loop_figure
-
-        labels = [f"set {k}: K={p.gain:.3g}" if isinstance(p, JointModel) else f"set {k}"
-                  for k, p in enumerate(plants)]
-        print(write_loop_figure(Path(plots) / "tuning_joint.png", result.parameters, plants, args.delay, labels,
-                                "CheungJoint (eqs. 6-8) at the actuator-position sets", spec, result.margins))
-    if args.fmu_out and feasible:
-        out = _write_controller_fmu(args, result.parameters, {"method": doc["method"], "spec": doc["spec"],
-                                                              "plants": doc["plants"], "margins": doc["margins"]},
-                                    args.fmu_out)
-        print(out)
-    return 0 if feasible else 2
+    return {v.name: float(v.start) for v in build.load_model(PLANT_CLASS).parameters if v.name in _PLANT_KEYS}
