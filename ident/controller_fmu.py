@@ -13,7 +13,7 @@ from pathlib import Path
 import fmpy
 
 from motiontwin.fmus import build, writeback
-from motiontwin.ident.tuning import CONTROLLER_CLASS, TuningError
+from motiontwin.ident.tuning_spec import CONTROLLER_CLASS, TuningError
 
 __all__ = ["write_controller_fmu", "sample_period_of"]
 

@@ -1,6 +1,6 @@
 """Optimal periodic excitation for a serial joint in CasADi/IPOPT (Abdellatif eqs. 19-22; Bona eq. 20).
 
-Design variables: the Fourier coefficients a_k, b_k and the offset q0 of ident.trajectory (fundamental
+Design variables: the Fourier coefficients a_k, b_k and the offset q0 of harness.excitation.fourier_basis (fundamental
 frequency fixed). Constraints (eq. 20) on sampled instants of one period: |q - q_center| <= q_range,
 |qd| <= v_max, |qdd| <= a_max. Criteria:
   - 'condition' (deterministic design, eq. 21): condition number of the regressor. cond(Psi)^2 =
@@ -32,7 +32,7 @@ import casadi as ca
 import numpy as np
 
 from motiontwin.ident.joint import joint_regressor
-from motiontwin.ident.trajectory import fourier_basis, fourier_trajectory
+from motiontwin.harness.excitation import fourier_basis, fourier_trajectory
 
 if TYPE_CHECKING:  # ident.hexapod imports this module lazily; import it only for annotations
     from motiontwin.ident.hexapod import HexapodLimits, PoseExcitation
@@ -75,7 +75,9 @@ class ExcitationDesign:
     criterion: str
 
     def trajectory(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        return fourier_trajectory(t, self.fundamental_frequency, self.a, self.b, self.q0)
+        """Position, velocity and acceleration at times ``t``."""
+        profile = fourier_trajectory(t, self.fundamental_frequency, self.a, self.b, self.q0)
+        return profile.position, profile.velocity, profile.acceleration
 
 
 @dataclass(frozen=True)

@@ -27,7 +27,7 @@ import numpy as np
 from motiontwin.ident.frf import JointModel
 from motiontwin.ident.tuning import LoopMargins, TuningSpec, frequency_grid, loop_margins, loop_system
 
-__all__ = ["loop_responses", "loop_figure", "write_loop_figure", "plants_from_document", "main"]
+__all__ = ["loop_responses", "loop_figure", "write_loop_figure", "plants_from_document", "replot_design"]
 
 
 def loop_responses(parameters: dict[str, float], plants: Sequence[JointModel | control.LTI],

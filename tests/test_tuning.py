@@ -12,7 +12,7 @@ import pytest
 from fmpy.fmi2 import FMU2Slave
 
 from motiontwin.fmus import build, writeback
-from motiontwin.ident import tuning
+from motiontwin.ident import tuning, tuning_margins
 from motiontwin.ident.frf import JointModel
 
 TS = 5e-4
@@ -114,7 +114,7 @@ def test_fmu_law_equals_paper_equations_tustin() -> None:
 def test_fast_margins_match_python_control_on_cheung_loop() -> None:
     """The search's numpy evaluation agrees with python-control's stability_margins on the Table 2 d1 loop."""
     p = tuning.controller_defaults()
-    fast = tuning._LoopEvaluator([NOMINAL], TS, 1).evaluate(p)[0]
+    fast = tuning_margins._LoopEvaluator([NOMINAL], TS, 1).evaluate(p)[0]
     gm, pm, *_ = python_control_margins(independent_loop(p, NOMINAL))
     assert fast.stable
     assert fast.gm_db == pytest.approx(gm, abs=0.1)

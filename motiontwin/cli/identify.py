@@ -42,10 +42,10 @@ def _identify_joint_ml(args: argparse.Namespace) -> int:
     import json
 
     from motiontwin.harness import recording
-    from motiontwin.ident.ml import identify_joint_ml_recording
+    from motiontwin.ident.maximum_likelihood import identify_joint_ml_recording
 
     if args.friction != "asymmetric":
-        raise ValueError(f"--ml models asymmetric friction only (ident.ml), got --friction {args.friction!r}")
+        raise ValueError(f"--ml models asymmetric friction only (ident.maximum_likelihood), got --friction {args.friction!r}")
     if args.cutoff_range is not None and not 0 < args.cutoff_range[0] < args.cutoff_range[1]:
         raise ValueError(f"--cutoff-range LOW HIGH must satisfy 0 < LOW < HIGH [Hz], got {args.cutoff_range}")
     rec = recording.read_recording(args.recording, required=("time", args.position, args.force))
