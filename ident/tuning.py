@@ -32,7 +32,8 @@ from motiontwin.ident.tuning_margins import (check_plant, closed_loop_modes, con
 from motiontwin.ident.tuning_optimisation import DESIGN_BOUNDS, feedforward_gains, tune
 from motiontwin.ident.tuning_spec import (CONTROLLER_CLASS, DESIGN_NAMES, PLANT_CLASS, FeedforwardFit,
                                           InfeasibleSpecError, LoopMargins, TuningError, TuningResult, TuningSpec,
-                                          cheung_joint_defaults, format_margins, parse_plant, violations)
+                                          cheung_joint_defaults, format_margins, joint_model_from_fields,
+                                          violations)
 from motiontwin.ident.tuning_table2 import (TABLE2, TABLE2_READINGS, comparison_markdown, format_comparison,
                                             rescale_to_bandwidth, table2_comparison, table2_parameters)
 
@@ -41,7 +42,7 @@ __all__ = [
     "DESIGN_BOUNDS", "TABLE2", "TABLE2_READINGS", "controller_defaults", "controller_matrices", "controller_system",
     "check_plant", "discrete_plant", "loop_system", "margins_from_response", "loop_margins", "position_sets", "tune",
     "rescale_to_bandwidth", "table2_parameters", "table2_comparison", "format_comparison", "format_margins",
-    "violations", "frequency_grid", "DESIGN_NAMES", "PLANT_CLASS", "parse_plant", "cheung_joint_defaults",
+    "violations", "frequency_grid", "DESIGN_NAMES", "PLANT_CLASS", "joint_model_from_fields", "cheung_joint_defaults",
     "FeedforwardFit", "feedforward_gains", "feedforward_path_response", "comparison_markdown", "closed_loop_modes",
     "slowest_time_constant", "disk_margin_from_response",
 ]

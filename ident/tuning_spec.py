@@ -20,7 +20,7 @@ from motiontwin.ident.frf import JointModel
 
 __all__ = [
     "CONTROLLER_CLASS", "DESIGN_NAMES", "TuningError", "InfeasibleSpecError", "TuningSpec", "LoopMargins",
-    "FeedforwardFit", "TuningResult", "violations", "format_margins", "PLANT_CLASS", "parse_plant",
+    "FeedforwardFit", "TuningResult", "violations", "format_margins", "PLANT_CLASS", "joint_model_from_fields",
     "cheung_joint_defaults",
 ]
 
@@ -185,18 +185,13 @@ PLANT_CLASS = "MotionTwin.Plants.CheungJoint"
 _PLANT_KEYS = ("K", "alpha", "omega", "zeta", "omega_bar", "zeta_bar")
 
 
-def parse_plant(text: str, defaults: dict[str, float], where: str = "--plant") -> JointModel:
-    """``K=1.2,omega=2300`` -> JointModel; keys not given take ``defaults`` (the CheungJoint start values)."""
-    values = dict(defaults)
-    for item in filter(None, (t.strip() for t in text.split(","))):
-        key, sep, value = item.partition("=")
-        if not sep or key.strip() not in _PLANT_KEYS:
-            raise TuningError(f"{where} {text!r}: field {item!r} must be NAME=VALUE with NAME in "
-                              f"{', '.join(_PLANT_KEYS)}")
-        try:
-            values[key.strip()] = float(value)
-        except ValueError:
-            raise TuningError(f"{where} {text!r}: field {key.strip()!r} = {value!r} is not a number") from None
+def joint_model_from_fields(fields: dict[str, float], defaults: dict[str, float], where: str = "plant") -> JointModel:
+    """A JointModel from CheungJoint field values (``K``, ``alpha``, ``omega``, ``zeta``, ``omega_bar``,
+    ``zeta_bar``; SI, rad/s); fields not given take ``defaults`` (the CheungJoint start values)."""
+    unknown = sorted(set(fields) - set(_PLANT_KEYS))
+    if unknown:
+        raise TuningError(f"{where}: field {unknown[0]!r} is not one of {', '.join(_PLANT_KEYS)}")
+    values = {**defaults, **fields}
     return JointModel(values["K"], values["alpha"], ((values["omega"], values["zeta"]),),
                       ((values["omega_bar"], values["zeta_bar"]),))
 

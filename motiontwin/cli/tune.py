@@ -12,26 +12,20 @@ from typing import Any
 
 import numpy as np
 
+from motiontwin.cli.arguments import name_values
+
 
 def _suffixed(path: Path, suffix: str) -> Path:
     """build/x.json, "d1" -> build/x_d1.json."""
     return path.with_name(f"{path.stem}_{suffix}{path.suffix}")
 
 
-def _start_values(text: str, index: int) -> dict[str, float]:
-    """``--plant NAME=VALUE,...`` with ``--plant-fmu`` -> start values of the plant FMU."""
-    from motiontwin.ident.tuning import TuningError
+def _plant(text: str, index: int, defaults: dict[str, float]) -> Any:
+    """``--plant K=..,omega=..`` (number ``index``) -> a JointModel; missing fields from ``defaults``."""
+    from motiontwin.ident.tuning import joint_model_from_fields
 
-    out = {}
-    for item in filter(None, (t.strip() for t in text.split(","))):
-        key, sep, value = item.partition("=")
-        if not sep:
-            raise TuningError(f"--plant #{index + 1}: field {item!r} must be NAME=VALUE")
-        try:
-            out[key.strip()] = float(value)
-        except ValueError:
-            raise TuningError(f"--plant #{index + 1}: field {item!r} must be NAME=VALUE with a number") from None
-    return out
+    where = f"--plant #{index + 1}"
+    return joint_model_from_fields(name_values(text, where), defaults, f"{where} {text!r}")
 
 
 def _spec(args: argparse.Namespace) -> Any:
@@ -60,10 +54,10 @@ def _tune_manipulator(args: argparse.Namespace) -> int:
     from motiontwin.fmus import build
     from motiontwin.ident import tuning_manipulator as tm
     from motiontwin.ident.controller_fmu import write_controller_fmu
-    from motiontwin.ident.tuning import cheung_joint_defaults, format_margins, parse_plant, slowest_time_constant
+    from motiontwin.ident.tuning import cheung_joint_defaults, format_margins, slowest_time_constant
 
     spec = _spec(args)
-    flexible = None if args.rigid else parse_plant((args.plant or [""])[0], cheung_joint_defaults(), "--plant #1")
+    flexible = None if args.rigid else _plant((args.plant or [""])[0], 0, cheung_joint_defaults())
     poses = tm.workspace_poses(args.poses)
     with tempfile.TemporaryDirectory(prefix="motiontwin-tune-") as tmp:
         fmu = args.plant_fmu or build.build_fmu(build.load_model(tm.MANIPULATOR_CLASS), tmp, "3.0").path
@@ -109,7 +103,7 @@ def _tune(args: argparse.Namespace) -> int:
     from motiontwin.ident.controller_fmu import write_controller_fmu
     from motiontwin.ident.frf import JointModel
     from motiontwin.ident.tuning import (InfeasibleSpecError, cheung_joint_defaults, comparison_markdown,
-                                         format_comparison, format_margins, parse_plant, position_sets,
+                                         format_comparison, format_margins, position_sets,
                                          table2_comparison, tune)
 
     if args.manipulator:
@@ -118,11 +112,11 @@ def _tune(args: argparse.Namespace) -> int:
     if args.plant_fmu:  # each --plant gives start values of the FMU, linearised from its directional derivatives
         from motiontwin.harness.linearize import linearize
 
-        plants = [linearize(args.plant_fmu, [args.plant_input], [args.plant_output], _start_values(t, k))
+        plants = [linearize(args.plant_fmu, [args.plant_input], [args.plant_output], name_values(t, f"--plant #{k + 1}"))
                   for k, t in enumerate(args.plant or [""])]
     else:
         defaults = cheung_joint_defaults()
-        plants = [parse_plant(t, defaults, f"--plant #{k + 1}") for k, t in enumerate(args.plant or [""])]
+        plants = [_plant(t, k, defaults) for k, t in enumerate(args.plant or [""])]
         if len(plants) == 1 and (args.gain_spread or args.resonance_spread):
             plants = position_sets(plants[0], args.gain_spread, args.resonance_spread)
     try:
