@@ -55,6 +55,8 @@ from typing import TYPE_CHECKING, Any, Callable, Sequence
 import numpy as np
 import scipy.signal
 
+from motiontwin.harness.numbers import is_integer, is_number
+
 if TYPE_CHECKING:
     from motiontwin.harness.recording import Recording
 
@@ -567,12 +569,6 @@ def generate_excitation(
 
 
 def _check_type(value: Any, spec: _Field, where: str) -> Any:
-    def is_number(v: Any) -> bool:
-        return isinstance(v, (int, float)) and not isinstance(v, bool)
-
-    def is_integer(v: Any) -> bool:
-        return isinstance(v, int) and not isinstance(v, bool)
-
     def nested_numbers(v: Any) -> bool:
         return is_number(v) or (isinstance(v, list) and len(v) > 0 and all(nested_numbers(x) for x in v))
 

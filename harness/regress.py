@@ -37,7 +37,6 @@ rebaselining).
 
 from __future__ import annotations
 
-import math
 import os
 import re
 import tempfile
@@ -49,6 +48,8 @@ from pathlib import Path
 from typing import Any, Iterable, Sequence
 
 import numpy as np
+
+from motiontwin.harness.numbers import is_finite_number
 
 
 @dataclass(frozen=True)
@@ -279,7 +280,7 @@ def _tolerance(table: dict, base: Tolerance, where: str) -> Tolerance:
     values = {}
     for key in ("abs", "rel", "time_shift"):
         value = table.get(key, getattr(base, key))
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value < 0:
+        if not is_finite_number(value) or value < 0:
             raise SuiteError(f"{where}: tolerance {key} must be a number >= 0, got {value!r}")
         values[key] = float(value)
     return Tolerance(**values)
