@@ -1,1 +1,2 @@
-"""Co-simulation harness: closed loops of FMUs, excitation experiments, recordings, the motiontwin CLI."""
+"""Co-simulation harness: closed loops of FMUs (master, system files), one run -> a recording (simulation),
+excitation experiments, recordings, sweeps, regression suites."""

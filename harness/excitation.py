@@ -55,6 +55,8 @@ from typing import TYPE_CHECKING, Any, Callable, Sequence
 import numpy as np
 import scipy.signal
 
+from motiontwin.harness.numbers import is_integer, is_number
+
 if TYPE_CHECKING:
     from motiontwin.harness.recording import Recording
 
@@ -190,13 +192,38 @@ def periodic_time_grid(period: float, n_periods: int, sample_time: float) -> np.
     return np.arange(per_period * n_periods) * sample_time
 
 
-def fourier_trajectory(
-    t: ArrayLike, f_fundamental: float, a: ArrayLike, b: ArrayLike, q0: ArrayLike = 0.0
-) -> Profile:
-    """Periodic finite Fourier series trajectory (Swevers; Bona eq. 17; Abdellatif eq. 12) and derivatives.
+@dataclass(frozen=True)
+class FourierBasis:
+    """Basis matrices (n_samples x 2 L) of the finite Fourier series: with the coefficients c = [a_1..a_L,
+    b_1..b_L] (or one column per axis), position = q0 + position @ c, velocity = velocity @ c, and so on.
+    Linear in c, so they multiply numpy arrays and CasADi symbols alike (excitation design)."""
+
+    position: np.ndarray
+    velocity: np.ndarray
+    acceleration: np.ndarray
+    jerk: np.ndarray
+
+
+def fourier_basis(t: ArrayLike, f_fundamental: float, n_harmonics: int) -> FourierBasis:
+    """Basis of the periodic finite Fourier series (Swevers; Bona eqs. 17-19; Abdellatif eqs. 12-15) at ``t``.
 
     q(t) = q0 + sum_l a_l / (w_f l) sin(w_f l t) - b_l / (w_f l) cos(w_f l t), w_f = 2 pi f_fundamental,
     so the velocity is sum_l a_l cos(w_f l t) + b_l sin(w_f l t) (eq. 18) and a_l, b_l are velocity amplitudes.
+    """
+    if n_harmonics < 1:
+        raise ValueError(f"n_harmonics must be >= 1, got {n_harmonics}")
+    w = 2 * np.pi * f_fundamental * np.arange(1, n_harmonics + 1)
+    phase = np.multiply.outer(_time(t), w)
+    sin, cos = np.sin(phase), np.cos(phase)
+    return FourierBasis(position=np.hstack([sin / w, -cos / w]), velocity=np.hstack([cos, sin]),
+                        acceleration=np.hstack([-sin * w, cos * w]), jerk=np.hstack([-cos * w**2, -sin * w**2]))
+
+
+def fourier_trajectory(
+    t: ArrayLike, f_fundamental: float, a: ArrayLike, b: ArrayLike, q0: ArrayLike = 0.0
+) -> Profile:
+    """Periodic finite Fourier series trajectory (:func:`fourier_basis`) and its analytic derivatives.
+
     a, b: shape (L,) for one axis or (L, n_axes); harmonic l = 1..L. The trajectory repeats every 1/f_fundamental.
     """
     t = _time(t)
@@ -204,21 +231,10 @@ def fourier_trajectory(
     b = np.asarray(b, dtype=float)
     if a.shape != b.shape or a.ndim not in (1, 2) or a.shape[0] == 0:
         raise ValueError(f"a {a.shape} and b {b.shape} must have equal shape (L,) or (L, n_axes)")
-    w = 2 * np.pi * f_fundamental * np.arange(1, a.shape[0] + 1)
-    phase = np.multiply.outer(t, w)
-    sin, cos = np.sin(phase), np.cos(phase)
-    return Profile(
-        time=t,
-        position=np.asarray(q0, dtype=float) + sin @ (a / _col(w, a)) - cos @ (b / _col(w, a)),
-        velocity=cos @ a + sin @ b,
-        acceleration=-sin @ (a * _col(w, a)) + cos @ (b * _col(w, a)),
-        jerk=-cos @ (a * _col(w, a) ** 2) - sin @ (b * _col(w, a) ** 2),
-    )
-
-
-def _col(w: np.ndarray, like: np.ndarray) -> np.ndarray:
-    """Harmonic frequencies shaped to broadcast against coefficients of shape (L,) or (L, n_axes)."""
-    return w if like.ndim == 1 else w[:, None]
+    basis = fourier_basis(t, f_fundamental, a.shape[0])
+    c = np.concatenate([a, b])
+    return Profile(time=t, position=np.asarray(q0, dtype=float) + basis.position @ c, velocity=basis.velocity @ c,
+                   acceleration=basis.acceleration @ c, jerk=basis.jerk @ c)
 
 
 def schroeder_phases(amplitudes: ArrayLike) -> np.ndarray:
@@ -553,12 +569,6 @@ def generate_excitation(
 
 
 def _check_type(value: Any, spec: _Field, where: str) -> Any:
-    def is_number(v: Any) -> bool:
-        return isinstance(v, (int, float)) and not isinstance(v, bool)
-
-    def is_integer(v: Any) -> bool:
-        return isinstance(v, int) and not isinstance(v, bool)
-
     def nested_numbers(v: Any) -> bool:
         return is_number(v) or (isinstance(v, list) and len(v) > 0 and all(nested_numbers(x) for x in v))
 

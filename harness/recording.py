@@ -92,6 +92,49 @@ class Recording:
         """Sample time [s] from the metadata, or None for non-uniform sampling."""
         return self.meta.get("sample_time")
 
+    def renamed(self, names: dict[str, str]) -> "Recording":
+        """A copy with columns renamed (old -> new, units follow), e.g. ``{"plant.q": "q"}`` so that a logged
+        FMU port matches the model variable an identification fits."""
+        unknown = sorted(set(names) - set(self.columns))
+        if unknown:
+            raise KeyError(f"recording has no column {unknown[0]!r}; columns are {['time', *self.columns]}")
+        columns = {names.get(name, name): values.copy() for name, values in self.columns.items()}
+        units = {names.get(name, name): unit for name, unit in self.units.items()}
+        renamed = Recording(self.time.copy(), columns, units, json.loads(json.dumps(self.meta)))
+        validate_recording(renamed)
+        return renamed
+
+    def to_csv(self, path: str | os.PathLike) -> tuple[Path, Path]:
+        """Write ``NAME.csv`` and its ``NAME.json`` sidecar atomically (:func:`write_recording`)."""
+        return write_recording(path, self)
+
+    @classmethod
+    def from_csv(cls, path: str | os.PathLike, required: Iterable[str] = ("time",)) -> "Recording":
+        """Read a CSV recording and its sidecar (:func:`read_recording`)."""
+        return read_recording(path, required)
+
+    def to_mat(self, path: str | os.PathLike) -> Path:
+        """Write a MATLAB .mat file atomically (:func:`write_mat`)."""
+        return write_mat(path, self)
+
+    @classmethod
+    def from_mat(cls, path: str | os.PathLike, required: Iterable[str] = ("time",)) -> "Recording":
+        """Read a .mat recording (:func:`read_mat`)."""
+        return read_mat(path, required)
+
+    def to_pandas(self) -> Any:
+        """A ``pandas.DataFrame`` indexed by time [s], one column per signal; units in ``frame.attrs["units"]``.
+
+        Raises ImportError when pandas is not installed (it is not a dependency of motiontwin).
+        """
+        try:
+            import pandas
+        except ImportError:
+            raise ImportError("Recording.to_pandas needs pandas: pip install pandas") from None
+        frame = pandas.DataFrame(self.columns, index=pandas.Index(self.time, name="time"))
+        frame.attrs["units"] = dict(self.units)
+        return frame
+
 
 def make_recording(
     time: Sequence[float] | np.ndarray,

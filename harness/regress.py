@@ -37,7 +37,6 @@ rebaselining).
 
 from __future__ import annotations
 
-import math
 import os
 import re
 import tempfile
@@ -49,6 +48,8 @@ from pathlib import Path
 from typing import Any, Iterable, Sequence
 
 import numpy as np
+
+from motiontwin.harness.numbers import is_finite_number
 
 
 @dataclass(frozen=True)
@@ -279,7 +280,7 @@ def _tolerance(table: dict, base: Tolerance, where: str) -> Tolerance:
     values = {}
     for key in ("abs", "rel", "time_shift"):
         value = table.get(key, getattr(base, key))
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value < 0:
+        if not is_finite_number(value) or value < 0:
             raise SuiteError(f"{where}: tolerance {key} must be a number >= 0, got {value!r}")
         values[key] = float(value)
     return Tolerance(**values)
@@ -395,24 +396,3 @@ def run_suite(suite: str | Path, update: bool = False, junit: str | Path | None 
     failed = sum(not r.passed for r in results)
     log(f"{len(results) - failed} passed, {failed} failed, {len(errors)} errors")
     return 1 if failed or errors else 0
-
-
-def main(argv: Sequence[str] | None = None) -> int:
-    """``python -m motiontwin.harness.regress SUITE [--update] [--junit FILE] [--plots DIR]``."""
-    import argparse
-
-    parser = argparse.ArgumentParser(prog="motiontwin regress", description="FMU regression checks with tolerance tubes")
-    parser.add_argument("suite", type=Path, help="suite file (TOML)")
-    parser.add_argument("--update", action="store_true", help="rewrite the reference recordings from this run")
-    parser.add_argument("--junit", type=Path, default=None, help="write JUnit XML here")
-    parser.add_argument("--plots", type=Path, default=None, help="folder for one PNG per failing signal")
-    args = parser.parse_args(argv)
-    try:
-        return run_suite(args.suite, update=args.update, junit=args.junit, plots=args.plots)
-    except (SuiteError, FileNotFoundError) as exc:
-        print(f"motiontwin regress: {exc}")
-        return 2
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

@@ -47,11 +47,12 @@ Errors name the file, the TOML table/field and, when it can be found, the line.
 from __future__ import annotations
 
 import json
-import math
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
+
+from motiontwin.harness.numbers import is_finite_number
 
 INPUT_NAMESPACE = "input"
 """Instance name reserved for external input signals in port names ("input.r")."""
@@ -150,7 +151,7 @@ class _Context:
 
 
 def _number(ctx: _Context, value: Any, where: str, needle: str | None, positive: bool = False) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+    if not is_finite_number(value):
         raise ctx.error(where, f"expected a finite number, got {value!r}", needle)
     if positive and value <= 0:
         raise ctx.error(where, f"must be > 0, got {value!r}", needle)

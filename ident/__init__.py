@@ -1,7 +1,9 @@
-"""Identification of motion-system plants from periodic, swept-sine and closed-loop recordings.
+"""Identification of motion-system plants from periodic, swept-sine and closed-loop recordings; tuning.
 
 Plain functions over numpy arrays, one job per module: signals (frequency-domain filtering and period
-averaging), leastsquares (Gauss-Markov with statistics), joint (serial-joint regressor), trajectory
-(Fourier excitation), frf (FRF estimation and model fit), closedloop (projection method),
-excitation_design (optimal Fourier coefficients), ml (maximum likelihood with filter cut-off).
+averaging), leastsquares (Gauss-Markov with statistics), joint (serial-joint regressor), frf (FRF estimation
+and model fit), closedloop (projection method), excitation_design (optimal Fourier coefficients of
+harness.excitation.fourier_basis), maximum_likelihood (maximum likelihood with filter cut-off), outputerror and
+multipleshooting (simulation-error refits), tuning (tuning_spec, tuning_margins, tuning_optimisation,
+tuning_table2; controller_fmu writes the result into an FMU), diagnosis (mismatch diagnosis).
 """

@@ -20,7 +20,7 @@ import scipy.optimize
 import scipy.signal
 
 __all__ = ["ProjectionResult", "project_on_reference", "OutputErrorModel", "fit_output_error",
-           "ClosedLoopIdentification", "identify_projection", "model_features", "cli_identify_projection"]
+           "ClosedLoopIdentification", "identify_projection", "model_features", "identify_projection_recording"]
 
 
 @dataclass(frozen=True)
@@ -179,59 +179,50 @@ def identify_projection(
     )
 
 
-def cli_identify_projection(args) -> int:
-    """Handler of ``motiontwin identify projection REC`` (arguments: recording, reference, input, output, nb,
-    nf, delay, noncausal, causal, periodic, skip, out). Prints the projection-method estimate next to the
-    naive output-error one and writes both to --out as JSON."""
-    import json
+def identify_projection_recording(recording: dict[str, np.ndarray], reference: str, input: str, output: str,
+                                  n_b: int, n_f: int, delay: int = 1, n_noncausal: int = 0, n_causal: int = 100,
+                                  periodic: bool = False, skip: int | None = None, source: str = "recording"
+                                  ) -> tuple[ClosedLoopIdentification, float]:
+    """The projection method on three columns of a closed-loop recording.
 
-    from motiontwin.harness import recording
+    Parameters
+    ----------
+    recording : mapping of column name to array
+        Uniformly sampled closed-loop data with a ``time`` column [s].
+    reference, input, output : str
+        Columns of the reference r, the plant input u and the plant output y.
+    n_b, n_f, delay, n_noncausal, n_causal, periodic, skip
+        As in :func:`identify_projection` (``skip`` default: ``n_causal``).
+    source : str
+        Named in error messages (the file the recording came from).
 
-    rec = recording.read_recording(args.recording, required=("time", args.reference, args.input, args.output))
-    source = str(args.recording)
-    time = np.asarray(rec["time"], dtype=float)
+    Returns
+    -------
+    ClosedLoopIdentification
+        The projection-method and the naive output-error models.
+    float
+        The sample rate [Hz].
+
+    Raises
+    ------
+    ValueError
+        When the time column is not uniform, a column holds non-finite values, ``skip`` leaves too few
+        samples, or the fit fails (naming ``source`` and the orders).
+    """
+    time = np.asarray(recording["time"], dtype=float)
     steps = np.diff(time)
     if steps.size < 1 or not np.all(steps > 0) or np.ptp(steps) > 1e-6 * np.median(steps):
         raise ValueError(f"{source}: column 'time' must be uniformly sampled (the projection is a discrete FIR)")
-    for flag, value, least in (("--nb", args.nb, 1), ("--nf", args.nf, 1), ("--delay", args.delay, 0),
-                               ("--noncausal", args.noncausal, 0), ("--causal", args.causal, 0),
-                               ("--skip", args.skip, 0)):
-        if value is not None and value < least:
-            raise ValueError(f"{flag} must be >= {least}, got {value}")
-    skip = args.causal if args.skip is None else args.skip
+    skip = n_causal if skip is None else skip
     if skip >= time.size // 2:
-        raise ValueError(f"--skip {skip} (default --causal) leaves too few of the {time.size} samples of {source}")
-    signals = [np.asarray(rec[name], dtype=float) for name in (args.reference, args.input, args.output)]
-    for name, values in zip((args.reference, args.input, args.output), signals):
+        raise ValueError(f"skip {skip} (default n_causal) leaves too few of the {time.size} samples of {source}")
+    signals = [np.asarray(recording[name], dtype=float) for name in (reference, input, output)]
+    for name, values in zip((reference, input, output), signals):
         if not np.all(np.isfinite(values)):
             raise ValueError(f"{source}: column {name!r} holds non-finite values")
     try:
-        result = identify_projection(*signals, args.nb, args.nf, delay=args.delay, n_noncausal=args.noncausal,
-                                     n_causal=args.causal, periodic=args.periodic, skip=skip)
+        result = identify_projection(*signals, n_b, n_f, delay=delay, n_noncausal=n_noncausal, n_causal=n_causal,
+                                     periodic=periodic, skip=skip)
     except RuntimeError as exc:
-        raise ValueError(f"{source}: {exc} (--nb {args.nb}, --nf {args.nf}, --delay {args.delay})") from None
-    fs = 1.0 / float(np.median(steps))
-    projected, naive = (model_features(m, fs) for m in (result.projection_model, result.naive_model))
-    print(f"projection of {args.input!r} on {args.reference!r}: lags -{args.noncausal}..{args.causal}, "
-          f"corr(u_hat, u - u_hat) = {result.projection.correlation:.2e}")
-    print(f"{'':>16} {'projection':>14} {'naive OE':>14}")
-    rows = [("static gain", projected["static_gain"], naive["static_gain"])]
-    for k, (mp, mn) in enumerate(zip(projected["modes"], naive["modes"]), start=1):
-        rows += [(f"mode {k} f [Hz]", mp["frequency_hz"], mn["frequency_hz"]),
-                 (f"mode {k} damping", mp["damping"], mn["damping"])]
-    rows += [(f"b{i}", bp, bn) for i, (bp, bn) in enumerate(zip(projected["b"], naive["b"]))]
-    rows += [(f"f{i}", fp, fn) for i, (fp, fn) in enumerate(zip(projected["f"], naive["f"])) if i > 0]
-    rows.append(("rms error", projected["rms_error"], naive["rms_error"]))
-    for name, a, b in rows:
-        print(f"{name:>16} {a:14.6g} {b:14.6g}")
-    if args.out:
-        doc = {"method": "projection method, output-error model y = B/F u_hat (Bona eqs. 10-12)",
-               "recording": source, "columns": {"reference": args.reference, "input": args.input,
-                                                "output": args.output},
-               "sample_rate": fs, "orders": {"nb": args.nb, "nf": args.nf, "delay": args.delay, "skip": skip},
-               "projection": {"n_noncausal": args.noncausal, "n_causal": args.causal, "periodic": args.periodic,
-                              "correlation": result.projection.correlation},
-               "projection_model": projected, "naive_model": naive}
-        recording.atomic_write_texts({args.out: json.dumps(doc, indent=2) + "\n"})
-        print(args.out)
-    return 0
+        raise ValueError(f"{source}: {exc} (nb {n_b}, nf {n_f}, delay {delay})") from None
+    return result, 1.0 / float(np.median(steps))

@@ -26,6 +26,7 @@ import casadi as ca
 import numpy as np
 
 from motiontwin.fmus import frontend, symbolic
+from motiontwin.harness.numbers import is_finite_number
 
 CONTROLLER_KINDS = ("discrete_state_space",)
 LIBRARY_PACKAGE = "MotionTwin.Controllers."   # named controllers: sampled classes of the project's library
@@ -140,7 +141,7 @@ def read_named_controller(doc: dict, where: str) -> Controller:
         if key not in values:
             raise ControllerError(f"{where}: field 'parameters.{key}': {kind} has no parameter {key!r} "
                               f"(parameters: {', '.join(names)})")
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        if not is_finite_number(value):
             raise ControllerError(f"{where}: field 'parameters.{key}' must be a finite number, got {value!r}")
         values[key] = float(value)
     ts = values[names[model.ts_index]]

@@ -1,6 +1,6 @@
 """Optimal periodic excitation for a serial joint in CasADi/IPOPT (Abdellatif eqs. 19-22; Bona eq. 20).
 
-Design variables: the Fourier coefficients a_k, b_k and the offset q0 of ident.trajectory (fundamental
+Design variables: the Fourier coefficients a_k, b_k and the offset q0 of harness.excitation.fourier_basis (fundamental
 frequency fixed). Constraints (eq. 20) on sampled instants of one period: |q - q_center| <= q_range,
 |qd| <= v_max, |qdd| <= a_max. Criteria:
   - 'condition' (deterministic design, eq. 21): condition number of the regressor. cond(Psi)^2 =
@@ -32,7 +32,7 @@ import casadi as ca
 import numpy as np
 
 from motiontwin.ident.joint import joint_regressor
-from motiontwin.ident.trajectory import fourier_basis, fourier_trajectory
+from motiontwin.harness.excitation import fourier_basis, fourier_trajectory
 
 if TYPE_CHECKING:  # ident.hexapod imports this module lazily; import it only for annotations
     from motiontwin.ident.hexapod import HexapodLimits, PoseExcitation
@@ -49,7 +49,6 @@ __all__ = [
     "fit_to_limits",
     "predicted_relative_std",
     "optimize_hexapod_excitation",
-    "cli_design_excitation",
 ]
 
 _P_NORM = 16
@@ -76,7 +75,9 @@ class ExcitationDesign:
     criterion: str
 
     def trajectory(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        return fourier_trajectory(t, self.fundamental_frequency, self.a, self.b, self.q0)
+        """Position, velocity and acceleration at times ``t``."""
+        profile = fourier_trajectory(t, self.fundamental_frequency, self.a, self.b, self.q0)
+        return profile.position, profile.velocity, profile.acceleration
 
 
 @dataclass(frozen=True)
@@ -354,66 +355,3 @@ def optimize_hexapod_excitation(limits: HexapodLimits, fundamental_frequency: fl
     design = PoseExcitation(coefficients[:n_harmonics].T, coefficients[n_harmonics:].T,
                             np.asarray(limits.center, dtype=float), fundamental_frequency)
     return HexapodDesign(fit_to_limits(design, limits), criterion, tuple(values), best)
-
-
-_CRITERIA = {"cond": "condition", "dopt": "d_optimal"}
-
-
-def cli_design_excitation(args) -> int:
-    """Handler of ``motiontwin design-excitation joint`` (arguments: criterion (cond|dopt), f0, harmonics,
-    q_center, q_range, v_max, a_max, sample_time, periods, starts, seed, design_samples, name, target, out).
-
-    Designs the joint's Fourier coefficients, prints its exact criteria beside the median of 20 random
-    designs under the same limits, and writes a ``fourier`` experiment file (harness.excitation) that
-    ``motiontwin excite`` samples."""
-    from motiontwin.harness.excitation import fourier_experiment_text, periodic_time_grid
-    from motiontwin.harness.recording import atomic_write_texts
-
-    for flag, value in (("--f0", args.f0), ("--q-range", args.q_range), ("--v-max", args.v_max),
-                        ("--a-max", args.a_max), ("--sample-time", args.sample_time)):
-        if not value > 0:
-            raise ValueError(f"{flag} must be > 0, got {value}")
-    for flag, value in (("--harmonics", args.harmonics), ("--periods", args.periods), ("--starts", args.starts)):
-        if value < 1:
-            raise ValueError(f"{flag} must be >= 1, got {value}")
-    if args.periods < 2:
-        raise ValueError(f"--periods must be >= 2 (identification averages periods), got {args.periods}")
-    try:
-        n_per = periodic_time_grid(1.0 / args.f0, 1, args.sample_time).size
-    except ValueError as exc:
-        raise ValueError(f"--sample-time {args.sample_time} with --f0 {args.f0}: {exc}") from None
-    if args.harmonics * args.f0 >= 0.5 / args.sample_time:
-        raise ValueError(f"--harmonics {args.harmonics} x --f0 {args.f0} Hz reaches the Nyquist frequency of "
-                         f"--sample-time {args.sample_time} s")
-    limits = ExcitationLimits(args.q_center, args.q_range, args.v_max, args.a_max)
-    criterion = _CRITERIA[args.criterion]
-    try:
-        design = optimize_excitation(limits, args.f0, args.harmonics, criterion=criterion,
-                                     n_samples=args.design_samples, n_starts=args.starts, seed=args.seed)
-    except RuntimeError as exc:
-        raise ValueError(f"{exc}; widen --q-range/--v-max/--a-max or try more --starts") from None
-    n_eval = max(n_per, 2000)
-    metrics = evaluate_design(design, limits, n_samples=n_eval)
-    rng = np.random.default_rng(args.seed)
-    randoms = [evaluate_design(random_design(limits, args.f0, args.harmonics, rng), limits, n_samples=n_eval)
-               for _ in range(20)]
-    print(f"{criterion} design, {args.harmonics} harmonics of {args.f0:g} Hz")
-    print(f"{'':>22} {'design':>12} {'random (median of 20)':>22}")
-    print(f"{'cond(regressor)':>22} {metrics.condition_number:12.4g} "
-          f"{np.median([r.condition_number for r in randoms]):22.4g}")
-    print(f"{'log det information':>22} {metrics.log_det_information:12.4g} "
-          f"{np.median([r.log_det_information for r in randoms]):22.4g}")
-    print(f"{'largest limit use':>22} {metrics.max_constraint_ratio:12.4g}")
-    comments = [f"Optimal Fourier excitation of a serial joint (ident/excitation_design.py), criterion {criterion}.",
-                f"Limits: q in {args.q_center:g} +- {args.q_range:g}, |qd| <= {args.v_max:g}, "
-                f"|qdd| <= {args.a_max:g} (rad or m, per s, per s^2).",
-                f"cond(regressor) = {metrics.condition_number:.6g}, log det information = "
-                f"{metrics.log_det_information:.6g}, largest limit use = {metrics.max_constraint_ratio:.4f}.",
-                "a, b are velocity amplitudes; duration = n_periods / f_fundamental."]
-    text = fourier_experiment_text(args.name or args.out.stem, args.sample_time, args.f0, args.periods,
-                                   design.a, design.b, design.q0, target=args.target, comments=comments,
-                                   description=f"{criterion} design, {args.harmonics} harmonics of {args.f0:g} Hz, "
-                                               f"{args.periods} periods", source=args.out)
-    atomic_write_texts({args.out: text})
-    print(args.out)
-    return 0

@@ -48,7 +48,7 @@ from motiontwin.ident.leastsquares import (
     gauss_markov,
 )
 from motiontwin.ident.signals import lowpass_differentiate, period_average, samples_per_period
-from motiontwin.ident.trajectory import fourier_basis
+from motiontwin.harness.excitation import fourier_basis
 from motiontwin.ident.units import UnitError, check_inertia, checked_columns
 
 __all__ = [

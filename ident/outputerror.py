@@ -34,11 +34,9 @@ Units: SI (s, m, N), those of the Modelica model.
 """
 from __future__ import annotations
 
-import json
 import logging
 import math
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Callable
 
 import casadi as ca
@@ -53,7 +51,7 @@ from motiontwin.ident.leastsquares import (LeastSquaresResult, UnidentifiableErr
                                           hac_covariance)
 
 __all__ = ["Signals", "Loop", "Weights", "Fit", "OutputErrorResult", "build_loop", "default_bounds",
-           "simulate", "residuals", "fit", "statistics", "identify", "cli_identify_oe", "bound_arrays",
+           "simulate", "residuals", "fit", "statistics", "identify", "bound_arrays",
            "state_indices", "weighted_jacobian", "output_state", "initial_motion_states"]
 
 
@@ -642,41 +640,3 @@ def identify(model: symbolic.SymbolicModel, rec: Recording, free: list[str], con
     result = refit(loop.with_values(result.values), weights)
     loop = loop.with_values(result.values)
     return OutputErrorResult(loop, result, weights, statistics(loop, result))
-
-
-def cli_identify_oe(args) -> int:
-    """``motiontwin identify oe``: refit, print the table and, with ``--out``, write the JSON that
-    ``motiontwin writeback --values`` reads ({"parameters", "std", "covariance", ...})."""
-    from motiontwin.fmus import build
-    from motiontwin.harness.recording import atomic_write_texts, read_recording
-    from motiontwin.ident.controller import load_controller
-
-    controller = load_controller(args.controller) if args.controller else None
-    signals = Signals(output=args.output, input=args.input)
-    required = [signals.output, signals.input] + ([signals.reference] if controller else [])
-    rec = read_recording(args.recording, required)
-    model = build.load_model(args.class_name, args.modelica)
-    free = [n.strip() for n in args.free.split(",") if n.strip()]
-    shooting, segments = getattr(args, "shooting", "single"), getattr(args, "segments", 4)
-    result = identify(model, rec, free, controller, signals, max_nfev=args.max_nfev, shooting=shooting,
-                      segments=segments)
-    stats = result.statistics
-    print(stats.summary())
-    how = f"multiple shooting, {segments} segments" if shooting == "multiple" else "single shooting"
-    print(f"RMS output error {result.fit.rms_q:.4g}; {'closed' if controller else 'open'} loop, "
-          f"{result.loop.substeps} RK4 substeps per sample, {how}")
-    if args.out:
-        solver = (f"multiple shooting ({segments} segments, IPOPT, " if shooting == "multiple"
-                  else "single shooting (")
-        method = (f"output-error refit, CasADi {solver}RK4, AD Jacobian), "
-                  f"{'closed loop' if controller else 'open loop'}")
-        doc = {"method": method, "recording": str(args.recording), "modelica": str(args.modelica),
-               "class": args.class_name, "parameters": stats.as_dict(),
-               "std": dict(zip(stats.names, stats.std.tolist())), "names": stats.names,
-               "std_hac": {n: (float(v) if np.isfinite(v) else None) for n, v in zip(stats.names, stats.robust_std)},
-               "hac_lags": stats.robust_lags,
-               "covariance": stats.covariance.tolist(), "correlation_condition": stats.correlation_condition,
-               "rms_output_error": result.fit.rms_q, "converged": result.fit.success}
-        atomic_write_texts({Path(args.out): json.dumps(doc, indent=2) + "\n"})
-        print(args.out)
-    return 0

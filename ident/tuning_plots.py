@@ -27,7 +27,7 @@ import numpy as np
 from motiontwin.ident.frf import JointModel
 from motiontwin.ident.tuning import LoopMargins, TuningSpec, frequency_grid, loop_margins, loop_system
 
-__all__ = ["loop_responses", "loop_figure", "write_loop_figure", "plants_from_document", "main"]
+__all__ = ["loop_responses", "loop_figure", "write_loop_figure", "plants_from_document", "replot_design"]
 
 
 def loop_responses(parameters: dict[str, float], plants: Sequence[JointModel | control.LTI],
@@ -164,38 +164,44 @@ def plants_from_document(entries: list, where: str) -> list[JointModel | control
     return plants
 
 
-def main(argv: list[str] | None = None) -> list[Path]:
-    """Command line: replot the loop figures of a ``motiontwin tune --out`` design file."""
-    import argparse
+def replot_design(design: Path | str, out: Path | str) -> list[Path]:
+    """Redraw the loop figures of a ``motiontwin tune --out`` design file (one joint or a manipulator's four).
+
+    Parameters
+    ----------
+    design : path
+        JSON written by ``motiontwin tune --out``.
+    out : path
+        Folder for ``tuning_joint.png`` or ``tuning_manipulator_d1.png`` ... ``_d7.png``.
+
+    Returns
+    -------
+    list of Path
+        The figures written.
+
+    Raises
+    ------
+    ValueError
+        When the file is not JSON (naming line and column) or a field is missing or unusable.
+    """
     import json
 
-    parser = argparse.ArgumentParser(description="Bode/Nyquist/sensitivity figures of a tuned design file")
-    parser.add_argument("design", type=Path, help="JSON written by motiontwin tune --out")
-    parser.add_argument("--out", type=Path, required=True, help="folder for tuning_*.png")
-    args = parser.parse_args(argv)
+    design, out = Path(design), Path(out)
     try:
-        doc = json.loads(args.design.read_text(encoding="utf-8"))
+        doc = json.loads(design.read_text(encoding="utf-8"))
     except json.JSONDecodeError as err:
-        raise SystemExit(f"{args.design}: line {err.lineno}, column {err.colno}: {err.msg}") from None
+        raise ValueError(f"{design}: line {err.lineno}, column {err.colno}: {err.msg}") from None
     joints = ({f"manipulator_{k}": v for k, v in doc["joints"].items()} if "joints" in doc else {"joint": doc})
     written = []
     for name, joint in joints.items():
-        where = f"{args.design}: joint {name}"
+        where = f"{design}: joint {name}"
         for key in ("parameters", "plants", "spec", "delay_samples"):
             if key not in joint:
-                raise SystemExit(f"{where}: field '{key}' is missing")
-        try:
-            plants = plants_from_document(joint["plants"], where)
-        except ValueError as err:
-            raise SystemExit(str(err)) from None
+                raise ValueError(f"{where}: field '{key}' is missing")
+        plants = plants_from_document(joint["plants"], where)
         spec = TuningSpec(**joint["spec"])
         labels = [f"set {k}: K={p.gain:.3g}" if isinstance(p, JointModel) else f"pose {k}"
                   for k, p in enumerate(plants)]
-        written.append(write_loop_figure(args.out / f"tuning_{name}.png", joint["parameters"], plants,
-                                         int(joint["delay_samples"]), labels, f"{args.design.name}: {name}", spec))
-        print(written[-1])
+        written.append(write_loop_figure(out / f"tuning_{name}.png", joint["parameters"], plants,
+                                         int(joint["delay_samples"]), labels, f"{design.name}: {name}", spec))
     return written
-
-
-if __name__ == "__main__":
-    main()

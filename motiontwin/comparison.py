@@ -616,16 +616,3 @@ def _json_default(value: Any) -> Any:
     if isinstance(value, (np.floating, np.integer)):
         return value.item()
     raise TypeError(f"not JSON serialisable: {type(value).__name__}")
-
-
-def cli_compare(args: Any) -> int:
-    """``motiontwin compare``: run both controllers, print the tables, write recordings, tables and figures."""
-    if args.stop_time <= PRE_MOVE + MOVE_TIME + SS_WINDOW:
-        raise ValueError(f"--stop-time {args.stop_time:g} s must exceed {PRE_MOVE + MOVE_TIME + SS_WINDOW:g} s "
-                         f"(the move plus the steady-state window)")
-    result = run_comparison(args.fmu_dir or args.out / "fmus", args.design, args.stop_time, args.ct_pole_hz,
-                            table2_reading=args.table2_reading)
-    print(format_table(result))
-    for path in write_outputs(result, args.out):
-        print(path)
-    return 0

@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.integrate import solve_ivp
 
-from motiontwin.ident.trajectory import fourier_trajectory
+from motiontwin.harness.excitation import fourier_trajectory
 
 JOINT_TRUTH = {
     "J": 0.5,
@@ -45,8 +45,8 @@ def simulate_joint_period(
     kp, kd = truth["J"] * wn**2, 2 * 0.7 * wn * truth["J"]
 
     def reference(t):
-        r, rd, rdd = fourier_trajectory(np.atleast_1d(t), f0, a, b, q0)
-        return r, rd, rdd
+        profile = fourier_trajectory(np.atleast_1d(t), f0, a, b, q0)
+        return profile.position, profile.velocity, profile.acceleration
 
     def control(t, q, qd):
         r, rd, rdd = reference(t)

@@ -211,13 +211,13 @@ def test_identify_frf_recovers_the_joint_model_from_a_swept_sine_recording(tmp_p
 
 
 def test_identify_joint_ml_estimates_the_cutoff_and_the_parameters(tmp_path, capsys):
-    """identify joint --ml on band-limited data (tests/test_ident_ml.py: 10 harmonics of 0.5 Hz, so the
+    """identify joint --ml on band-limited data (tests/test_ident_maximum_likelihood.py: 10 harmonics of 0.5 Hz, so the
     likelihood-optimal cut-off lies in [5.0, 5.5) Hz), started at 3 Hz where the plain Gauss-Markov fit is
     far off: the cut-off is found and the parameters match the truth within 4 std, in SerialRobotJoint names."""
     import json
 
     from tests.ident_truth import JOINT_TRUTH
-    from tests.test_ident_ml import FS, NAMES, TRUTH, band_limited_periods
+    from tests.test_ident_maximum_likelihood import FS, NAMES, TRUTH, band_limited_periods
 
     qs, taus = band_limited_periods(1)
     path = tmp_path / "band.csv"

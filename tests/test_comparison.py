@@ -1,4 +1,4 @@
-"""harness.comparison: the paper's robust vs computed-torque comparison on the coupled 4-DOF plant.
+"""motiontwin.comparison: the paper's robust vs computed-torque comparison on the coupled 4-DOF plant.
 
 Independent references: the target pose of the paper (a constant) and the Python inverse kinematics for
 where the run must end; the plant FMU's own Modelica forward kinematics against harness.kinematics; fmpy's

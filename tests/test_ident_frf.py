@@ -136,11 +136,10 @@ def test_worst_case_over_positions_selects_the_lowest_gain_within_2_percent():
 
 def test_cli_handler_writes_the_worst_case_document(tmp_path, capsys):
     """The proposed `motiontwin identify frf A.csv B.csv --worst-case --out fit.json` handler."""
-    import argparse
     import json
 
+    from motiontwin.cli import main
     from motiontwin.harness.recording import write_recording
-    from motiontwin.ident.frf import cli_identify_frf
 
     w = 2 * np.pi
     models = [JointModel(52.0, 20.0, ((w * 220, 0.04),), ((w * 150, 0.03),)),
@@ -150,15 +149,14 @@ def test_cli_handler_writes_the_worst_case_document(tmp_path, capsys):
         paths.append(tmp_path / f"position{k}.csv")
         write_recording(paths[-1], _sweep_recording(model, 10 + k))
     out = tmp_path / "fit.json"
-    args = argparse.Namespace(recording=paths, input="u", position="q", segment=4096, min_coherence=0.9,
-                              worst_case=True, out=out)
-    assert cli_identify_frf(args) == 0
+    args = ["identify", "frf", *map(str, paths), "--segment", "4096", "--out", str(out)]
+    assert main([*args, "--worst-case"]) == 0
     doc = json.loads(out.read_text())
     assert doc["recording"] == str(paths[1]) and doc["worst_case"]["selected"] == 1
     assert doc["parameters"]["K"] == pytest.approx(41.0, rel=0.02)
     assert "worst case (lowest K)" in capsys.readouterr().out
-    with pytest.raises(ValueError, match="pass --worst-case"):
-        cli_identify_frf(argparse.Namespace(**{**vars(args), "worst_case": False}))
+    assert main(args) == 1
+    assert "pass --worst-case" in capsys.readouterr().err
 
 
 CHEUNG_DEFAULTS = JointModel(1.0, 10.0, ((2450.0, 0.05),), ((1885.0, 0.05),))  # CheungJoint FMU defaults

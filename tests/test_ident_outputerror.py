@@ -3,8 +3,8 @@ project's FMU run by fmpy (the C runtime's RODAS4 integrator), open loop and in 
 with white encoder noise. Units: s, m, N."""
 from __future__ import annotations
 
-import argparse
 import json
+import re
 from pathlib import Path
 
 import fmpy
@@ -13,8 +13,9 @@ import pytest
 import scipy.signal as sps
 from fmpy.fmi2 import FMU2Slave
 
+from motiontwin.cli import main
 from motiontwin.fmus import build, writeback
-from motiontwin.harness.recording import RecordingError, make_recording, write_recording
+from motiontwin.harness.recording import make_recording, write_recording
 from motiontwin.ident import multipleshooting as ms
 from motiontwin.ident import outputerror as oe
 from motiontwin.ident.controller import Controller, controller_document
@@ -170,19 +171,20 @@ def test_unknown_parameter_and_missing_column(model, open_loop_data):
         oe.identify(model, rec, ["m"], signals=oe.Signals(input="force"))
 
 
-def _cli_args(recording: Path, out: Path, controller: Path | None = None) -> argparse.Namespace:
-    return argparse.Namespace(recording=recording, modelica=build.MODELICA_DIR, class_name=CLASS, free="m,d",
-                              input="u", output="q", controller=controller, out=out, max_nfev=50)
+def _cli_args(recording: Path, out: Path, controller: Path | None = None) -> list[str]:
+    """``motiontwin identify oe`` arguments: refit m and d of the library joint."""
+    return (["identify", "oe", str(recording), "--class", CLASS, "--free", "m,d", "--out", str(out)]
+            + (["--controller", str(controller)] if controller else []))
 
 
-def test_cli_writes_fit_that_writeback_reproduces(fmu, open_loop_data, tmp_path):
+def test_cli_writes_fit_that_writeback_reproduces(fmu, open_loop_data, tmp_path, capsys):
     """identify oe -> JSON -> write-back into a new FMU -> fmpy re-simulation reproduces the fitted model."""
     u, q_true = open_loop_data
     q = q_true + NOISE * np.random.default_rng(5).standard_normal(u.size)
     csv = tmp_path / "rec.csv"
     write_recording(csv, make_recording(np.arange(u.size) * TS, {"u": u, "q": q}))
     out = tmp_path / "fit.json"
-    assert oe.cli_identify_oe(_cli_args(csv, out)) == 0
+    assert main(_cli_args(csv, out)) == 0
     doc = json.loads(out.read_text())
     assert set(doc) >= {"parameters", "std", "covariance", "names", "method", "recording"}
     assert np.array(doc["covariance"]).shape == (2, 2)
@@ -191,8 +193,9 @@ def test_cli_writes_fit_that_writeback_reproduces(fmu, open_loop_data, tmp_path)
     assert np.sqrt(np.mean((q_new - q) ** 2)) == pytest.approx(NOISE, rel=0.1)
     bad = tmp_path / "bad.csv"
     write_recording(bad, make_recording(np.arange(u.size) * TS, {"u": u, "x": q}))
-    with pytest.raises(RecordingError, match=r"bad.csv, row 1: required column 'q' missing"):
-        oe.cli_identify_oe(_cli_args(bad, tmp_path / "never.json"))
+    capsys.readouterr()
+    assert main(_cli_args(bad, tmp_path / "never.json")) == 1
+    assert re.search(r"bad.csv, row 1: required column 'q' missing", capsys.readouterr().err)
     assert not (tmp_path / "never.json").exists()
 
 
@@ -207,7 +210,7 @@ def test_cli_closed_loop_controller_file(tmp_path, model, fmu):
     csv = tmp_path / "loop.csv"
     write_recording(csv, make_recording(np.arange(n) * TS, {"r": r, "u": u, "q": q, "u_ext": u_ext}))
     out = tmp_path / "fit.json"
-    assert oe.cli_identify_oe(_cli_args(csv, out, path)) == 0
+    assert main(_cli_args(csv, out, path)) == 0
     est = json.loads(out.read_text())["parameters"]
     assert est["m"] == pytest.approx(TRUTH["m"], rel=1e-3) and est["d"] == pytest.approx(TRUTH["d"], rel=1e-3)
 

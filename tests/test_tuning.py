@@ -11,8 +11,9 @@ import numpy as np
 import pytest
 from fmpy.fmi2 import FMU2Slave
 
+from motiontwin.cli.arguments import name_values
 from motiontwin.fmus import build, writeback
-from motiontwin.ident import tuning
+from motiontwin.ident import tuning, tuning_margins
 from motiontwin.ident.frf import JointModel
 
 TS = 5e-4
@@ -114,7 +115,7 @@ def test_fmu_law_equals_paper_equations_tustin() -> None:
 def test_fast_margins_match_python_control_on_cheung_loop() -> None:
     """The search's numpy evaluation agrees with python-control's stability_margins on the Table 2 d1 loop."""
     p = tuning.controller_defaults()
-    fast = tuning._LoopEvaluator([NOMINAL], TS, 1).evaluate(p)[0]
+    fast = tuning_margins._LoopEvaluator([NOMINAL], TS, 1).evaluate(p)[0]
     gm, pm, *_ = python_control_margins(independent_loop(p, NOMINAL))
     assert fast.stable
     assert fast.gm_db == pytest.approx(gm, abs=0.1)
@@ -208,12 +209,14 @@ def test_write_back_tuned_values_into_controller_fmu(tuned: tuning.TuningResult,
 def test_cli_plant_parsing_defaults_and_errors() -> None:
     """--plant fields override the CheungJoint start values; a bad field is named."""
     defaults = {"K": 1.0, "alpha": 10.0, "omega": 2450.0, "zeta": 0.05, "omega_bar": 1885.0, "zeta_bar": 0.05}
-    plant = tuning.parse_plant("K=0.7, omega=2600", defaults)
+    plant = tuning.joint_model_from_fields(name_values("K=0.7, omega=2600", "--plant"), defaults)
     assert plant == JointModel(0.7, 10.0, ((2600.0, 0.05),), ((1885.0, 0.05),))
-    with pytest.raises(tuning.TuningError, match=r"--plant 'K=1,mass=2': field 'mass=2'"):
-        tuning.parse_plant("K=1,mass=2", defaults)
-    with pytest.raises(tuning.TuningError, match=r"field 'zeta' = 'x' is not a number"):
-        tuning.parse_plant("zeta=x", defaults)
+    with pytest.raises(tuning.TuningError, match=r"--plant 'K=1,mass=2': field 'mass' is not one of K, alpha"):
+        tuning.joint_model_from_fields(name_values("K=1,mass=2", "--plant"), defaults, "--plant 'K=1,mass=2'")
+    with pytest.raises(ValueError, match=r"--plant 'zeta=x': field 'zeta' = 'x' is not a number"):
+        name_values("zeta=x", "--plant")
+    with pytest.raises(ValueError, match=r"--plant 'K': field 'K' must be NAME=VALUE"):
+        name_values("K", "--plant")
 
 
 def test_plant_from_linearised_fmu_gives_same_margins(tmp_path) -> None:

@@ -8,6 +8,7 @@ import matplotlib.image
 import numpy as np
 import pytest
 
+from motiontwin.cli import main
 from motiontwin.ident import tuning, tuning_plots
 from tests.test_tuning import NOMINAL, TS, independent_loop, python_control_margins
 
@@ -58,7 +59,7 @@ def test_png_written_atomically(design: dict[str, float], tmp_path) -> None:
 
 
 def test_replot_from_design_file(design: dict[str, float], tmp_path) -> None:
-    """python -m motiontwin.ident.tuning_plots DESIGN.json --out DIR rebuilds the plant sets from the JSON and draws them."""
+    """motiontwin plot-tuning DESIGN.json --out DIR rebuilds the plant sets from the JSON and draws them."""
     import json
     from dataclasses import asdict
 
@@ -66,7 +67,9 @@ def test_replot_from_design_file(design: dict[str, float], tmp_path) -> None:
     path = tmp_path / "joint.json"
     path.write_text(json.dumps(result.as_dict() | {"plants": [asdict(PLANTS[0])]}))
     assert tuning_plots.plants_from_document(json.loads(path.read_text())["plants"], "x") == [PLANTS[0]]
-    (png,) = tuning_plots.main([str(path), "--out", str(tmp_path / "figs")])
+    assert main(["plot-tuning", str(path), "--out", str(tmp_path / "figs")]) == 0
+    (png,) = (tmp_path / "figs").iterdir()
     assert png.name == "tuning_joint.png" and matplotlib.image.imread(png).ndim == 3
+    assert tuning_plots.replot_design(path, tmp_path / "again") == [tmp_path / "again" / "tuning_joint.png"]
     with pytest.raises(ValueError, match=r"x: field 'plants\[0\]' is neither"):
         tuning_plots.plants_from_document(["<StateSpace>"], "x")

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 import scipy.optimize
 
-from motiontwin.ident import tuning
+from motiontwin.ident import tuning, tuning_optimisation
 from tests.test_tuning import NOMINAL, SPEC, TS, independent_loop, python_control_margins
 
 # a short search whose Nelder-Mead end (worst-case CLBW 59.6 Hz) the gradient stage lifts to 82 Hz
@@ -40,7 +40,7 @@ def test_gradient_stage_reaches_analytic_worst_case_optimum() -> None:
         return [_margins(20.0, 50.0, ms, 100 * x[0] + 20), _margins(20.0, 50.0, 1.1, 100 * x[1])]
 
     spec = tuning.TuningSpec(ms_max=1.5)
-    x = tuning._refine_gradient(evaluate, np.array([0.1, 0.1]), [(0.0, 2.0), (0.0, 2.0)], spec, 100.0, 100)
+    x = tuning_optimisation._refine_gradient(evaluate, np.array([0.1, 0.1]), [(0.0, 2.0), (0.0, 2.0)], spec, 100.0, 100)
     np.testing.assert_allclose(x, [0.6, 0.8], atol=1e-4)
     assert min(m.bandwidth_hz for m in evaluate(x)) == pytest.approx(80.0, abs=1e-2)
     assert evaluate(x)[0].ms <= spec.ms_max

@@ -8,7 +8,7 @@ import control
 import numpy as np
 import pytest
 
-from motiontwin.ident import tuning
+from motiontwin.ident import tuning, tuning_margins, tuning_spec
 from motiontwin.ident.frf import JointModel
 
 TS = 5e-4
@@ -63,7 +63,7 @@ def test_tau_of_a_full_design_equals_python_control_feedback_poles():
     reference = -TS / math.log(float(np.max(np.abs(poles))))
     margins = tuning.loop_margins(params, NOMINAL, 1, points=500)
     assert margins.tau_cl == pytest.approx(reference, rel=1e-6)
-    fast = tuning._LoopEvaluator([NOMINAL], TS, 1, 300).evaluate(params)[0]
+    fast = tuning_margins._LoopEvaluator([NOMINAL], TS, 1, 300).evaluate(params)[0]
     assert fast.tau_cl == pytest.approx(reference, rel=1e-6)
 
 
@@ -83,7 +83,7 @@ def test_slow_integral_design_is_reported_with_its_shortfall():
     found = tuning.violations([margins], spec)
     assert [v[0] for v in found] == ["slowest closed-loop time constant tau_cl <= 0.02 s"]
     assert found[0][1] == margins.tau_cl and found[0][3] == "s"
-    assert "tau_cl <= 0.02 s infeasible: best design reaches" in tuning._format_violations(found)
+    assert "tau_cl <= 0.02 s infeasible: best design reaches" in tuning_spec._format_violations(found)
 
 
 def test_tune_meets_tau_max_on_every_plant_set():

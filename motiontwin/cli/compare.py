@@ -6,9 +6,18 @@ from pathlib import Path
 
 
 def _compare(args: argparse.Namespace) -> int:
-    from motiontwin.comparison import cli_compare
+    """Run both controllers, print the tables, write recordings, tables and figures."""
+    from motiontwin.comparison import MOVE_TIME, PRE_MOVE, SS_WINDOW, format_table, run_comparison, write_outputs
 
-    return cli_compare(args)
+    if args.stop_time <= PRE_MOVE + MOVE_TIME + SS_WINDOW:
+        raise ValueError(f"--stop-time {args.stop_time:g} s must exceed {PRE_MOVE + MOVE_TIME + SS_WINDOW:g} s "
+                         f"(the move plus the steady-state window)")
+    result = run_comparison(args.fmu_dir or args.out / "fmus", args.design, args.stop_time, args.ct_pole_hz,
+                            table2_reading=args.table2_reading)
+    print(format_table(result))
+    for path in write_outputs(result, args.out):
+        print(path)
+    return 0
 
 
 def register(sub: argparse._SubParsersAction) -> None:

@@ -53,10 +53,10 @@ def _identify_joint_ml(args: argparse.Namespace) -> int:
     import json
 
     from motiontwin.harness import recording
-    from motiontwin.ident.ml import identify_joint_ml_recording
+    from motiontwin.ident.maximum_likelihood import identify_joint_ml_recording
 
     if args.friction not in ("auto", "asymmetric") or args.gravity not in ("auto", "sine"):
-        raise ValueError(f"--ml models the revolute joint with asymmetric friction and sine gravity only (ident.ml), "
+        raise ValueError(f"--ml models the revolute joint with asymmetric friction and sine gravity only (ident.maximum_likelihood), "
                          f"got --friction {args.friction!r} --gravity {args.gravity!r}")
     if args.cutoff_range is not None and not 0 < args.cutoff_range[0] < args.cutoff_range[1]:
         raise ValueError(f"--cutoff-range LOW HIGH must satisfy 0 < LOW < HIGH [Hz], got {args.cutoff_range}")
@@ -108,21 +108,129 @@ def _identify_joint(args: argparse.Namespace) -> int:
 
 
 def _identify_frf(args: argparse.Namespace) -> int:
-    from motiontwin.ident.frf import cli_identify_frf
+    """``identify frf REC [REC ...]``: prints unit conversions, where alpha comes from, the fitted band, the
+    parameters (with --worst-case the per-position table) and writes ``frf_document`` to --out."""
+    import json
 
-    return cli_identify_frf(args)
+    from motiontwin.harness import recording
+    from motiontwin.ident.frf import frf_document, identify_frf_recording, identify_frf_worst_case
+
+    paths = list(args.recording)
+    if len(paths) > 1 and not args.worst_case:
+        raise ValueError(f"{len(paths)} recordings given: pass --worst-case to fit each and select the lowest gain")
+    columns = ("time", args.input, args.position)
+    options = dict(input=args.input, position=args.position, segment_length=args.segment,
+                   min_coherence=args.min_coherence, alpha=args.alpha)
+    if args.low_frequency is not None:
+        options.update(low_frequency=recording.read_recording(args.low_frequency, required=columns),
+                       low_frequency_source=str(args.low_frequency))
+    recs = [recording.read_recording(p, required=columns) for p in paths]
+    if args.worst_case:
+        result, notes = identify_frf_worst_case(recs, [str(p) for p in paths], **options)
+        selected = result.fits[result.selected]
+    else:
+        result, notes = identify_frf_recording(recs[0], source=str(paths[0]), **options)
+        selected = result
+    for note in notes:
+        print(note)
+    data = selected.data
+    print(f"fitted band {data.frequency[0]:.4g}-{data.frequency[-1]:.4g} Hz ({data.frequency.size} FRF points)")
+    if args.worst_case:
+        print(result.table())
+    doc = frf_document(result, str(paths[0]))
+    if notes:
+        doc["notes"] = notes
+    for name, value in doc["parameters"].items():
+        print(f"{name:>12} {value:13.6g}")
+    print(f"rms log-magnitude error {selected.rms_log_error:.3g}")
+    if args.out:
+        recording.atomic_write_texts({args.out: json.dumps(doc, indent=2) + "\n"})
+        print(args.out)
+    return 0
 
 
 def _identify_oe(args: argparse.Namespace) -> int:
-    from motiontwin.ident.outputerror import cli_identify_oe
+    """``identify oe``: refit, print the table and, with --out, write the JSON that ``writeback --values``
+    reads ({"parameters", "std", "covariance", ...})."""
+    import json
 
-    return cli_identify_oe(args)
+    from motiontwin.fmus import build
+    from motiontwin.harness.recording import atomic_write_texts, read_recording
+    from motiontwin.ident.controller import load_controller
+    from motiontwin.ident.outputerror import Signals, identify
+
+    controller = load_controller(args.controller) if args.controller else None
+    signals = Signals(output=args.output, input=args.input)
+    required = [signals.output, signals.input] + ([signals.reference] if controller else [])
+    rec = read_recording(args.recording, required)
+    model = build.load_model(args.class_name, args.modelica)
+    free = [n.strip() for n in args.free.split(",") if n.strip()]
+    result = identify(model, rec, free, controller, signals, max_nfev=args.max_nfev, shooting=args.shooting,
+                      segments=args.segments)
+    stats = result.statistics
+    print(stats.summary())
+    multiple = args.shooting == "multiple"
+    how = f"multiple shooting, {args.segments} segments" if multiple else "single shooting"
+    print(f"RMS output error {result.fit.rms_q:.4g}; {'closed' if controller else 'open'} loop, "
+          f"{result.loop.substeps} RK4 substeps per sample, {how}")
+    if args.out:
+        solver = f"multiple shooting ({args.segments} segments, IPOPT, " if multiple else "single shooting ("
+        method = (f"output-error refit, CasADi {solver}RK4, AD Jacobian), "
+                  f"{'closed loop' if controller else 'open loop'}")
+        doc = {"method": method, "recording": str(args.recording), "modelica": str(args.modelica),
+               "class": args.class_name, "parameters": stats.as_dict(),
+               "std": dict(zip(stats.names, stats.std.tolist())), "names": stats.names,
+               "std_hac": {n: (float(v) if np.isfinite(v) else None) for n, v in zip(stats.names, stats.robust_std)},
+               "hac_lags": stats.robust_lags,
+               "covariance": stats.covariance.tolist(), "correlation_condition": stats.correlation_condition,
+               "rms_output_error": result.fit.rms_q, "converged": result.fit.success}
+        atomic_write_texts({args.out: json.dumps(doc, indent=2) + "\n"})
+        print(args.out)
+    return 0
 
 
 def _identify_projection(args: argparse.Namespace) -> int:
-    from motiontwin.ident.closedloop import cli_identify_projection
+    """``identify projection``: the projection-method estimate printed next to the naive output-error one,
+    both written to --out as JSON."""
+    import json
 
-    return cli_identify_projection(args)
+    from motiontwin.harness import recording
+    from motiontwin.ident.closedloop import identify_projection_recording, model_features
+
+    for flag, value, least in (("--nb", args.nb, 1), ("--nf", args.nf, 1), ("--delay", args.delay, 0),
+                               ("--noncausal", args.noncausal, 0), ("--causal", args.causal, 0),
+                               ("--skip", args.skip, 0)):
+        if value is not None and value < least:
+            raise ValueError(f"{flag} must be >= {least}, got {value}")
+    rec = recording.read_recording(args.recording, required=("time", args.reference, args.input, args.output))
+    skip = args.causal if args.skip is None else args.skip
+    result, fs = identify_projection_recording(rec, args.reference, args.input, args.output, args.nb, args.nf,
+                                               delay=args.delay, n_noncausal=args.noncausal, n_causal=args.causal,
+                                               periodic=args.periodic, skip=skip, source=str(args.recording))
+    projected, naive = (model_features(m, fs) for m in (result.projection_model, result.naive_model))
+    print(f"projection of {args.input!r} on {args.reference!r}: lags -{args.noncausal}..{args.causal}, "
+          f"corr(u_hat, u - u_hat) = {result.projection.correlation:.2e}")
+    print(f"{'':>16} {'projection':>14} {'naive OE':>14}")
+    rows = [("static gain", projected["static_gain"], naive["static_gain"])]
+    for k, (mp, mn) in enumerate(zip(projected["modes"], naive["modes"]), start=1):
+        rows += [(f"mode {k} f [Hz]", mp["frequency_hz"], mn["frequency_hz"]),
+                 (f"mode {k} damping", mp["damping"], mn["damping"])]
+    rows += [(f"b{i}", bp, bn) for i, (bp, bn) in enumerate(zip(projected["b"], naive["b"]))]
+    rows += [(f"f{i}", fp, fn) for i, (fp, fn) in enumerate(zip(projected["f"], naive["f"])) if i > 0]
+    rows.append(("rms error", projected["rms_error"], naive["rms_error"]))
+    for name, a, b in rows:
+        print(f"{name:>16} {a:14.6g} {b:14.6g}")
+    if args.out:
+        doc = {"method": "projection method, output-error model y = B/F u_hat (Bona eqs. 10-12)",
+               "recording": str(args.recording), "columns": {"reference": args.reference, "input": args.input,
+                                                             "output": args.output},
+               "sample_rate": fs, "orders": {"nb": args.nb, "nf": args.nf, "delay": args.delay, "skip": skip},
+               "projection": {"n_noncausal": args.noncausal, "n_causal": args.causal, "periodic": args.periodic,
+                              "correlation": result.projection.correlation},
+               "projection_model": projected, "naive_model": naive}
+        recording.atomic_write_texts({args.out: json.dumps(doc, indent=2) + "\n"})
+        print(args.out)
+    return 0
 
 
 def _identify_hexapod(args: argparse.Namespace) -> int:
@@ -139,10 +247,66 @@ def _identify_hexapod(args: argparse.Namespace) -> int:
     return _report_fit(result.fit, args, "hexapod base parameters, Gauss-Markov least squares (Abdellatif)")
 
 
-def _design_excitation(args: argparse.Namespace) -> int:
-    from motiontwin.ident.excitation_design import cli_design_excitation
+EXCITATION_CRITERIA = {"cond": "condition", "dopt": "d_optimal"}
 
-    return cli_design_excitation(args)
+
+def _design_excitation(args: argparse.Namespace) -> int:
+    """``design-excitation joint``: designs the joint's Fourier coefficients, prints its exact criteria beside
+    the median of 20 random designs under the same limits, and writes a ``fourier`` experiment file
+    (harness.excitation) that ``motiontwin excite`` samples."""
+    from motiontwin.harness.excitation import fourier_experiment_text, periodic_time_grid
+    from motiontwin.harness.recording import atomic_write_texts
+    from motiontwin.ident.excitation_design import (ExcitationLimits, evaluate_design, optimize_excitation,
+                                                    random_design)
+
+    for flag, value in (("--f0", args.f0), ("--q-range", args.q_range), ("--v-max", args.v_max),
+                        ("--a-max", args.a_max), ("--sample-time", args.sample_time)):
+        if not value > 0:
+            raise ValueError(f"{flag} must be > 0, got {value}")
+    for flag, value in (("--harmonics", args.harmonics), ("--periods", args.periods), ("--starts", args.starts)):
+        if value < 1:
+            raise ValueError(f"{flag} must be >= 1, got {value}")
+    if args.periods < 2:
+        raise ValueError(f"--periods must be >= 2 (identification averages periods), got {args.periods}")
+    try:
+        n_per = periodic_time_grid(1.0 / args.f0, 1, args.sample_time).size
+    except ValueError as exc:
+        raise ValueError(f"--sample-time {args.sample_time} with --f0 {args.f0}: {exc}") from None
+    if args.harmonics * args.f0 >= 0.5 / args.sample_time:
+        raise ValueError(f"--harmonics {args.harmonics} x --f0 {args.f0} Hz reaches the Nyquist frequency of "
+                         f"--sample-time {args.sample_time} s")
+    limits = ExcitationLimits(args.q_center, args.q_range, args.v_max, args.a_max)
+    criterion = EXCITATION_CRITERIA[args.criterion]
+    try:
+        design = optimize_excitation(limits, args.f0, args.harmonics, criterion=criterion,
+                                     n_samples=args.design_samples, n_starts=args.starts, seed=args.seed)
+    except RuntimeError as exc:
+        raise ValueError(f"{exc}; widen --q-range/--v-max/--a-max or try more --starts") from None
+    n_eval = max(n_per, 2000)
+    metrics = evaluate_design(design, limits, n_samples=n_eval)
+    rng = np.random.default_rng(args.seed)
+    randoms = [evaluate_design(random_design(limits, args.f0, args.harmonics, rng), limits, n_samples=n_eval)
+               for _ in range(20)]
+    print(f"{criterion} design, {args.harmonics} harmonics of {args.f0:g} Hz")
+    print(f"{'':>22} {'design':>12} {'random (median of 20)':>22}")
+    print(f"{'cond(regressor)':>22} {metrics.condition_number:12.4g} "
+          f"{np.median([r.condition_number for r in randoms]):22.4g}")
+    print(f"{'log det information':>22} {metrics.log_det_information:12.4g} "
+          f"{np.median([r.log_det_information for r in randoms]):22.4g}")
+    print(f"{'largest limit use':>22} {metrics.max_constraint_ratio:12.4g}")
+    comments = [f"Optimal Fourier excitation of a serial joint (ident/excitation_design.py), criterion {criterion}.",
+                f"Limits: q in {args.q_center:g} +- {args.q_range:g}, |qd| <= {args.v_max:g}, "
+                f"|qdd| <= {args.a_max:g} (rad or m, per s, per s^2).",
+                f"cond(regressor) = {metrics.condition_number:.6g}, log det information = "
+                f"{metrics.log_det_information:.6g}, largest limit use = {metrics.max_constraint_ratio:.4f}.",
+                "a, b are velocity amplitudes; duration = n_periods / f_fundamental."]
+    text = fourier_experiment_text(args.name or args.out.stem, args.sample_time, args.f0, args.periods,
+                                   design.a, design.b, design.q0, target=args.target, comments=comments,
+                                   description=f"{criterion} design, {args.harmonics} harmonics of {args.f0:g} Hz, "
+                                               f"{args.periods} periods", source=args.out)
+    atomic_write_texts({args.out: text})
+    print(args.out)
+    return 0
 
 
 def register(sub: argparse._SubParsersAction) -> None:

@@ -4,7 +4,6 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-import numpy as np
 
 
 def _excite(args: argparse.Namespace) -> int:
@@ -18,30 +17,17 @@ def _excite(args: argparse.Namespace) -> int:
     return 0
 
 
-def _log_recording(logs: dict[str, np.ndarray], group: str | None, meta: dict, **provenance: object):
-    """The recording of one log group of a master run (units and FMUs from ``meta``)."""
-    from motiontwin.harness import recording
-
-    group = group or next(iter(logs))
-    if group not in logs:
-        raise ValueError(f"log group {group!r}: the system logs {sorted(logs)}")
-    log = logs[group]
-    columns = {name: log[name] for name in log.dtype.names if name != "time"}
-    units = {name: meta["units"].get(name) or "" for name in columns}
-    return recording.make_recording(log["time"], columns, units, sample_time=float(log["time"][1] - log["time"][0]),
-                                    fmus=meta["fmus"], **provenance)
-
-
 def _run(args: argparse.Namespace) -> int:
     from motiontwin.harness import recording
     from motiontwin.harness.inputs import input_from_spec
     from motiontwin.harness.master import Master
+    from motiontwin.harness.simulation import recording_from_log
 
     inputs = dict(input_from_spec(spec) for spec in args.input)
     with Master(args.system) as master:
         logs = master.run(inputs=inputs, stop_time=args.stop_time)
         meta = master.metadata()
-    rec = _log_recording(logs, args.log, meta, excited={"inputs": args.input},
+    rec = recording_from_log(logs, args.log, meta, excited={"inputs": args.input},
                          metadata={"system": str(args.system), "order": meta["order"]})
     for path in recording.write_recording(args.out, rec):
         print(path)
@@ -55,6 +41,7 @@ def _sweep(args: argparse.Namespace) -> int:
     from motiontwin.harness import recording, sweep
     from motiontwin.harness.executor import make_executor
     from motiontwin.harness.master import master_for
+    from motiontwin.harness.simulation import recording_from_log
 
     plan = sweep.load_sweep(args.sweep)
     t0 = time.perf_counter()
@@ -64,7 +51,7 @@ def _sweep(args: argparse.Namespace) -> int:
     meta = master_for(plan.system).metadata()
     texts, rows = {}, []
     for case, logs in zip(plan.cases, results):
-        rec = _log_recording(logs, plan.log, meta, excited={"sweep": str(args.sweep), "case": case.name},
+        rec = recording_from_log(logs, plan.log, meta, excited={"sweep": str(args.sweep), "case": case.name},
                              metadata={"system": str(plan.system.source), "parameters": case.parameters})
         texts.update(recording.recording_texts(args.out / f"{case.name}.csv", rec))
         rows.append({"case": case.name, "parameters": case.parameters,

@@ -4,6 +4,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from motiontwin.cli.arguments import name_values
+
 
 def _writeback(args: argparse.Namespace) -> int:
     import json
@@ -21,10 +23,7 @@ def _writeback(args: argparse.Namespace) -> int:
         provenance = {k: doc[k] for k in ("method", "recording", "names", "std", "covariance") if k in doc}
         provenance["values_file"] = str(args.values)
     for item in args.set:
-        name, sep, value = item.partition("=")
-        if not sep:
-            raise ValueError(f"--set {item!r}: expected NAME=VALUE")
-        values[name] = float(value)
+        values |= name_values(item, "--set")
     for item in args.rename:
         old, sep, new = item.partition("=")
         if not sep or old not in values:

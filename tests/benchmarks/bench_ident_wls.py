@@ -21,7 +21,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 from motiontwin.ident.joint import joint_regressor  # noqa: E402
 from motiontwin.ident.leastsquares import gauss_markov  # noqa: E402
 from motiontwin.ident.signals import lowpass_differentiate  # noqa: E402
-from motiontwin.ident.trajectory import fourier_trajectory  # noqa: E402
+from motiontwin.harness.excitation import fourier_trajectory  # noqa: E402
 
 N = 100_000
 FS = 1000.0
@@ -40,7 +40,7 @@ def main() -> None:
     rng = np.random.default_rng(0)
     t = np.arange(N) / FS
     f0 = FS / N * 10  # 10 whole periods in the record
-    q, _, _ = fourier_trajectory(t, f0, 4 * np.array([1, -0.6, 0.4, 0.3, -0.2]), np.array([-2, 2.8, -1.2, 0.8, 1]))
+    q = fourier_trajectory(t, f0, 4 * np.array([1, -0.6, 0.4, 0.3, -0.2]), np.array([-2, 2.8, -1.2, 0.8, 1])).position
     theta = np.array([0.5, 2.9, 0.9, 1.5, 2.0, 1.95, 1.5])
     q_meas = q + 1e-4 * rng.standard_normal(N)
 

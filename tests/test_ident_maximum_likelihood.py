@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 
 from motiontwin.ident.joint import identify_joint_periodic, joint_regressor
-from motiontwin.ident.ml import ml_joint_with_cutoff
+from motiontwin.ident.maximum_likelihood import ml_joint_with_cutoff
 from motiontwin.ident.signals import period_average
-from motiontwin.ident.trajectory import fourier_trajectory
+from motiontwin.harness.excitation import fourier_trajectory
 from tests.ident_truth import JOINT_TRUTH
 
 NAMES = list(JOINT_TRUTH)
@@ -25,7 +25,8 @@ def band_limited_periods(seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
     scale = 4 / np.sqrt(np.arange(1, NH + 1))
     a, b = rng.standard_normal(NH) * scale, rng.standard_normal(NH) * scale
     t = np.arange(int(FS / F0)) / FS
-    q, qd, qdd = fourier_trajectory(t, F0, a, b, 0.0)
+    profile = fourier_trajectory(t, F0, a, b, 0.0)
+    q, qd, qdd = profile.position, profile.velocity, profile.acceleration
     phi, _ = joint_regressor(q, qd, qdd)
     n = q.size * PERIODS
     qs = np.tile(q, PERIODS) + 1e-3 * rng.standard_normal(n)
