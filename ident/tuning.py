@@ -959,14 +959,13 @@ def _write_controller_fmu(args, parameters: dict[str, float], provenance: dict, 
     """A new controller FMU (``args.fmu`` or one built now) with ``parameters`` as start values."""
     import tempfile
 
-    import fmpy
-
     from motiontwin.fmus import build, writeback
+    from motiontwin.fmus.archive import read_description
 
     values = {k: v for k, v in parameters.items() if k != "Ts"}  # Ts is fixed by the FMU's build
     with tempfile.TemporaryDirectory(prefix="motiontwin-tune-") as tmp:
         source = args.fmu or build.build_fmu(build.load_model(CONTROLLER_CLASS), tmp, args.fmi).path
-        fmu_ts = next(float(v.start) for v in fmpy.read_model_description(str(source)).modelVariables
+        fmu_ts = next(float(v.start) for v in read_description(source).modelVariables
                       if v.name == "Ts")
         if not math.isclose(fmu_ts, args.ts, rel_tol=1e-12):
             raise TuningError(f"{source}: the controller FMU samples at Ts = {fmu_ts} s but the design used "

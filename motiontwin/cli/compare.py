@@ -23,4 +23,4 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--table2-reading", choices=("per-sample", "continuous"), default="per-sample",
                    help="how Table 2's Kp, Ki, Kd are read (default per-sample: Ki/Ts, Kd*Ts)")
     p.add_argument("--fmu-dir", type=Path, default=None, help="where to build the FMUs (default: OUT/fmus)")
-    p.set_defaults(func=_compare)
+    p.set_defaults(func=_compare, output_folders=("out", "fmu_dir"))

@@ -97,7 +97,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("experiment", type=Path, help="experiment TOML, e.g. harness/experiments/swept_sine_80_500.toml")
     p.add_argument("--out", type=Path, required=True, help="recording CSV (a JSON sidecar is written beside it)")
     p.add_argument("--mat", action="store_true", help="also write a MATLAB .mat file")
-    p.set_defaults(func=_excite)
+    p.set_defaults(func=_excite, output_files=("out",))
 
     p = sub.add_parser("run", help="co-simulate a system file and write a recording")
     p.add_argument("system", type=Path, help="system description (TOML)")
@@ -106,7 +106,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--stop-time", type=float, default=None, help="[s] (default: the system file's stop_time)")
     p.add_argument("--log", default=None, help="log group to record (default: the first)")
     p.add_argument("--out", type=Path, required=True, help="recording CSV (a JSON sidecar is written beside it)")
-    p.set_defaults(func=_run)
+    p.set_defaults(func=_run, output_files=("out",))
 
     p = sub.add_parser("sweep", help="run the cases of a sweep file (seeds, grids) through an executor")
     p.add_argument("sweep", type=Path, help="sweep file (TOML, see harness/sweep.py)")
@@ -116,18 +116,18 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--scheduler", default=None, metavar="ADDRESS",
                    help="Dask scheduler, e.g. tcp://host:8786 (default: a LocalCluster on this machine)")
     p.add_argument("--out", type=Path, required=True, help="folder: one recording per case + sweep.json")
-    p.set_defaults(func=_sweep)
+    p.set_defaults(func=_sweep, output_folders=("out",))
 
     p = sub.add_parser("regress", help="run a regression suite against reference recordings (tolerance tubes)")
     p.add_argument("suite", type=Path, help="suite file (TOML)")
     p.add_argument("--update", action="store_true", help="rebaseline: rewrite the reference recordings")
     p.add_argument("--junit", type=Path, default=None, help="write JUnit XML here")
     p.add_argument("--plots", type=Path, default=None, help="write a plot per failing signal here")
-    p.set_defaults(func=_regress)
+    p.set_defaults(func=_regress, output_files=("junit",), output_folders=("plots",))
 
     p = sub.add_parser("ssp", help="export a system file as an SSP archive")
     p.add_argument("system", type=Path)
     p.add_argument("out", type=Path)
     p.add_argument("--drop-external-in-sums", action="store_true",
                    help="drop external inputs from sum junctions (SSP 1.0 has no sum junctions)")
-    p.set_defaults(func=_ssp)
+    p.set_defaults(func=_ssp, output_files=("out",))

@@ -52,4 +52,5 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--rigid", action="store_true", help="with --manipulator: no eq. (8) flexible mode on the channels")
     p.add_argument("--no-feedforward", action="store_true", help="keep Kv, Ka, Kj at the FMU defaults")
     p.add_argument("--no-jerk", action="store_true", help="fit Kv, Ka only (Kj = 0)")
-    p.set_defaults(func=_tune)
+    p.set_defaults(func=_tune, output_files=("out", "fmu_out"), output_folders=("plots",),
+                   input_fmus=("fmu", "plant_fmu"))

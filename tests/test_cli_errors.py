@@ -1,0 +1,174 @@
+"""Every subcommand against a read-only target, a file where a folder is expected and a non-zip .fmu: exit code 1,
+one line on stderr naming the path, no traceback, nothing written and earlier results untouched.
+
+The inputs are chosen so that the failure comes before any build or simulation (each call takes milliseconds).
+As root, permissions do not stop writes, so the read-only case runs with the effective user ``nobody``.
+"""
+from __future__ import annotations
+
+import contextlib
+import os
+import pwd
+import shutil
+import stat
+import tempfile
+from pathlib import Path
+from typing import Iterator
+
+import pytest
+
+from motiontwin.cli import main
+from tests.test_master import PI_LOOP
+
+EXPERIMENT = Path(__file__).resolve().parents[1] / "harness" / "experiments" / "swept_sine_80_500.toml"
+
+
+def _commands(root: Path, out_file: Path, out_folder: Path) -> dict[str, list[str]]:
+    """argv of every subcommand writing ``out_file`` (file outputs) or ``out_folder`` (folder outputs)."""
+    missing = str(root / "missing.csv")
+    return {
+        "build": ["build", "MotionTwin.Plants.LinearMotorJoint", "--out", str(out_folder)],
+        "excite": ["excite", str(EXPERIMENT), "--out", str(out_file)],
+        "run": ["run", str(root / "loop.toml"), "--out", str(out_file)],
+        "sweep": ["sweep", str(root / "sweep.toml"), "--out", str(out_folder)],
+        "regress --junit": ["regress", str(root / "suite.toml"), "--junit", str(out_file)],
+        "regress --plots": ["regress", str(root / "suite.toml"), "--plots", str(out_folder)],
+        "ssp": ["ssp", str(root / "loop.toml"), str(out_file)],
+        "identify joint": ["identify", "joint", missing, "--f0", "1", "--cutoff", "10", "--out", str(out_file)],
+        "identify frf": ["identify", "frf", missing, "--out", str(out_file)],
+        "identify oe": ["identify", "oe", missing, "--class", "X", "--free", "m", "--out", str(out_file)],
+        "identify hexapod": ["identify", "hexapod", missing, "--f0", "1", "--cutoff", "10", "--out", str(out_file)],
+        "identify projection": ["identify", "projection", missing, "--out", str(out_file)],
+        "design-excitation": ["design-excitation", "joint", "--f0", "1", "--harmonics", "3", "--q-range", "0.1",
+                              "--v-max", "1", "--a-max", "10", "--out", str(out_file)],
+        "writeback": ["writeback", str(root / "good.fmu"), "--set", "m=1", "--out", str(out_file)],
+        "tune": ["tune", "--out", str(out_file)],
+        "tune --plots": ["tune", "--plots", str(out_folder)],
+        "compare": ["compare", "--out", str(out_folder)],
+        "diagnose": ["diagnose", str(root), "--out", str(out_folder)],
+        "demo": ["demo", "--out", str(out_folder)],
+    }
+
+
+def _inputs(root: Path, fmu: Path) -> None:
+    """A system, sweep and suite file using ``fmu`` as both FMUs, and a zip named good.fmu."""
+    (root / "loop.toml").write_text(PI_LOOP.format(pi=fmu, plant=fmu))
+    (root / "sweep.toml").write_text('system = "loop.toml"\n')
+    (root / "suite.toml").write_text('[[case]]\nname = "a"\nsystem = "loop.toml"\nreference = "ref.csv"\n')
+    shutil.make_archive(str(root / "good"), "zip", root_dir=root, base_dir="sweep.toml")
+    (root / "good.zip").rename(root / "good.fmu")
+
+
+def _snapshot(folder: Path) -> dict[str, bytes]:
+    return {str(p.relative_to(folder)): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()}
+
+
+def _check(argv: list[str], capsys, expected: str) -> None:
+    code = main(argv)
+    err = capsys.readouterr().err
+    assert code == 1, (argv, err)
+    assert "Traceback" not in err, err
+    assert len(err.strip().splitlines()) == 1, err
+    assert expected in err, (argv, err)
+
+
+@contextlib.contextmanager
+def _unprivileged() -> Iterator[None]:
+    """Run as the user ``nobody`` when root (root writes into read-only folders)."""
+    if os.geteuid() != 0:
+        yield
+        return
+    nobody = pwd.getpwnam("nobody")
+    os.setegid(nobody.pw_gid)
+    os.seteuid(nobody.pw_uid)
+    try:
+        yield
+    finally:
+        os.seteuid(0)
+        os.setegid(0)
+
+
+@pytest.fixture
+def world_readable_dir() -> Iterator[Path]:
+    """A folder the user ``nobody`` can read (pytest's tmp_path is private to its owner)."""
+    root = Path(tempfile.mkdtemp(prefix="motiontwin-cli-errors-"))
+    root.chmod(0o755)
+    try:
+        yield root
+    finally:
+        for path in [root, *root.rglob("*")]:
+            if path.is_dir():
+                path.chmod(0o755)
+        shutil.rmtree(root)
+
+
+def test_read_only_target_is_one_line_and_leaves_earlier_results(world_readable_dir, capsys):
+    root = world_readable_dir
+    _inputs(root, root / "missing.fmu")
+    locked = root / "locked"
+    locked.mkdir()
+    (locked / "earlier.csv").write_text("time,q\n0,1\n")
+    before = _snapshot(locked)
+    locked.chmod(stat.S_IRUSR | stat.S_IXUSR | stat.S_IRGRP | stat.S_IXGRP | stat.S_IROTH | stat.S_IXOTH)
+    for name, argv in _commands(root, locked / "new.csv", locked / "new").items():
+        with _unprivileged():
+            _check(argv, capsys, str(locked))
+    locked.chmod(0o755)
+    assert _snapshot(locked) == before
+
+
+def test_file_where_a_folder_is_expected(tmp_path, capsys):
+    _inputs(tmp_path, tmp_path / "missing.fmu")
+    blocker = tmp_path / "blocker"
+    blocker.write_text("a file\n")
+    for name, argv in _commands(tmp_path, blocker / "new.csv", blocker).items():
+        _check(argv, capsys, str(blocker))
+    assert blocker.read_text() == "a file\n"
+    for name, argv in _commands(tmp_path, blocker / "sub" / "new.csv", blocker / "sub").items():
+        _check(argv, capsys, str(blocker))
+
+
+def test_non_zip_fmu_names_the_file(tmp_path, capsys):
+    bad = tmp_path / "bad.fmu"
+    bad.write_text("not a zip archive\n")
+    _inputs(tmp_path, bad)
+    out = tmp_path / "out"
+    argvs = {
+        "run": ["run", str(tmp_path / "loop.toml"), "--out", str(tmp_path / "r.csv")],
+        "sweep": ["sweep", str(tmp_path / "sweep.toml"), "--out", str(out)],
+        "ssp": ["ssp", str(tmp_path / "loop.toml"), str(tmp_path / "loop.ssp"), "--drop-external-in-sums"],
+        "writeback": ["writeback", str(bad), "--set", "m=1", "--out", str(tmp_path / "new.fmu")],
+        "tune --fmu": ["tune", "--fmu", str(bad), "--fmu-out", str(tmp_path / "new.fmu")],
+        "tune --plant-fmu": ["tune", "--plant-fmu", str(bad)],
+    }
+    for name, argv in argvs.items():
+        _check(argv, capsys, f"{bad}: not an FMU (not a zip archive)")
+    # a zip without modelDescription.xml is named as such (was: KeyError 'modelDescription.xml')
+    _check(argvs["writeback"][:1] + [str(tmp_path / "good.fmu")] + argvs["writeback"][2:], capsys,
+           "holds no modelDescription.xml")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.fmu", "good.fmu", "loop.toml", "suite.toml",
+                                                           "sweep.toml"]
+
+
+def test_interrupt_is_exit_130_and_one_line(tmp_path, capsys, monkeypatch):
+    import motiontwin.harness.excitation as excitation
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(excitation, "load_experiment", interrupted)
+    out = tmp_path / "x.csv"
+    assert main(["excite", str(EXPERIMENT), "--out", str(out)]) == 130
+    err = capsys.readouterr().err
+    assert "interrupted" in err and "Traceback" not in err
+    assert not out.exists()
+
+
+def test_compare_reads_the_design_files_before_building(tmp_path, capsys):
+    out = tmp_path / "out"
+    _check(["compare", "--design", str(tmp_path / "nope.json"), "--out", str(out)], capsys,
+           f"{tmp_path / 'nope.json'}: not found")
+    bad = tmp_path / "bad.json"
+    bad.write_text('{"parameters": {"Kp": 1.0}}\n')
+    _check(["compare", "--design", str(bad), "--out", str(out)], capsys, f"{bad}: field 'parameters' lacks")
+    assert not out.exists()
