@@ -18,30 +18,17 @@ def _excite(args: argparse.Namespace) -> int:
     return 0
 
 
-def _log_recording(logs: dict[str, np.ndarray], group: str | None, meta: dict, **provenance: object):
-    """The recording of one log group of a master run (units and FMUs from ``meta``)."""
-    from motiontwin.harness import recording
-
-    group = group or next(iter(logs))
-    if group not in logs:
-        raise ValueError(f"log group {group!r}: the system logs {sorted(logs)}")
-    log = logs[group]
-    columns = {name: log[name] for name in log.dtype.names if name != "time"}
-    units = {name: meta["units"].get(name) or "" for name in columns}
-    return recording.make_recording(log["time"], columns, units, sample_time=float(log["time"][1] - log["time"][0]),
-                                    fmus=meta["fmus"], **provenance)
-
-
 def _run(args: argparse.Namespace) -> int:
     from motiontwin.harness import recording
     from motiontwin.harness.inputs import input_from_spec
     from motiontwin.harness.master import Master
+    from motiontwin.harness.sweep import log_recording
 
     inputs = dict(input_from_spec(spec) for spec in args.input)
     with Master(args.system) as master:
         logs = master.run(inputs=inputs, stop_time=args.stop_time)
         meta = master.metadata()
-    rec = _log_recording(logs, args.log, meta, excited={"inputs": args.input},
+    rec = log_recording(logs, args.log, meta, excited={"inputs": args.input},
                          metadata={"system": str(args.system), "order": meta["order"]})
     for path in recording.write_recording(args.out, rec):
         print(path)
@@ -49,32 +36,22 @@ def _run(args: argparse.Namespace) -> int:
 
 
 def _sweep(args: argparse.Namespace) -> int:
-    import json
-    import time
+    import sys
 
-    from motiontwin.harness import recording, sweep
+    from motiontwin.harness import sweep
     from motiontwin.harness.executor import make_executor
-    from motiontwin.harness.master import master_for
 
     plan = sweep.load_sweep(args.sweep)
-    t0 = time.perf_counter()
     with make_executor(args.executor, args.workers, args.scheduler) as executor:
-        results = sweep.run(plan, executor)
-    seconds = time.perf_counter() - t0
-    meta = master_for(plan.system).metadata()
-    texts, rows = {}, []
-    for case, logs in zip(plan.cases, results):
-        rec = _log_recording(logs, plan.log, meta, excited={"sweep": str(args.sweep), "case": case.name},
-                             metadata={"system": str(plan.system.source), "parameters": case.parameters})
-        texts.update(recording.recording_texts(args.out / f"{case.name}.csv", rec))
-        rows.append({"case": case.name, "parameters": case.parameters,
-                     "final": {k: float(rec[k][-1]) for k in rec.columns}})
-    texts[args.out / "sweep.json"] = json.dumps({"sweep": str(args.sweep), "executor": args.executor,
-                                                "runs": len(rows), "seconds": seconds, "cases": rows},
-                                               indent=2) + "\n"
-    args.out.mkdir(parents=True, exist_ok=True)
-    recording.atomic_write_texts(texts)
-    print(f"{len(rows)} runs in {seconds:.2f} s ({len(rows) / seconds:.1f} runs/s, {args.executor}) -> {args.out}")
+        outcome = sweep.run_to_folder(plan, args.out, executor, executor_name=args.executor, resume=args.resume,
+                                      overwrite=args.overwrite, retries=args.retries)
+    runs = len(outcome.completed)
+    rate = f"{runs / outcome.seconds:.1f} runs/s, " if outcome.seconds > 0 else ""
+    print(f"{runs} runs in {outcome.seconds:.2f} s ({rate}{args.executor}) -> {args.out}")
+    if outcome.failed:
+        print(f"motiontwin sweep: {len(outcome.failed)} run(s) failed: {', '.join(outcome.failed)} "
+              f"(errors in {args.out / sweep.MANIFEST}; --resume runs them again)", file=sys.stderr)
+        return 1
     return 0
 
 
@@ -116,6 +93,13 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--scheduler", default=None, metavar="ADDRESS",
                    help="Dask scheduler, e.g. tcp://host:8786 (default: a LocalCluster on this machine)")
     p.add_argument("--out", type=Path, required=True, help="folder: one recording per case + sweep.json")
+    again = p.add_mutually_exclusive_group()
+    again.add_argument("--resume", action="store_true",
+                       help="continue the sweep in --out: keep its finished runs, run the others")
+    again.add_argument("--overwrite", action="store_true",
+                       help="replace the sweep in --out (its runs are removed first)")
+    p.add_argument("--retries", type=int, default=2,
+                   help="times a run whose worker process died is tried again (default 2)")
     p.set_defaults(func=_sweep, output_folders=("out",))
 
     p = sub.add_parser("regress", help="run a regression suite against reference recordings (tolerance tubes)")
