@@ -55,6 +55,8 @@ from typing import TYPE_CHECKING, Any, Callable, Sequence
 import numpy as np
 import scipy.signal
 
+from .system import check_run_length
+
 if TYPE_CHECKING:
     from motiontwin.harness.recording import Recording
 
@@ -554,7 +556,7 @@ def generate_excitation(
 
 def _check_type(value: Any, spec: _Field, where: str) -> Any:
     def is_number(v: Any) -> bool:
-        return isinstance(v, (int, float)) and not isinstance(v, bool)
+        return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
 
     def is_integer(v: Any) -> bool:
         return isinstance(v, int) and not isinstance(v, bool)
@@ -571,10 +573,10 @@ def _check_type(value: Any, spec: _Field, where: str) -> Any:
     }[spec.kind]
     if not ok:
         wanted = {
-            "number": "a number",
+            "number": "a finite number",
             "integer": "an integer",
             "string": "a string",
-            "numbers": "a number or a (nested) list of numbers",
+            "numbers": "a finite number or a (nested) list of finite numbers",
             "integers": "a non-empty list of integers",
         }[spec.kind]
         raise ExperimentError(f"{where} must be {wanted}, got {value!r}")
@@ -632,6 +634,10 @@ def parse_experiment(doc: dict[str, Any], source: str | os.PathLike = "<experime
         duration = _check_type(doc["duration"], _req("number"), f"{src}: field 'duration'")
         if duration < sample_time:
             raise ExperimentError(f"{src}: field 'duration' ({duration} s) is shorter than sample_time")
+        try:
+            check_run_length(0.0, duration, sample_time, "field 'duration'")
+        except ValueError as exc:
+            raise ExperimentError(f"{src}: {exc}") from None
     for name in ("name", "description", "target"):
         if name in doc and not isinstance(doc[name], str):
             raise ExperimentError(f"{src}: field {name!r} must be a string, got {doc[name]!r}")

@@ -55,7 +55,7 @@ import numpy as np
 
 from .inputs import InputError, add_input_noise, resolve_input
 from .recording import Recording, atomic_write_texts, make_recording, recording_texts, sidecar_path
-from .system import System, load_system
+from .system import System, check_run_length, load_system
 
 __all__ = ["SweepError", "SweepCase", "Sweep", "SweepOutcome", "load_sweep", "run", "run_to_folder",
            "log_recording", "safe_name", "MAX_RUNS"]
@@ -129,7 +129,12 @@ def load_sweep(path: str | Path) -> Sweep:
     if stop is None:
         raise SweepError(f"{path}: no stop_time here nor in {data['system']}")
     stop = _number(stop, f"{path}: stop_time")
-    n = round((stop - system.start_time) / system.base_step)
+    if stop <= system.start_time:
+        raise SweepError(f"{path}: stop_time {stop!r} s must be after the system's start_time {system.start_time!r} s")
+    try:
+        n = check_run_length(system.start_time, stop, system.base_step, f"{path}: stop_time")
+    except ValueError as exc:
+        raise SweepError(str(exc)) from None
     grid_t = system.start_time + np.arange(n + 1) * system.base_step
 
     grid = _table(data, "grid", f"{path}")

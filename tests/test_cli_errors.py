@@ -172,3 +172,49 @@ def test_compare_reads_the_design_files_before_building(tmp_path, capsys):
     bad.write_text('{"parameters": {"Kp": 1.0}}\n')
     _check(["compare", "--design", str(bad), "--out", str(out)], capsys, f"{bad}: field 'parameters' lacks")
     assert not out.exists()
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["tune", "--gm", "nan"], "--gm nan: must be a finite number"),
+    (["tune", "--tau-max", "nan"], "--tau-max nan: must be a finite number > 0"),
+    (["tune", "--ts", "0"], "--ts 0.0: must be a finite number > 0"),
+    (["tune", "--gain-spread", "1.5"], "--gain-spread 1.5: must be below 1"),
+    (["tune", "--plant", "omega=1000,omega_bar=2000"],
+     "field 'omega' = 1000.0 rad/s must be above 'omega_bar' = 2000.0 rad/s"),
+    (["tune", "--plant", "K=nan"], "field 'K' = nan must be finite and positive"),
+    (["sweep", "s.toml", "--workers", "0", "--out", "x"], "workers: expected a positive number of worker processes"),
+])
+def test_bad_options_name_the_option(argv: list[str], message: str, capsys, tmp_path, monkeypatch) -> None:
+    from motiontwin.ident import tuning
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "s.toml").write_text('system = "loop.toml"\n')
+    _inputs(tmp_path, tmp_path / "missing.fmu")
+    assert tuning.TuningSpec().gm_min_db == 7.0
+    with pytest.raises(tuning.TuningError, match=r"gm_min_db \(--gm\) must be a finite number"):
+        tuning.TuningSpec(gm_min_db=float("nan"))
+    _check(argv, capsys, message)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["good.fmu", "loop.toml", "s.toml", "suite.toml",
+                                                           "sweep.toml"]
+
+
+@pytest.mark.parametrize("field, text, message", [
+    ("amplitude", "amplitude = nan", "field 'excitation.amplitude' must be a finite number, got nan"),
+    ("duration", "duration = 1e300", "field 'duration' = 1e+300 s gives 1e+304 steps of 0.0001 s, more than the "
+                                     "limit of 1e+08"),
+])
+def test_experiment_fields_are_named(tmp_path, capsys, field, text, message) -> None:
+    experiment = tmp_path / "e.toml"
+    base = "sample_time = 1e-4\nduration = 0.3\n[excitation]\nkind = \"step\"\nt_step = 0.01\namplitude = 1.0\n"
+    experiment.write_text(base.replace("duration = 0.3", text) if field == "duration"
+                          else base.replace("amplitude = 1.0", text))
+    _check(["excite", str(experiment), "--out", str(tmp_path / "x.csv")], capsys, f"{experiment}: {message}")
+    assert not (tmp_path / "x.csv").exists()
+
+
+def test_system_stop_time_beyond_the_limit_names_the_field(tmp_path, capsys) -> None:
+    _inputs(tmp_path, tmp_path / "missing.fmu")
+    system = tmp_path / "loop.toml"
+    system.write_text(system.read_text().replace("stop_time = 0.3", "stop_time = 1e300"))
+    _check(["run", str(system), "--out", str(tmp_path / "x.csv")], capsys,
+           "stop_time: 1e+300 s gives 1e+304 steps of 0.0001 s, more than the limit of 1e+08")

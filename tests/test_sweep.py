@@ -272,3 +272,11 @@ def test_run_count_is_printed_and_workers_checked(sweep_file: Path, tmp_path: Pa
     assert "workers: expected a positive number of worker processes, got 0" in capsys.readouterr().err
     assert main(["sweep", str(sweep_file), "--out", str(tmp_path / "out")]) == 0
     assert "6 runs (limit 10000): 0 finished earlier, 6 to run" in capsys.readouterr().out
+
+
+def test_run_stop_time_beyond_the_limit_names_the_option(sweep_file: Path, tmp_path: Path, capsys) -> None:
+    out = tmp_path / "r.csv"
+    assert main(["run", str(sweep_file.with_name("loop.toml")), "--stop-time", "1e300", "--out", str(out)]) == 1
+    assert "stop_time = 1e+300 s gives 1e+304 steps of 0.0001 s, more than the limit of 1e+08" in \
+        capsys.readouterr().err
+    assert not out.exists()

@@ -5,9 +5,43 @@ import argparse
 from pathlib import Path
 
 
+# option -> (lowest value, whether the lowest value itself is allowed); every one must also be finite
+_NUMBER_BOUNDS = {"ts": (0.0, False), "tau": (0.0, False), "gain_spread": (0.0, True),
+                  "resonance_spread": (0.0, True), "tau_max": (0.0, False)}
+_COUNT_BOUNDS = {"delay": 0, "popsize": 1, "maxiter": 1, "refine": 0, "poses": 1}
+_FINITE = ("gm", "pm_min", "pm_max", "ms", "s_below_bw", "bw_min")
+
+
+def check_options(args: argparse.Namespace) -> None:
+    """Refuse NaN, infinite and out-of-range tune options before any FMU is built, naming the option."""
+    import math
+
+    def refuse(name: str, what: str) -> None:
+        raise ValueError(f"--{name.replace('_', '-')} {getattr(args, name)!r}: {what}")
+
+    for name in _FINITE:
+        value = getattr(args, name)
+        if value is not None and not math.isfinite(value):
+            refuse(name, "must be a finite number")
+    for name, (low, inclusive) in _NUMBER_BOUNDS.items():
+        value = getattr(args, name)
+        if value is None or (name == "tau_max" and value == math.inf):
+            continue
+        if math.isnan(value) or math.isinf(value) or value < low or (value == low and not inclusive):
+            refuse(name, f"must be a finite number {'>=' if inclusive else '>'} {low:g}"
+                   + (" (or inf: unconstrained)" if name == "tau_max" else ""))
+    for name in ("gain_spread", "resonance_spread"):
+        if getattr(args, name) >= 1.0:
+            refuse(name, "must be below 1 (a fraction of the nominal value)")
+    for name, low in _COUNT_BOUNDS.items():
+        if getattr(args, name) < low:
+            refuse(name, f"must be at least {low}")
+
+
 def _tune(args: argparse.Namespace) -> int:
     from motiontwin.ident.tuning import cli_tune
 
+    check_options(args)
     return cli_tune(args)
 
 
