@@ -35,6 +35,8 @@ def main(argv: list[str] | None = None) -> int:
     """
     import zipfile
 
+    from fmpy.fmi1 import FMICallException
+
     from motiontwin.cli.errors import os_error_message, preflight
     from motiontwin.fmus.frontend import ModelicaError
     from motiontwin.fmus.package import BuildError
@@ -57,9 +59,10 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{prefix}: a file given as an FMU or archive is not a zip archive ({exc}); check the paths",
               file=sys.stderr)
         return 1
-    except (ModelicaError, BuildError, FMUCallError, KeyError, ValueError) as exc:
+    except (ModelicaError, BuildError, FMUCallError, FMICallException, KeyError, ValueError) as exc:
         print(f"{prefix}: {exc}", file=sys.stderr)
         return 1
+
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -4,8 +4,6 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-import numpy as np
-
 
 def _excite(args: argparse.Namespace) -> int:
     from motiontwin.harness import excitation, recording
