@@ -27,6 +27,7 @@ from concurrent.futures.process import BrokenProcessPool
 import functools
 import multiprocessing
 import os
+import signal
 from pathlib import Path
 from typing import Any, Callable, Iterable, Iterator, Mapping, Protocol, Sequence
 
@@ -91,6 +92,12 @@ class InProcessExecutor(_Closing):
                 yield index, _failure(exc)
 
 
+def _ignore_interrupt() -> None:
+    """Worker initializer: Ctrl-C reaches the whole process group; the parent alone handles it (commits what
+    finished, shuts the pool down), so the workers do not each print a KeyboardInterrupt traceback."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
 class ProcessPoolExecutor(_Closing):
     """A pool of ``workers`` spawned processes on this machine (default: one per CPU)."""
 
@@ -99,7 +106,7 @@ class ProcessPoolExecutor(_Closing):
         self._pool = self._new_pool()
 
     def _new_pool(self) -> concurrent.futures.ProcessPoolExecutor:
-        return concurrent.futures.ProcessPoolExecutor(max_workers=self.workers,
+        return concurrent.futures.ProcessPoolExecutor(max_workers=self.workers, initializer=_ignore_interrupt,
                                                       mp_context=multiprocessing.get_context("spawn"))
 
     def imap(self, fn: Callable[[Any], Any], items: Sequence[Any], retries: int = 2) -> Iterator[tuple[int, Any]]:

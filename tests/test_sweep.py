@@ -280,3 +280,34 @@ def test_run_stop_time_beyond_the_limit_names_the_option(sweep_file: Path, tmp_p
     assert "stop_time = 1e+300 s gives 1e+304 steps of 0.0001 s, more than the limit of 1e+08" in \
         capsys.readouterr().err
     assert not out.exists()
+
+
+def test_ctrl_c_on_a_process_pool_sweep_is_exit_130_one_line_and_resumable(sweep_file: Path, tmp_path: Path) -> None:
+    """A real Ctrl-C (SIGINT to the process group, as a terminal sends it) during a process-pool sweep."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    sweep_file.write_text(LONG_SWEEP)
+    out = tmp_path / "out"
+    command = [sys.executable, "-c", "import sys; from motiontwin.cli import main; sys.exit(main())", "sweep", str(sweep_file), "--executor", "process",
+               "--workers", "2", "--out", str(out)]
+    proc = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True, preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    deadline = time.monotonic() + 120
+    while not (out.exists() and any(out.glob("*.csv"))) and time.monotonic() < deadline and proc.poll() is None:
+        time.sleep(0.01)
+    os.killpg(proc.pid, signal.SIGINT)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 130, err
+    assert err.strip().splitlines() == ["motiontwin sweep: interrupted; finished outputs are complete, nothing "
+                                        "half-written was kept (add --resume to continue)"]
+    manifest = json.loads((out / sweep.MANIFEST).read_text())
+    finished = [row["case"] for row in manifest["cases"]]
+    assert manifest["status"] == "interrupted" and 1 <= len(finished) < 8
+    assert sorted(p.name for p in out.iterdir()) == sorted([sweep.MANIFEST] + [f"{n}.{e}" for n in finished
+                                                                                 for e in ("csv", "json")])
+    assert main(["sweep", str(sweep_file), "--resume", "--out", str(out)]) == 0
+    _assert_folder_holds(out, _direct_runs(sweep_file))

@@ -49,8 +49,9 @@ def main(argv: list[str] | None = None) -> int:
         preflight(args)
         return func(args)
     except KeyboardInterrupt:
-        print(f"{prefix}: interrupted; finished outputs are complete, nothing half-written was kept "
-              f"(run the command again to redo the rest)", file=sys.stderr)
+        again = "add --resume to continue" if args.command == "sweep" else "run the command again"
+        print(f"{prefix}: interrupted; finished outputs are complete, nothing half-written was kept ({again})",
+              file=sys.stderr)
         return 130
     except OSError as exc:
         print(f"{prefix}: {os_error_message(exc)}", file=sys.stderr)
