@@ -77,4 +77,5 @@ def read_description(path: str | os.PathLike) -> Any:
     except OSError:
         raise
     except Exception as exc:  # fmpy raises parser errors, KeyError and plain Exception for bad XML
-        raise FMUArchiveError(f"{path}: malformed {DESCRIPTION_NAME} ({exc}); rebuild the FMU") from None
+        detail = "; ".join(line.strip(" -") for line in str(exc).splitlines() if line.strip())
+        raise FMUArchiveError(f"{path}: malformed {DESCRIPTION_NAME} ({detail}); rebuild the FMU") from None

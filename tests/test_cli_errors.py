@@ -12,6 +12,7 @@ import pwd
 import shutil
 import stat
 import tempfile
+import zipfile
 from pathlib import Path
 from typing import Iterator
 
@@ -146,8 +147,16 @@ def test_non_zip_fmu_names_the_file(tmp_path, capsys):
     # a zip without modelDescription.xml is named as such (was: KeyError 'modelDescription.xml')
     _check(argvs["writeback"][:1] + [str(tmp_path / "good.fmu")] + argvs["writeback"][2:], capsys,
            "holds no modelDescription.xml")
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.fmu", "good.fmu", "loop.toml", "suite.toml",
-                                                           "sweep.toml"]
+    broken = tmp_path / "broken.fmu"   # a zip whose modelDescription.xml is cut off
+    with zipfile.ZipFile(broken, "w") as archive:
+        archive.writestr("modelDescription.xml", '<fmiModelDescription fmiVersion="2.0"><Broken')
+    for argv in (["writeback", str(broken), "--set", "m=1", "--out", str(tmp_path / "new.fmu")],
+                 ["tune", "--plant-fmu", str(broken)]):
+        _check(argv, capsys, f"{broken}: malformed modelDescription.xml")
+    _inputs(tmp_path, broken)
+    _check(argvs["run"], capsys, f"{broken}: malformed modelDescription.xml")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.fmu", "broken.fmu", "good.fmu", "loop.toml",
+                                                           "suite.toml", "sweep.toml"]
 
 
 def test_interrupt_is_exit_130_and_one_line(tmp_path, capsys, monkeypatch):

@@ -85,7 +85,7 @@ def _writable_location(option: str, path: Path, folder: bool) -> None:
 
 def preflight(args: argparse.Namespace) -> None:
     """Check the output and FMU arguments a subcommand declared (see the module docstring)."""
-    from motiontwin.fmus.archive import check_archive
+    from motiontwin.fmus.archive import read_description
 
     for name in getattr(args, "output_files", ()):
         value = getattr(args, name, None)
@@ -98,4 +98,4 @@ def preflight(args: argparse.Namespace) -> None:
     for name in getattr(args, "input_fmus", ()):
         value = getattr(args, name, None)
         if value is not None:
-            check_archive(value)
+            read_description(value)
