@@ -5,7 +5,9 @@ runs. ``executor.map(fn, items)`` runs ``fn(item)`` for every item and returns t
 order of ``items`` whichever executor runs them; with the same items (seeds, inputs, parameters)
 the results are identical, because every run starts from the same reset/initial state and FMUs
 are deterministic. ``fn`` must be picklable (a module-level function or a functools.partial of one)
-for the process pool and Dask.
+for the process pool and Dask. ``executor.imap(fn, items, retries)`` yields ``(index, result)`` as runs
+finish (a failed run as a :class:`RunFailed`), so a caller can commit each result at once; the process pool
+restarts itself when a worker dies and retries the runs it lost, at most ``retries`` times.
 
 * ``InProcessExecutor`` (default): a plain loop in this process.
 * ``ProcessPoolExecutor``: ``concurrent.futures`` with ``spawn``ed workers on this machine.
