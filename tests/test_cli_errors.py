@@ -192,6 +192,11 @@ def test_compare_reads_the_design_files_before_building(tmp_path, capsys):
      "field 'omega' = 1000.0 rad/s must be above 'omega_bar' = 2000.0 rad/s"),
     (["tune", "--plant", "K=nan"], "field 'K' = nan must be finite and positive"),
     (["sweep", "s.toml", "--workers", "0", "--out", "x"], "workers: expected a positive number of worker processes"),
+    (["compare", "--out", "cmp", "--stop-time", "nan"], "--stop-time nan: must be a finite number > 0"),
+    (["compare", "--out", "cmp", "--stop-time", "1e300"], "--stop-time = 1e+300 s gives 2e+303 steps of 0.0005 s, "
+                                                          "more than the limit of 1e+08"),
+    (["design-excitation", "joint", "--f0", "1", "--harmonics", "3", "--q-range", "0.1", "--v-max", "1",
+      "--a-max", "10", "--sample-time", "1e-300", "--out", "d.toml"], "gives 1e+301 steps of 1e-300 s"),
 ])
 def test_bad_options_name_the_option(argv: list[str], message: str, capsys, tmp_path, monkeypatch) -> None:
     from motiontwin.ident import tuning

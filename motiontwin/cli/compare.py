@@ -5,9 +5,24 @@ import argparse
 from pathlib import Path
 
 
+def _check_options(args: argparse.Namespace) -> None:
+    """NaN, non-positive and absurdly long runs are refused before any FMU is built, naming the option."""
+    import math
+
+    from motiontwin.comparison import TS
+    from motiontwin.harness.system import check_run_length
+
+    for name in ("stop_time", "ct_pole_hz"):
+        value = getattr(args, name)
+        if not (math.isfinite(value) and value > 0):
+            raise ValueError(f"--{name.replace('_', '-')} {value!r}: must be a finite number > 0")
+    check_run_length(0.0, args.stop_time, TS, "--stop-time")
+
+
 def _compare(args: argparse.Namespace) -> int:
     from motiontwin.comparison import cli_compare
 
+    _check_options(args)
     return cli_compare(args)
 
 

@@ -128,8 +128,13 @@ def _identify_hexapod(args: argparse.Namespace) -> int:
 
 
 def _design_excitation(args: argparse.Namespace) -> int:
+    import math
+
+    from motiontwin.harness.system import check_run_length
     from motiontwin.ident.excitation_design import cli_design_excitation
 
+    if all(math.isfinite(v) and v > 0 for v in (args.f0, args.sample_time)) and args.periods >= 1:
+        check_run_length(0.0, args.periods / args.f0, args.sample_time, f"--periods / --f0 ({args.periods} periods)")
     return cli_design_excitation(args)
 
 
