@@ -676,6 +676,8 @@ def load_experiment(path: str | os.PathLike) -> Experiment:
             doc = tomllib.load(handle)
     except FileNotFoundError:
         raise ExperimentError(f"{path}: file not found") from None
+    except UnicodeDecodeError as exc:
+        raise ExperimentError(f"{path}: not UTF-8 text (byte {exc.start}: {exc.reason})") from None
     except tomllib.TOMLDecodeError as exc:
         raise ExperimentError(f"{path}: invalid TOML ({exc})") from None
     return parse_experiment(doc, path)

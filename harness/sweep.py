@@ -117,6 +117,8 @@ def load_sweep(path: str | Path) -> Sweep:
     path = Path(path)
     try:
         data = tomllib.loads(path.read_text(encoding="utf-8"))
+    except UnicodeDecodeError as exc:
+        raise SweepError(f"{path}: not UTF-8 text (byte {exc.start}: {exc.reason})") from None
     except tomllib.TOMLDecodeError as exc:
         raise SweepError(f"{path}: {exc}") from None
     unknown = set(data) - {"system", "log", "stop_time", "case", "grid", "seeds"}

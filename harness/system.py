@@ -301,9 +301,11 @@ def system_from_dict(data: dict[str, Any], source: str | Path | None = None, tex
 def load_system(path: str | Path) -> System:
     """Read and validate a TOML system description file."""
     path = Path(path)
-    text = path.read_text(encoding="utf-8")
     try:
+        text = path.read_text(encoding="utf-8")
         data = tomllib.loads(text)
+    except UnicodeDecodeError as exc:
+        raise SystemFileError(f"{path}: not UTF-8 text (byte {exc.start}: {exc.reason})") from None
     except tomllib.TOMLDecodeError as exc:
         raise SystemFileError(f"{path}: {exc}") from None
     return system_from_dict(data, source=path, text=text)

@@ -211,6 +211,8 @@ def read_designs(paths: Sequence[str | Path], ts: float = TS) -> list[dict[str, 
             doc = json.loads(Path(path).read_text(encoding="utf-8"))
         except json.JSONDecodeError as err:
             raise ValueError(f"{path}: line {err.lineno}, column {err.colno}: {err.msg}") from None
+        except UnicodeDecodeError as err:
+            raise ValueError(f"{path}: not UTF-8 text (byte {err.start}: {err.reason})") from None
         params = doc.get("parameters") if isinstance(doc, dict) else None
         if not isinstance(params, dict):
             raise ValueError(f"{path}: field 'parameters' (an object of controller parameters) is missing")

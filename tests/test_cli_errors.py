@@ -232,3 +232,20 @@ def test_system_stop_time_beyond_the_limit_names_the_field(tmp_path, capsys) -> 
     system.write_text(system.read_text().replace("stop_time = 0.3", "stop_time = 1e300"))
     _check(["run", str(system), "--out", str(tmp_path / "x.csv")], capsys,
            "stop_time: 1e+300 s gives 1e+304 steps of 0.0001 s, more than the limit of 1e+08")
+
+
+def test_binary_input_files_are_named(tmp_path, capsys) -> None:
+    junk = tmp_path / "junk.toml"
+    junk.write_bytes(b"\x00\xff\xfe not text")
+    for argv in (["excite", str(junk), "--out", str(tmp_path / "o.csv")],
+                 ["run", str(junk), "--out", str(tmp_path / "o.csv")],
+                 ["sweep", str(junk), "--out", str(tmp_path / "o")],
+                 ["ssp", str(junk), str(tmp_path / "o.ssp")],
+                 ["compare", "--design", str(junk), "--out", str(tmp_path / "o")],
+                 ["regress", str(junk)]):
+        _check(argv, capsys, f"{junk}: not UTF-8 text (byte 1: invalid start byte)")
+    model = tmp_path / "junk.mo"
+    model.write_bytes(junk.read_bytes())
+    _check(["build", "Foo.Bar", "--modelica", str(model), "--out", str(tmp_path / "o")], capsys,
+           f"{model}: not UTF-8 text (byte 1: invalid start byte)")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["junk.mo", "junk.toml"]
