@@ -249,3 +249,10 @@ def test_binary_input_files_are_named(tmp_path, capsys) -> None:
     _check(["build", "Foo.Bar", "--modelica", str(model), "--out", str(tmp_path / "o")], capsys,
            f"{model}: not UTF-8 text (byte 1: invalid start byte)")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["junk.mo", "junk.toml"]
+
+
+def test_out_into_a_missing_folder_names_the_folder_not_a_temporary_file(tmp_path, capsys) -> None:
+    missing = tmp_path / "missing"
+    _check(["excite", str(EXPERIMENT), "--out", str(missing / "x.csv")], capsys,
+           f"{missing}: folder does not exist; create it first or choose another path")
+    assert not missing.exists()
