@@ -970,6 +970,8 @@ def _start_values(text: str, index: int) -> dict[str, float]:
             raise TuningError(f"--plant #{index + 1}: field {item!r} must be NAME=VALUE with a number") from None
         if not sep:
             raise TuningError(f"--plant #{index + 1}: field {item!r} must be NAME=VALUE")
+        if not math.isfinite(out[key.strip()]):
+            raise TuningError(f"--plant #{index + 1}: field {key.strip()!r} = {value.strip()!r} must be finite")
     return out
 
 

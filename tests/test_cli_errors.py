@@ -256,3 +256,11 @@ def test_out_into_a_missing_folder_names_the_folder_not_a_temporary_file(tmp_pat
     _check(["excite", str(EXPERIMENT), "--out", str(missing / "x.csv")], capsys,
            f"{missing}: folder does not exist; create it first or choose another path")
     assert not missing.exists()
+
+
+def test_plant_fmu_start_values_must_be_finite() -> None:
+    from motiontwin.ident import tuning
+
+    assert tuning._start_values("m=1.5, d=2", 0) == {"m": 1.5, "d": 2.0}
+    with pytest.raises(tuning.TuningError, match=r"--plant #2: field 'm' = 'nan' must be finite"):
+        tuning._start_values("d=2,m=nan", 1)
