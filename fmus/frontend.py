@@ -91,6 +91,14 @@ def _import_pymoca() -> tuple[Any, Any, Any]:
     return parser, api, generator
 
 
+def _mo_text(path: Path) -> str:
+    """The text of a Modelica file; ModelicaError naming it when it is not UTF-8."""
+    try:
+        return path.read_text(encoding="utf-8")
+    except UnicodeDecodeError as exc:
+        raise ModelicaError(f"{path}: not UTF-8 text (byte {exc.start}: {exc.reason})") from None
+
+
 def _mo_files(source: Path) -> list[Path]:
     if source.is_file():
         return [source]
@@ -108,7 +116,7 @@ def parse_tree(source: Path, libraries: tuple[Path, ...] = ()) -> Any:
         raise ModelicaError(f"{source}: no .mo files found")
     files += [f for lib in libraries for f in _mo_files(Path(lib)) if f not in files]
     for path in files:
-        text = path.read_text(encoding="utf-8")
+        text = _mo_text(path)
         try:
             parsed = parser.parse(text)
         except parser.ModelicaSyntaxError as exc:
@@ -233,7 +241,7 @@ def load(source: str | os.PathLike[str], class_name: str, libraries: tuple[Path,
 def _class_text(source: Path, class_name: str) -> str:
     short = class_name.split(".")[-1]
     for path in _mo_files(source):
-        text = path.read_text(encoding="utf-8")
+        text = _mo_text(path)
         if re.search(rf"\b(model|block|class)\s+{re.escape(short)}\b", text):
             return text
     return ""

@@ -88,10 +88,20 @@ def _run(cmd: list[str], what: str) -> None:
         raise BuildError(f"{what} failed:\n{proc.stderr.strip()}")
 
 
+def ordinary_file_mode() -> int:
+    """The permissions ``open()`` would give a new file under the current umask (0o644 under umask 022);
+    ``tempfile.mkstemp`` creates 0o600, which atomic writers correct with this before the rename."""
+    umask = os.umask(0)
+    os.umask(umask)
+    return 0o666 & ~umask
+
+
 def pack(staging: Path, fmu_path: Path) -> Path:
-    """Zip the folder ``staging`` into ``fmu_path`` through a temporary file in the same folder."""
+    """Zip the folder ``staging`` into ``fmu_path`` through a temporary file in the same folder; the FMU
+    gets the ordinary permissions of a new file (:func:`ordinary_file_mode`)."""
     fmu_path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{fmu_path.stem}-", suffix=".fmu.part", dir=fmu_path.parent)
+    os.fchmod(fd, ordinary_file_mode())
     os.close(fd)
     try:
         with zipfile.ZipFile(tmp, "w", zipfile.ZIP_DEFLATED) as zf:

@@ -21,7 +21,7 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
 
-from motiontwin.fmus import codegen, description, package
+from motiontwin.fmus import archive, codegen, description, package
 
 PROVENANCE_FILE = "documentation/provenance.json"
 
@@ -46,6 +46,7 @@ def write_back(fmu: Path | str, values: dict[str, float], out: Path | str,
     fmu, out = Path(fmu), Path(out)
     if fmu.resolve() == out.resolve():
         raise WriteBackError(f"{out}: write-back never overwrites the original FMU; choose another output path")
+    archive.read_description(fmu)   # a non-zip file or a malformed description: one error naming the FMU
     with zipfile.ZipFile(fmu) as zf:
         files = {name: zf.read(name) for name in zf.namelist() if not name.endswith("/")}
     root = ET.fromstring(files["modelDescription.xml"])

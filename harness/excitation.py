@@ -55,7 +55,9 @@ from typing import TYPE_CHECKING, Any, Callable, Sequence
 import numpy as np
 import scipy.signal
 
-from motiontwin.harness.numbers import is_integer, is_number
+from motiontwin.harness.numbers import is_finite_number as is_number
+from motiontwin.harness.numbers import is_integer
+from motiontwin.harness.system import check_run_length
 
 if TYPE_CHECKING:
     from motiontwin.harness.recording import Recording
@@ -581,10 +583,10 @@ def _check_type(value: Any, spec: _Field, where: str) -> Any:
     }[spec.kind]
     if not ok:
         wanted = {
-            "number": "a number",
+            "number": "a finite number",
             "integer": "an integer",
             "string": "a string",
-            "numbers": "a number or a (nested) list of numbers",
+            "numbers": "a finite number or a (nested) list of finite numbers",
             "integers": "a non-empty list of integers",
         }[spec.kind]
         raise ExperimentError(f"{where} must be {wanted}, got {value!r}")
@@ -642,6 +644,10 @@ def parse_experiment(doc: dict[str, Any], source: str | os.PathLike = "<experime
         duration = _check_type(doc["duration"], _req("number"), f"{src}: field 'duration'")
         if duration < sample_time:
             raise ExperimentError(f"{src}: field 'duration' ({duration} s) is shorter than sample_time")
+        try:
+            check_run_length(0.0, duration, sample_time, "field 'duration'")
+        except ValueError as exc:
+            raise ExperimentError(f"{src}: {exc}") from None
     for name in ("name", "description", "target"):
         if name in doc and not isinstance(doc[name], str):
             raise ExperimentError(f"{src}: field {name!r} must be a string, got {doc[name]!r}")
@@ -680,6 +686,8 @@ def load_experiment(path: str | os.PathLike) -> Experiment:
             doc = tomllib.load(handle)
     except FileNotFoundError:
         raise ExperimentError(f"{path}: file not found") from None
+    except UnicodeDecodeError as exc:
+        raise ExperimentError(f"{path}: not UTF-8 text (byte {exc.start}: {exc.reason})") from None
     except tomllib.TOMLDecodeError as exc:
         raise ExperimentError(f"{path}: invalid TOML ({exc})") from None
     return parse_experiment(doc, path)

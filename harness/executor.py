@@ -5,7 +5,9 @@ runs. ``executor.map(fn, items)`` runs ``fn(item)`` for every item and returns t
 order of ``items`` whichever executor runs them; with the same items (seeds, inputs, parameters)
 the results are identical, because every run starts from the same reset/initial state and FMUs
 are deterministic. ``fn`` must be picklable (a module-level function or a functools.partial of one)
-for the process pool and Dask.
+for the process pool and Dask. ``executor.imap(fn, items, retries)`` yields ``(index, result)`` as runs
+finish (a failed run as a :class:`RunFailed`), so a caller can commit each result at once; the process pool
+restarts itself when a worker dies and retries the runs it lost, at most ``retries`` times.
 
 * ``InProcessExecutor`` (default): a plain loop in this process.
 * ``ProcessPoolExecutor``: ``concurrent.futures`` with ``spawn``ed workers on this machine.
@@ -23,11 +25,13 @@ reset between runs.
 from __future__ import annotations
 
 import concurrent.futures
+from concurrent.futures.process import BrokenProcessPool
 import functools
 import multiprocessing
 import os
+import signal
 from pathlib import Path
-from typing import Any, Callable, Iterable, Mapping, Protocol, Sequence
+from typing import Any, Callable, Iterable, Iterator, Mapping, Protocol, Sequence
 
 import numpy as np
 
@@ -37,10 +41,29 @@ from .system import System, load_system
 EXECUTORS = ("inprocess", "process", "dask")
 
 
+class RunFailed:
+    """Stands for the result of a run that raised, or whose worker process died ``attempts`` times."""
+
+    def __init__(self, error: str, attempts: int = 1):
+        self.error = error
+        self.attempts = attempts
+
+    def __repr__(self) -> str:
+        return f"RunFailed({self.error!r}, attempts={self.attempts})"
+
+
+def _failure(exc: BaseException, attempts: int = 1) -> RunFailed:
+    return RunFailed(f"{type(exc).__name__}: {exc}", attempts)
+
+
 class Executor(Protocol):
-    """Runs ``fn`` over ``items`` and returns the results in item order."""
+    """Runs ``fn`` over ``items`` and returns the results in item order (``map``), or yields
+    ``(index, result)`` as runs finish, a failed run as ``(index, RunFailed)`` (``imap``)."""
 
     def map(self, fn: Callable[[Any], Any], items: Iterable[Any]) -> list[Any]: ...
+
+    def imap(self, fn: Callable[[Any], Any], items: Sequence[Any],
+             retries: int = 2) -> Iterator[tuple[int, Any]]: ...
 
     def close(self) -> None: ...
 
@@ -62,14 +85,80 @@ class InProcessExecutor(_Closing):
     def map(self, fn: Callable[[Any], Any], items: Iterable[Any]) -> list[Any]:
         return [fn(item) for item in items]
 
+    def imap(self, fn: Callable[[Any], Any], items: Sequence[Any], retries: int = 2) -> Iterator[tuple[int, Any]]:
+        """Each run as it finishes; a run that raises is a :class:`RunFailed` (no retry: runs are deterministic)."""
+        for index, item in enumerate(items):
+            try:
+                yield index, fn(item)
+            except Exception as exc:
+                yield index, _failure(exc)
+
+
+def _ignore_interrupt() -> None:
+    """Worker initializer: Ctrl-C reaches the whole process group; the parent alone handles it (commits what
+    finished, shuts the pool down), so the workers do not each print a KeyboardInterrupt traceback."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
 
 class ProcessPoolExecutor(_Closing):
     """A pool of ``workers`` spawned processes on this machine (default: one per CPU)."""
 
     def __init__(self, workers: int | None = None):
         self.workers = workers or os.cpu_count() or 1
-        self._pool = concurrent.futures.ProcessPoolExecutor(
-            max_workers=self.workers, mp_context=multiprocessing.get_context("spawn"))
+        self._pool = self._new_pool()
+
+    def _new_pool(self) -> concurrent.futures.ProcessPoolExecutor:
+        return concurrent.futures.ProcessPoolExecutor(max_workers=self.workers, initializer=_ignore_interrupt,
+                                                      mp_context=multiprocessing.get_context("spawn"))
+
+    def imap(self, fn: Callable[[Any], Any], items: Sequence[Any], retries: int = 2) -> Iterator[tuple[int, Any]]:
+        """Each run as it finishes. At most ``workers`` runs are in the pool at a time, so when a worker
+        process dies (killed, out of memory, a crash in an FMU) the runs that were lost with the pool are the
+        ones that were running: the pool is restarted and each of them is tried again, at most ``retries``
+        more times, then reported as a :class:`RunFailed`. A run that raises is not retried."""
+        attempts = [0] * len(items)
+        queue = list(range(len(items)))[::-1]
+        pending: dict[concurrent.futures.Future, int] = {}
+        while queue or pending:
+            broken = False
+            while queue and len(pending) < self.workers:
+                try:
+                    future = self._pool.submit(fn, items[queue[-1]])
+                except BrokenProcessPool:  # a worker died since the last run finished
+                    broken = True
+                    break
+                index = queue.pop()
+                attempts[index] += 1
+                pending[future] = index
+            lost: list[int] = []
+            done = set() if broken else concurrent.futures.wait(
+                pending, return_when=concurrent.futures.FIRST_COMPLETED).done
+            for future in done:
+                index = pending.pop(future)
+                try:
+                    result = future.result()
+                except BrokenProcessPool:
+                    lost.append(index)
+                    continue
+                except Exception as exc:
+                    result = _failure(exc, attempts[index])
+                yield index, result
+            if not lost and not broken:
+                continue
+            for future in concurrent.futures.wait(pending).done:  # the broken pool fails the other runs too
+                index = pending.pop(future)
+                error = future.exception()
+                if isinstance(error, BrokenProcessPool):
+                    lost.append(index)
+                else:
+                    yield index, future.result() if error is None else _failure(error, attempts[index])
+            self._pool.shutdown(wait=False, cancel_futures=True)
+            self._pool = self._new_pool()
+            for index in sorted(lost, reverse=True):
+                if attempts[index] > retries:
+                    yield index, RunFailed(f"its worker process died {attempts[index]} times", attempts[index])
+                else:
+                    queue.append(index)
 
     def map(self, fn: Callable[[Any], Any], items: Iterable[Any]) -> list[Any]:
         items = list(items)
@@ -98,6 +187,19 @@ class DaskExecutor(_Closing):
         futures = self._client.map(fn, list(items), pure=False)
         return self._client.gather(futures)
 
+    def imap(self, fn: Callable[[Any], Any], items: Sequence[Any], retries: int = 2) -> Iterator[tuple[int, Any]]:
+        """Each run as it finishes; Dask itself reschedules the runs of a worker that died (its
+        ``allowed-failures``), a run it gives up on or that raises is a :class:`RunFailed`."""
+        from dask.distributed import as_completed
+
+        futures = self._client.map(fn, list(items), pure=False)
+        index = {future.key: i for i, future in enumerate(futures)}
+        for future in as_completed(futures):
+            try:
+                yield index[future.key], future.result()
+            except Exception as exc:
+                yield index[future.key], _failure(exc)
+
     def close(self) -> None:
         self._client.close()
         if self._cluster is not None:
@@ -105,7 +207,10 @@ class DaskExecutor(_Closing):
 
 
 def make_executor(kind: str = "inprocess", workers: int | None = None, scheduler: str | None = None) -> Executor:
-    """``kind`` is one of "inprocess", "process", "dask" (``scheduler`` implies "dask")."""
+    """``kind`` is one of "inprocess", "process", "dask" (``scheduler`` implies "dask"); ``workers`` None
+    (one per CPU) or a positive integer."""
+    if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int) or workers < 1):
+        raise ValueError(f"workers: expected a positive number of worker processes, got {workers!r}")
     if scheduler and kind != "dask":
         kind = "dask"
     if kind == "inprocess":

@@ -14,7 +14,9 @@ from pathlib import Path
 from typing import Any, Mapping
 
 import numpy as np
-from fmpy import extract, read_model_description
+from fmpy import extract
+
+from motiontwin.fmus.archive import read_description
 from fmpy.fmi1 import FMICallException
 from fmpy.fmi2 import (
     FMU2Slave,
@@ -84,7 +86,7 @@ class FMUInstance:
         self.path = Path(path)
         if not self.path.is_file():
             raise FileNotFoundError(f"FMU '{name}': file not found: {self.path}")
-        self.model_description = md = read_model_description(str(self.path))
+        self.model_description = md = read_description(self.path)
         if md.coSimulation is None:
             raise ValueError(f"FMU '{name}' ({self.path}) does not support Co-Simulation")
         self.fmi3 = md.fmiVersion.startswith("3")

@@ -14,11 +14,13 @@ import numpy as np
 from fmpy.fmi2 import FMU2Model
 from fmpy.fmi3 import FMU3Model
 
+from motiontwin.fmus.archive import read_description
+
 
 def linearize(fmu: str | Path, inputs: list[str], outputs: list[str],
               start_values: Mapping[str, float] | None = None) -> control.StateSpace:
     """``StateSpace`` of ``fmu`` from ``inputs`` to ``outputs`` at t = 0 after initialisation."""
-    md = fmpy.read_model_description(str(fmu))
+    md = read_description(fmu)
     if not md.modelExchange:  # (fmpy 0.3.32 does not read FMI 3.0's providesDirectionalDerivatives flag)
         raise ValueError(f"{fmu}: no Model Exchange interface")
     vr = {v.name: v.valueReference for v in md.modelVariables}

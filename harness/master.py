@@ -53,6 +53,7 @@ from __future__ import annotations
 
 import atexit
 import ctypes
+import math
 import threading
 from dataclasses import dataclass
 from pathlib import Path
@@ -66,7 +67,7 @@ from tqdm import tqdm
 from . import native
 from .fmu_instance import REAL_TYPES, FMUCallError, FMUInstance, PortError
 from .inputs import sample_held
-from .system import INPUT_NAMESPACE, System, load_system, split_port
+from .system import INPUT_NAMESPACE, System, check_run_length, load_system, split_port
 from .units import units_compatible, variable_unit
 
 
@@ -416,6 +417,10 @@ class Master:
         stop = stop_time if stop_time is not None else sys_.stop_time
         if stop is None:
             raise ValueError(f"{self._where()}no stop_time in the system file and none given to run()")
+        if not math.isfinite(stop) or stop <= sys_.start_time:
+            raise ValueError(f"{self._where()}stop_time = {stop!r} s must be finite and after start_time = "
+                             f"{sys_.start_time!r} s")
+        check_run_length(sys_.start_time, stop, sys_.base_step, f"{self._where()}stop_time")
         n = _integer_ratio(stop - sys_.start_time, sys_.base_step)
         if n is None:
             raise StepError(f"run length {stop - sys_.start_time:g} s is not an integer multiple of "

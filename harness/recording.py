@@ -357,8 +357,9 @@ def atomic_write_texts(files: dict[Path, str]) -> None:
     done: list[Path] = []
     try:
         for target, text in files.items():
-            fd, tmp = tempfile.mkstemp(dir=target.parent, prefix=f".{target.name}.", suffix=".tmp")
-            temps[target] = tmp
+            # the name is recorded before the file exists, so an interrupt at any point leaves no temporary file
+            temps[target] = tmp = str(target.parent / f".{target.name}.{uuid.uuid4().hex}.tmp")
+            fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, FILE_MODE)
             os.fchmod(fd, FILE_MODE)
             with os.fdopen(fd, "w", encoding="utf-8", newline="") as handle:
                 handle.write(text)
@@ -366,7 +367,7 @@ def atomic_write_texts(files: dict[Path, str]) -> None:
                 os.fsync(handle.fileno())
         for target in files:
             if target.exists():
-                backup = str(target.parent / f".{target.name}.{uuid.uuid4().hex}.bak")
+                backups[target] = backup = str(target.parent / f".{target.name}.{uuid.uuid4().hex}.bak")
                 try:
                     os.link(target, backup)
                 except OSError:

@@ -291,6 +291,8 @@ def load_suite(path: str | Path) -> list[Case]:
     path = Path(path)
     try:
         data = tomllib.loads(path.read_text(encoding="utf-8"))
+    except UnicodeDecodeError as exc:
+        raise SuiteError(f"{path}: not UTF-8 text (byte {exc.start}: {exc.reason})") from None
     except tomllib.TOMLDecodeError as exc:
         raise SuiteError(f"{path}: {exc}") from None
     default = _tolerance(data.get("tolerance", {}), Tolerance(), f"{path}: [tolerance]")

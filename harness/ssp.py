@@ -26,7 +26,7 @@ import xml.etree.ElementTree as ET
 import zipfile
 from pathlib import Path
 
-from fmpy import read_model_description
+from motiontwin.fmus.archive import read_description
 
 from .units import canonical_unit
 from .system import INPUT_NAMESPACE, System, load_system, split_port
@@ -66,7 +66,7 @@ def _single_source_connections(system: System, drop_external_in_sums: bool) -> l
 def system_structure(system: System, drop_external_in_sums: bool = False) -> ET.Element:
     """The ``SystemStructure.ssd`` document of ``system``."""
     connections = _single_source_connections(system, drop_external_in_sums)
-    models = {n: read_model_description(str(spec.path)) for n, spec in system.fmus.items()}
+    models = {n: read_description(spec.path) for n, spec in system.fmus.items()}
     variables = {n: {v.name: v for v in md.modelVariables} for n, md in models.items()}
     ports: dict[str, dict[str, str]] = {n: {} for n in system.fmus}  # instance -> variable -> kind
     for source, target, _ in connections:

@@ -26,24 +26,47 @@ Sweep file (TOML), paths relative to it::
 
 Cases are expanded in the order case x grid x seed; their names get ``-NAME=VALUE`` and ``-sSEED``.
 The results do not depend on the executor (:func:`harness.executor.run_sweep`). Units are the FMUs'.
+A sweep expands to at most ``MAX_RUNS`` runs, checked before anything is built or run. Case names become file
+names: characters other than letters, digits and ``._=+-`` are replaced by ``_`` (no ``/``, no leading dot).
+
+Output folder (:func:`run_to_folder`): one recording ``CASE.csv`` + ``CASE.json`` per run, each written
+atomically as soon as its run finishes, and the manifest ``sweep.json`` (format ``motiontwin-sweep``) rewritten
+atomically as runs complete: ``status`` (running, interrupted, complete, failed), ``cases`` (the finished
+runs in case order), ``failed`` (case and error). A run whose worker process dies is retried (bounded), a run
+that fails for good is reported by name while the others complete. A folder holding a sweep is refused unless
+``resume`` (continue the same sweep: finished runs are kept, the others run) or ``overwrite`` (the runs the
+manifest lists are removed first); a folder holding other files is always refused.
 """
 from __future__ import annotations
 
+import functools
+import hashlib
 import itertools
+import json
 import math
+import re
+import time
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
 from .inputs import InputError, add_input_noise, resolve_input
-from .system import System, load_system
+from .recording import atomic_write_texts, recording_texts, sidecar_path
+from .simulation import recording_from_log
+from .system import System, check_run_length, load_system
 
-__all__ = ["SweepError", "SweepCase", "Sweep", "load_sweep", "run"]
+__all__ = ["SweepError", "SweepCase", "Sweep", "SweepOutcome", "load_sweep", "run", "run_to_folder",
+           "safe_name", "MAX_RUNS"]
 
 INPUT_PREFIX = "input."   # a [grid] key "input.r" sets the external input r to a constant
+MAX_RUNS = 10_000         # runs one sweep file may expand to (cases x grid x seeds)
+MANIFEST = "sweep.json"
+MANIFEST_FORMAT = "motiontwin-sweep"
+MANIFEST_INTERVAL = 0.5   # [s] least time between two manifest rewrites while runs complete
+_UNSAFE = re.compile(r"[^A-Za-z0-9._=+-]")
 
 
 class SweepError(ValueError):
@@ -84,11 +107,19 @@ def _table(data: dict, key: str, where: str) -> dict:
     return value
 
 
+def safe_name(label: str) -> str:
+    """``label`` as a file name: characters other than letters, digits and ``._=+-`` become ``_``, and a
+    leading dot is dropped, so no name can leave the output folder or hide in it."""
+    return _UNSAFE.sub("_", label).lstrip(".") or "_"
+
+
 def load_sweep(path: str | Path) -> Sweep:
     """Read a sweep file and expand its cases (see the module docstring)."""
     path = Path(path)
     try:
         data = tomllib.loads(path.read_text(encoding="utf-8"))
+    except UnicodeDecodeError as exc:
+        raise SweepError(f"{path}: not UTF-8 text (byte {exc.start}: {exc.reason})") from None
     except tomllib.TOMLDecodeError as exc:
         raise SweepError(f"{path}: {exc}") from None
     unknown = set(data) - {"system", "log", "stop_time", "case", "grid", "seeds"}
@@ -101,7 +132,12 @@ def load_sweep(path: str | Path) -> Sweep:
     if stop is None:
         raise SweepError(f"{path}: no stop_time here nor in {data['system']}")
     stop = _number(stop, f"{path}: stop_time")
-    n = round((stop - system.start_time) / system.base_step)
+    if stop <= system.start_time:
+        raise SweepError(f"{path}: stop_time {stop!r} s must be after the system's start_time {system.start_time!r} s")
+    try:
+        n = check_run_length(system.start_time, stop, system.base_step, f"{path}: stop_time")
+    except ValueError as exc:
+        raise SweepError(str(exc)) from None
     grid_t = system.start_time + np.arange(n + 1) * system.base_step
 
     grid = _table(data, "grid", f"{path}")
@@ -124,6 +160,12 @@ def load_sweep(path: str | Path) -> Sweep:
     tables = data.get("case") or [{"name": "run"}]
     if not isinstance(tables, list):
         raise SweepError(f"{path}: 'case' must be an array of tables ([[case]])")
+    grid_runs = math.prod(len(values) for values in grid.values())
+    total = len(tables) * grid_runs * count
+    if total > MAX_RUNS:
+        raise SweepError(f"{path}: {len(tables)} case(s) x {grid_runs} grid point(s) x {count} seed(s) "
+                         f"([seeds] count) = {total} runs, more than the limit of {MAX_RUNS}; "
+                         f"reduce [seeds] count or the [grid] lists, or split the sweep")
     cases: list[SweepCase] = []
     for index, table in enumerate(tables):
         where = f"{path}: [[case]] #{index + 1}"
@@ -160,10 +202,11 @@ def load_sweep(path: str | Path) -> Sweep:
                     offset = spec.get("seed", 0)
                     runs[name] = add_input_noise(held.get(name, system.inputs[name].default), grid_t,
                                                  system.base_step, std, int(offset) + seed)
-                label = table["name"] + suffix + (f"-s{seed}" if count > 1 else "")
+                label = safe_name(table["name"] + suffix + (f"-s{seed}" if count > 1 else ""))
                 cases.append(SweepCase(label, runs, overrides))
     if len({c.name for c in cases}) != len(cases):
-        raise SweepError(f"{path}: case names must be unique")
+        raise SweepError(f"{path}: case names must be unique (after replacing characters other than letters, "
+                         f"digits and ._=+- by _)")
     log = data.get("log")
     if log is not None and not isinstance(log, str):
         raise SweepError(f"{path}: log must be the name of a log group")
@@ -175,3 +218,160 @@ def run(sweep: Sweep, executor: Any = None) -> list[dict[str, np.ndarray]]:
     from .executor import run_sweep
 
     return run_sweep(sweep.system, [c.run_arguments(sweep.stop_time) for c in sweep.cases], executor)
+
+
+@dataclass
+class SweepOutcome:
+    """What :func:`run_to_folder` did: runs finished now, kept from before (resume), failed (name -> error)."""
+
+    completed: list[str]
+    resumed: list[str]
+    failed: dict[str, str]
+    seconds: float
+
+
+def _inside(folder: Path, name: str) -> Path:
+    """``folder / name``, refused unless it resolves to a file directly inside ``folder``."""
+    path = folder / name
+    if path.resolve().parent != folder.resolve():
+        raise SweepError(f"{path}: resolves outside the output folder {folder}; rename the case")
+    return path
+
+
+def _fingerprint(sweep: Sweep) -> str:
+    """Identifies a sweep: its file's text, its system file's text, the case names, stop time and log group."""
+    digest = hashlib.sha256()
+    for source in (sweep.source, sweep.system.source):
+        if source is not None:
+            digest.update(Path(source).read_bytes())
+    digest.update(json.dumps([[c.name for c in sweep.cases], sweep.stop_time, sweep.log]).encode())
+    return digest.hexdigest()
+
+
+def _read_manifest(out: Path) -> dict[str, Any] | None:
+    path = out / MANIFEST
+    if not path.exists():
+        return None
+    try:
+        doc = json.loads(path.read_text(encoding="utf-8"))
+    except json.JSONDecodeError as exc:
+        raise SweepError(f"{path}: line {exc.lineno}, column {exc.colno}: {exc.msg}; not a sweep manifest, "
+                         f"choose another --out") from None
+    if not isinstance(doc, dict) or not isinstance(doc.get("cases"), list):
+        raise SweepError(f"{path}: field 'cases' missing; not a sweep manifest, choose another --out")
+    return doc
+
+
+def _prepare_folder(sweep: Sweep, out: Path, fingerprint: str, resume: bool,
+                    overwrite: bool) -> dict[str, dict[str, Any]]:
+    """Check ``out`` against resume/overwrite; remove stale runs if overwriting; return the rows kept."""
+    if resume and overwrite:
+        raise SweepError("resume and overwrite exclude each other: continue the sweep or replace it")
+    if not out.exists() or not any(out.iterdir()):
+        return {}
+    previous = _read_manifest(out)
+    if previous is None:
+        raise SweepError(f"{out}: holds files but no {MANIFEST}; choose a new or empty folder for the sweep")
+    label = f"{previous.get('sweep', '?')}, {len(previous['cases'])} finished run(s)"
+    if overwrite:
+        names = [row.get("case") for row in previous["cases"]] + [row.get("case") for row in previous.get("failed", [])]
+        for name in names:
+            if isinstance(name, str):
+                path = _inside(out, f"{name}.csv")
+                path.unlink(missing_ok=True)
+                sidecar_path(path).unlink(missing_ok=True)
+        (out / MANIFEST).unlink()
+        return {}
+    if not resume:
+        raise SweepError(f"{out}: holds a sweep ({label}); pass --resume to continue it or --overwrite to "
+                         f"replace its runs, or choose another folder")
+    if previous.get("fingerprint") != fingerprint:
+        raise SweepError(f"{out}: holds another sweep ({label}); --resume continues only the same sweep file "
+                         f"and system; pass --overwrite to replace it or choose another folder")
+    names = {c.name for c in sweep.cases}
+    return {row["case"]: row for row in previous["cases"]
+            if row.get("case") in names and _inside(out, f"{row['case']}.csv").exists()}
+
+
+def run_to_folder(sweep: Sweep, out: str | Path, executor: Any = None, *, executor_name: str = "inprocess",
+                  resume: bool = False, overwrite: bool = False, retries: int = 2,
+                  log: Callable[[str], None] = print) -> SweepOutcome:
+    """Run every case of ``sweep`` and commit each run's recording to ``out`` as soon as it finishes.
+
+    Parameters
+    ----------
+    sweep:
+        From :func:`load_sweep`.
+    out:
+        Output folder (see the module docstring for its layout and the manifest).
+    executor:
+        A :mod:`harness.executor` executor (default in-process); ``executor_name`` is recorded in the manifest.
+    resume:
+        Continue the same sweep in ``out``: runs the manifest lists as finished are kept, the others run.
+    overwrite:
+        Replace the sweep in ``out``: the runs its manifest lists are removed first.
+    retries:
+        How often a run whose worker process died is tried again before it is reported as failed.
+    log:
+        Receives the run count before anything runs, and one line per failed run.
+
+    Returns
+    -------
+    SweepOutcome
+        Runs finished now, runs kept from before, failed runs (name -> error), seconds.
+    """
+    from .executor import InProcessExecutor, RunFailed, run_case
+    from .master import master_for
+
+    out = Path(out)
+    if isinstance(retries, bool) or not isinstance(retries, int) or retries < 0:
+        raise SweepError(f"retries: expected a non-negative integer, got {retries!r}")
+    targets = {case.name: _inside(out, f"{case.name}.csv") for case in sweep.cases}
+    fingerprint = _fingerprint(sweep)
+    rows = _prepare_folder(sweep, out, fingerprint, resume, overwrite)
+    todo = [case for case in sweep.cases if case.name not in rows]
+    log(f"{len(sweep.cases)} runs (limit {MAX_RUNS}): {len(rows)} finished earlier, {len(todo)} to run")
+    meta = master_for(sweep.system).metadata()   # opens the FMUs: a bad one fails before out is created
+    out.mkdir(parents=True, exist_ok=True)
+    resumed = list(rows)
+    completed: list[str] = []
+    failed: dict[str, str] = {}
+    t0 = time.perf_counter()
+    order = {case.name: k for k, case in enumerate(sweep.cases)}
+
+    def write_manifest(status: str) -> None:
+        doc = {"format": MANIFEST_FORMAT, "version": 1, "sweep": str(sweep.source), "fingerprint": fingerprint,
+               "executor": executor_name, "status": status, "planned": len(sweep.cases), "runs": len(rows),
+               "seconds": time.perf_counter() - t0,
+               "cases": [rows[name] for name in sorted(rows, key=order.__getitem__)],
+               "failed": [{"case": name, "error": error} for name, error in failed.items()]}
+        atomic_write_texts({out / MANIFEST: json.dumps(doc, indent=2) + "\n"})
+
+    write_manifest("running")
+    if not todo:
+        write_manifest("complete")
+        return SweepOutcome(completed, resumed, failed, 0.0)
+    executor = executor or InProcessExecutor()
+    arguments = [case.run_arguments(sweep.stop_time) for case in todo]
+    last_write = time.perf_counter()
+    status = "interrupted"
+    try:
+        for index, result in executor.imap(functools.partial(run_case, sweep.system), arguments, retries):
+            case = todo[index]
+            if isinstance(result, RunFailed):
+                failed[case.name] = result.error
+                log(f"run {case.name} failed: {result.error}")
+            else:
+                rec = recording_from_log(result, sweep.log, meta, excited={"sweep": str(sweep.source), "case": case.name},
+                                    metadata={"system": str(sweep.system.source), "parameters": case.parameters})
+                atomic_write_texts(recording_texts(targets[case.name], rec))
+                rows[case.name] = {"case": case.name, "parameters": case.parameters,
+                                   "final": {k: float(rec[k][-1]) for k in rec.columns}}
+                completed.append(case.name)
+            if time.perf_counter() - last_write >= MANIFEST_INTERVAL:
+                write_manifest("running")
+                last_write = time.perf_counter()
+        status = "failed" if failed else "complete"
+    finally:
+        write_manifest(status)
+    return SweepOutcome(completed, resumed, failed, time.perf_counter() - t0)

@@ -150,6 +150,19 @@ class _Context:
         return SystemFileError(f"{name}{line}: {where}: {message}")
 
 
+MAX_STEPS = 100_000_000  # base steps (or samples) one run may have: 800 MB per logged or input signal
+
+
+def check_run_length(start_time: float, stop_time: float, step: float, where: str) -> int:
+    """The number of steps of ``step`` from ``start_time`` to ``stop_time``; ValueError naming ``where``
+    when it exceeds :data:`MAX_STEPS` (a typo like 1e300 s would otherwise exhaust memory)."""
+    steps = (stop_time - start_time) / step
+    if not steps <= MAX_STEPS:
+        raise ValueError(f"{where} = {stop_time!r} s gives {steps:.3g} steps of {step!r} s, more than the limit of "
+                         f"{MAX_STEPS:.0e}; shorten the run or lengthen the step")
+    return round(steps)
+
+
 def _number(ctx: _Context, value: Any, where: str, needle: str | None, positive: bool = False) -> float:
     if not is_finite_number(value):
         raise ctx.error(where, f"expected a finite number, got {value!r}", needle)
@@ -181,6 +194,10 @@ def system_from_dict(data: dict[str, Any], source: str | Path | None = None, tex
         stop_time = _number(ctx, stop_time, "stop_time", "stop_time")
         if stop_time <= start_time:
             raise ctx.error("stop_time", f"must be > start_time ({start_time})", "stop_time")
+        try:
+            check_run_length(start_time, stop_time, base_step, "stop_time")
+        except ValueError as exc:
+            raise ctx.error("stop_time", str(exc).removeprefix("stop_time = "), "stop_time") from None
 
     fmus_table = data.get("fmus")
     if not isinstance(fmus_table, dict) or not fmus_table:
@@ -285,9 +302,11 @@ def system_from_dict(data: dict[str, Any], source: str | Path | None = None, tex
 def load_system(path: str | Path) -> System:
     """Read and validate a TOML system description file."""
     path = Path(path)
-    text = path.read_text(encoding="utf-8")
     try:
+        text = path.read_text(encoding="utf-8")
         data = tomllib.loads(text)
+    except UnicodeDecodeError as exc:
+        raise SystemFileError(f"{path}: not UTF-8 text (byte {exc.start}: {exc.reason})") from None
     except tomllib.TOMLDecodeError as exc:
         raise SystemFileError(f"{path}: {exc}") from None
     return system_from_dict(data, source=path, text=text)

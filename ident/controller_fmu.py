@@ -10,9 +10,8 @@ import math
 import tempfile
 from pathlib import Path
 
-import fmpy
-
 from motiontwin.fmus import build, writeback
+from motiontwin.fmus.archive import read_description
 from motiontwin.ident.tuning_spec import CONTROLLER_CLASS, TuningError
 
 __all__ = ["write_controller_fmu", "sample_period_of"]
@@ -20,7 +19,7 @@ __all__ = ["write_controller_fmu", "sample_period_of"]
 
 def sample_period_of(fmu: Path | str) -> float:
     """The start value of the controller FMU's parameter ``Ts`` [s] (fixed by its build)."""
-    for variable in fmpy.read_model_description(str(fmu)).modelVariables:
+    for variable in read_description(fmu).modelVariables:
         if variable.name == "Ts":
             return float(variable.start)
     raise TuningError(f"{fmu}: the controller FMU has no parameter 'Ts'")

@@ -24,6 +24,7 @@ from typing import Sequence
 import control
 import numpy as np
 
+from motiontwin.fmus.package import ordinary_file_mode
 from motiontwin.ident.frf import JointModel
 from motiontwin.ident.tuning import LoopMargins, TuningSpec, frequency_grid, loop_margins, loop_system
 
@@ -137,9 +138,7 @@ def write_loop_figure(path: str | os.PathLike, parameters: dict[str, float],
     try:
         with os.fdopen(fd, "wb") as handle:
             handle.write(buffer.getvalue())
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)  # mkstemp creates 0600; a figure is an ordinary file
+        os.chmod(tmp, ordinary_file_mode())  # mkstemp creates 0600; a figure is an ordinary file
         os.replace(tmp, path)
     except BaseException:
         if os.path.exists(tmp):

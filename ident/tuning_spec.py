@@ -58,6 +58,16 @@ class TuningSpec:
     tau_max_s: float | None = 0.03
 
     def __post_init__(self) -> None:
+        for name, flag in (("gm_min_db", "--gm"), ("pm_min_deg", "--pm-min"), ("pm_max_deg", "--pm-max"),
+                           ("ms_max", "--ms"), ("s_below_bw_max", "--s-below-bw"), ("bandwidth_min_hz", "--bw-min"),
+                           ("tau_max_s", "--tau-max")):
+            value = getattr(self, name)
+            optional = name in ("s_below_bw_max", "bandwidth_min_hz", "tau_max_s")
+            if value is None and optional:
+                continue
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or math.isnan(value) or (
+                    math.isinf(value) and name != "tau_max_s"):
+                raise TuningError(f"TuningSpec: {name} ({flag}) must be a finite number, got {value!r}")
         if not self.pm_min_deg < self.pm_max_deg:
             raise TuningError(f"TuningSpec: pm_min_deg {self.pm_min_deg} must be below pm_max_deg {self.pm_max_deg}")
         if self.ms_max <= 1.0:
@@ -192,6 +202,14 @@ def joint_model_from_fields(fields: dict[str, float], defaults: dict[str, float]
     if unknown:
         raise TuningError(f"{where}: field {unknown[0]!r} is not one of {', '.join(_PLANT_KEYS)}")
     values = {**defaults, **fields}
+    for key in _PLANT_KEYS:
+        lower_ok = values[key] > 0 if key in ("K", "omega", "omega_bar") else values[key] >= 0
+        if not (math.isfinite(values[key]) and lower_ok):
+            bound = "positive" if key in ("K", "omega", "omega_bar") else "non-negative"
+            raise TuningError(f"{where}: field {key!r} = {values[key]!r} must be finite and {bound}")
+    if not values["omega"] > values["omega_bar"]:
+        raise TuningError(f"{where}: field 'omega' = {values['omega']!r} rad/s must be above 'omega_bar' = "
+                          f"{values['omega_bar']!r} rad/s (CheungJoint: the antiresonance lies below the resonance)")
     return JointModel(values["K"], values["alpha"], ((values["omega"], values["zeta"]),),
                       ((values["omega_bar"], values["zeta_bar"]),))
 

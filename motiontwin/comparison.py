@@ -57,6 +57,7 @@ from motiontwin.harness import kinematics, metrics
 from motiontwin.harness.excitation import end_effector_point_to_point
 from motiontwin.harness.master import Master
 from motiontwin.harness.recording import Recording, atomic_write_texts, make_recording, write_recording
+from motiontwin.fmus.archive import read_description
 from motiontwin.harness.system import System, system_from_dict
 
 PLANT_CLASS = "MotionTwin.Plants.CheungManipulator"
@@ -113,7 +114,7 @@ class PlantDynamics:
         import fmpy
         from fmpy.fmi2 import FMU2Model
 
-        self.md = md = fmpy.read_model_description(str(fmu))
+        self.md = md = read_description(fmu)
         if md.fmiVersion != "2.0" or md.modelExchange is None:
             raise ValueError(f"{fmu}: PlantDynamics needs an FMI 2.0 Model Exchange FMU")
         vr = {v.name: v.valueReference for v in md.modelVariables}
@@ -197,10 +198,9 @@ def table2_designs(masses: Sequence[float], damping: float, ts: float = TS,
     return designs
 
 
-def load_designs(paths: Sequence[str | Path], masses: Sequence[float], damping: float,
-                 ts: float = TS) -> list[dict[str, float]]:
-    """Designs from ``motiontwin tune --out`` JSON files: one for all four joints or one per joint (d1, d3, d5,
-    d7 order). Kv/Ka/Kj given in the file are used, otherwise they follow :func:`with_feedforward`."""
+def read_designs(paths: Sequence[str | Path], ts: float = TS) -> list[dict[str, float]]:
+    """The controller parameters of ``motiontwin tune --out`` JSON files, checked (one for all four joints or
+    one per joint), one dict per joint; read before any FMU is built, so a bad file costs nothing."""
     from motiontwin.ident.tuning import DESIGN_NAMES
 
     if len(paths) not in (1, 4):
@@ -211,6 +211,8 @@ def load_designs(paths: Sequence[str | Path], masses: Sequence[float], damping: 
             doc = json.loads(Path(path).read_text(encoding="utf-8"))
         except json.JSONDecodeError as err:
             raise ValueError(f"{path}: line {err.lineno}, column {err.colno}: {err.msg}") from None
+        except UnicodeDecodeError as err:
+            raise ValueError(f"{path}: not UTF-8 text (byte {err.start}: {err.reason})") from None
         params = doc.get("parameters") if isinstance(doc, dict) else None
         if not isinstance(params, dict):
             raise ValueError(f"{path}: field 'parameters' (an object of controller parameters) is missing")
@@ -223,7 +225,14 @@ def load_designs(paths: Sequence[str | Path], masses: Sequence[float], damping: 
         if not math.isclose(float(params.get("Ts", ts)), ts, rel_tol=1e-9):
             raise ValueError(f"{path}: field 'parameters.Ts' = {params['Ts']} s, the comparison samples at {ts} s")
         docs.append({k: float(v) for k, v in params.items()} | {"Ts": ts})
-    docs = docs * 4 if len(docs) == 1 else docs
+    return docs * 4 if len(docs) == 1 else docs
+
+
+def load_designs(paths: Sequence[str | Path], masses: Sequence[float], damping: float,
+                 ts: float = TS) -> list[dict[str, float]]:
+    """Designs from ``motiontwin tune --out`` JSON files (:func:`read_designs`, d1, d3, d5, d7 order).
+    Kv/Ka/Kj given in the file are used, otherwise they follow :func:`with_feedforward`."""
+    docs = read_designs(paths, ts)
     out = []
     for doc, mass in zip(docs, masses):
         out.append(doc if {"Kv", "Ka"} <= set(doc) else with_feedforward(doc, mass, damping))
@@ -410,6 +419,8 @@ def run_comparison(fmu_dir: str | Path | None = None, design_files: Sequence[str
     if fmu_dir is None:
         with tempfile.TemporaryDirectory(prefix="motiontwin-compare-") as tmp:
             return run_comparison(tmp, design_files, stop_time, ct_pole_hz, plant_parameters, table2_reading)
+    if design_files:
+        read_designs(design_files)
     fmus = build_fmus(fmu_dir)
     plant_parameters = dict(plant_parameters or {})
     time = np.arange(round(stop_time / TS) + 1) * TS
@@ -446,9 +457,7 @@ def run_comparison(fmu_dir: str | Path | None = None, design_files: Sequence[str
 
 
 def _start_value(fmu: Path, name: str) -> float:
-    import fmpy
-
-    return next(float(v.start) for v in fmpy.read_model_description(str(fmu)).modelVariables if v.name == name)
+    return next(float(v.start) for v in read_description(fmu).modelVariables if v.name == name)
 
 
 # ---------------------------------------------------------------------------------------------- outputs

@@ -242,3 +242,43 @@ def test_named_controller_equals_its_discrete_state_space(small_bundle, tmp_path
 def test_named_controller_errors(small_bundle, tmp_path, controller, needles):
     bundle = _named_bundle(small_bundle, tmp_path, controller)
     _expect_error(bundle, tmp_path, "experiment.json", "controller", *needles)
+
+
+def _scale_and_declare(bundle: Path, factor: float, unit: str) -> None:
+    """Multiply train.csv's r and q by ``factor`` and declare them in ``unit`` in its sidecar."""
+    import numpy as np
+
+    from motiontwin.harness.recording import read_recording, write_recording
+
+    path = bundle / "train.csv"
+    rec = read_recording(path)
+    for name in ("r", "q"):
+        rec.columns[name] = rec.columns[name] * factor
+        rec.units[name] = unit
+    write_recording(path, rec)
+    assert np.all(np.isfinite(read_recording(path)["q"]))
+
+
+def test_declared_units_are_read_as_identify_joint_reads_them(small_bundle, tmp_path):
+    """diagnose applies ident.units like identify joint: deg is refused next to forces in N (it ignored
+    the declaration), positions in mm declared m are implausible (it answered 'no effect'), and positions
+    in mm declared mm are converted to the same SI values."""
+    import numpy as np
+
+    original = read_bundle(small_bundle).train
+    bundle = _copy(small_bundle, tmp_path)
+    doc = json.loads((bundle / "train.json").read_text())
+    doc["units"]["q"] = "deg"
+    (bundle / "train.json").write_text(json.dumps(doc))
+    _expect_error(bundle, tmp_path, "train.csv", "'q' in rad", "mix linear and rotary")
+
+    bundle = _copy(small_bundle, tmp_path / "mm_as_m")
+    _scale_and_declare(bundle, 1e3, "m")
+    _expect_error(bundle, tmp_path / "mm_as_m", "train.csv", "column 'q' declared in m has an implausible")
+
+    bundle = _copy(small_bundle, tmp_path / "mm")
+    _scale_and_declare(bundle, 1e3, "mm")
+    converted = read_bundle(bundle).train
+    np.testing.assert_allclose(converted["q"], original["q"], rtol=1e-12, atol=1e-15)
+    np.testing.assert_allclose(converted["r"], original["r"], rtol=1e-12, atol=1e-15)
+    assert any("'q' converted from mm to m" in note for note in converted.meta["metadata"]["unit_notes"])

@@ -383,3 +383,31 @@ def test_directional_and_adjoint_derivatives_match_the_analytic_jacobian(built_f
     with pytest.raises(FMICallException):
         ld.fmu.getDirectionalDerivative(unknowns, [vr["m"]], [1.0])
     assert any("m" in msg and "is a parameter" in msg for msg in ld.messages), ld.messages
+
+
+@pytest.mark.parametrize("version", VERSIONS)
+def test_second_free_and_foreign_instance_pointers_are_refused_with_a_message(built_fmus, version, capfd):
+    """FreeInstance twice on one instance (a glibc double-free abort before the instance registry), a call on
+    the freed instance and calls on a pointer that is no instance: refused with an error, named on stderr."""
+    ld = fu.instantiate(built_fmus["FrictionJoint", version], "cs")
+    fmu = ld.fmu
+    handle = fmu.component
+    free, terminate = (fmu.fmi2FreeInstance, fmu.fmi2Terminate) if version == "2.0" else (fmu.fmi3FreeInstance,
+                                                                                          fmu.fmi3Terminate)
+    free(handle)
+    free(handle)
+    with pytest.raises(FMICallException):
+        terminate(handle)
+    foreign = ctypes.create_string_buffer(4096)
+    with pytest.raises(FMICallException):
+        terminate(ctypes.cast(foreign, ctypes.c_void_p))
+    free(ctypes.cast(foreign, ctypes.c_void_p))
+    assert foreign.raw == bytes(4096)   # the runtime did not write into it
+    err = capfd.readouterr().err
+    assert err.count("is no live instance of this FMU") == 4, err
+    assert f"fmi{version[0]}FreeInstance: 0x" in err and f"fmi{version[0]}Terminate: 0x" in err
+    fresh = fu.instantiate(built_fmus["FrictionJoint", version], "cs")   # the runtime is still usable
+    fu.initialize(fresh)
+    fu.step(fresh, 0.0, 1e-3)
+    fu.free(fresh)
+    fmu.freeLibrary()

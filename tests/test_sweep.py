@@ -3,6 +3,7 @@ whichever executor runs them, the CLI's recordings, and clear errors for bad fil
 from __future__ import annotations
 
 import json
+import threading
 from pathlib import Path
 
 import numpy as np
@@ -109,3 +110,204 @@ def test_bad_sweep_files_name_the_field_and_write_nothing(sweep_file: Path, tmp_
     out = tmp_path / "out"
     assert main(["sweep", str(bad), "--out", str(out)]) == 1
     assert str(bad) in capsys.readouterr().err and not out.exists()
+
+
+def _direct_runs(sweep_file: Path) -> dict[str, np.ndarray]:
+    plan = sweep.load_sweep(sweep_file)
+    with Master(plan.system) as master:
+        return {c.name: master.run(**c.run_arguments(plan.stop_time))["log"]["plant.q"] for c in plan.cases}
+
+
+def _assert_folder_holds(out: Path, direct: dict[str, np.ndarray]) -> None:
+    """``out`` holds exactly the recordings of ``direct`` (equal values) and a complete manifest listing them."""
+    manifest = json.loads((out / sweep.MANIFEST).read_text())
+    assert manifest["status"] == "complete" and manifest["failed"] == []
+    assert [row["case"] for row in manifest["cases"]] == list(direct)
+    assert sorted(p.name for p in out.iterdir()) == sorted(
+        [sweep.MANIFEST] + [f"{n}.{ext}" for n in direct for ext in ("csv", "json")])
+    for name, q in direct.items():
+        np.testing.assert_allclose(read_recording(out / f"{name}.csv")["plant.q"], q, rtol=1e-15, atol=0)
+
+
+def _kill_a_worker_once_runs_complete(out: Path, total: int) -> threading.Thread:
+    """A thread that SIGKILLs a process-pool worker of this process while it runs a case (as an out-of-memory
+    killer or a crashing FMU would): once the first recording is in ``out``, the first worker seen running
+    (state R in /proc, i.e. computing, not waiting for work), while runs are still missing."""
+    import multiprocessing
+    import os
+    import signal
+    import time
+
+    def running(pid: int) -> bool:
+        try:
+            return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] == "R"
+        except (OSError, IndexError):
+            return False
+
+    def kill() -> None:
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline:
+            if out.exists() and any(out.glob("*.csv")):
+                busy = [w.pid for w in multiprocessing.active_children() if running(w.pid)]
+                if busy:
+                    assert len(list(out.glob("*.csv"))) < total, "every run finished before the kill"
+                    os.kill(busy[0], signal.SIGKILL)
+                    return
+            time.sleep(0.002)
+
+    thread = threading.Thread(target=kill)
+    thread.start()
+    return thread
+
+
+LONG_SWEEP = SWEEP.replace('log = "log"', 'log = "log"\nstop_time = 1.0').replace("count = 3", "count = 4")
+
+
+def test_killed_worker_is_retried_and_every_run_is_committed(sweep_file: Path, tmp_path: Path) -> None:
+    sweep_file.write_text(LONG_SWEEP)
+    direct = _direct_runs(sweep_file)
+    out = tmp_path / "out"
+    killer = _kill_a_worker_once_runs_complete(out, len(direct))
+    code = main(["sweep", str(sweep_file), "--executor", "process", "--workers", "2", "--out", str(out)])
+    killer.join()
+    assert code == 0
+    _assert_folder_holds(out, direct)
+
+
+def test_killed_worker_without_retries_fails_its_runs_by_name_and_keeps_the_others(sweep_file: Path,
+                                                                                    tmp_path: Path) -> None:
+    from motiontwin.harness.executor import make_executor
+
+    sweep_file.write_text(LONG_SWEEP)
+    plan = sweep.load_sweep(sweep_file)
+    out = tmp_path / "out"
+    killer = _kill_a_worker_once_runs_complete(out, len(plan.cases))
+    with make_executor("process", 2) as executor:
+        outcome = sweep.run_to_folder(plan, out, executor, retries=0, log=lambda line: None)
+    killer.join()
+    manifest = json.loads((out / sweep.MANIFEST).read_text())
+    assert 1 <= len(outcome.failed) <= 2   # the runs in the two workers when one died
+    assert sorted(outcome.completed + list(outcome.failed)) == sorted(c.name for c in plan.cases)
+    assert manifest["status"] == "failed"
+    assert {row["case"] for row in manifest["failed"]} == set(outcome.failed)
+    assert all("worker process died" in row["error"] for row in manifest["failed"])
+    assert {row["case"] for row in manifest["cases"]} == set(outcome.completed)
+    assert {p.stem for p in out.glob("*.csv")} == set(outcome.completed)
+
+
+class _InterruptedAfter:
+    """The in-process executor, with Ctrl-C pressed after ``runs`` runs have finished."""
+
+    def __init__(self, runs: int):
+        from motiontwin.harness.executor import InProcessExecutor
+
+        self.runs, self.inner = runs, InProcessExecutor()
+
+    def imap(self, fn, items, retries=2):
+        for count, pair in enumerate(self.inner.imap(fn, items, retries)):
+            if count == self.runs:
+                raise KeyboardInterrupt
+            yield pair
+
+
+def test_interrupted_sweep_resumes_and_a_folder_holding_a_sweep_is_refused(sweep_file: Path, tmp_path: Path,
+                                                                           capsys) -> None:
+    direct = _direct_runs(sweep_file)
+    out = tmp_path / "out"
+    with pytest.raises(KeyboardInterrupt):
+        sweep.run_to_folder(sweep.load_sweep(sweep_file), out, _InterruptedAfter(4), log=lambda line: None)
+    manifest = json.loads((out / sweep.MANIFEST).read_text())
+    assert manifest["status"] == "interrupted" and [r["case"] for r in manifest["cases"]] == list(direct)[:4]
+    assert len(list(out.glob("*.csv"))) == 4
+
+    assert main(["sweep", str(sweep_file), "--out", str(out)]) == 1   # neither --resume nor --overwrite
+    assert "pass --resume to continue it or --overwrite" in capsys.readouterr().err
+    outcome = sweep.run_to_folder(sweep.load_sweep(sweep_file), out, resume=True, log=lambda line: None)
+    assert outcome.resumed == list(direct)[:4] and outcome.completed == list(direct)[4:]
+    _assert_folder_holds(out, direct)
+
+    other = sweep_file.with_name("other.toml")
+    other.write_text(SWEEP.replace('name = "step"', 'name = "other"').replace("count = 3", "count = 2"))
+    assert main(["sweep", str(other), "--resume", "--out", str(out)]) == 1
+    assert "holds another sweep" in capsys.readouterr().err
+    _assert_folder_holds(out, direct)                                 # refused: nothing touched
+    assert main(["sweep", str(other), "--overwrite", "--out", str(out)]) == 0
+    _assert_folder_holds(out, _direct_runs(other))                    # the stale runs are gone
+
+
+def test_case_names_stay_inside_the_output_folder(sweep_file: Path, tmp_path: Path) -> None:
+    sweep_file.write_text(SWEEP.replace('name = "step"', 'name = "../../escaped/.hidden"')
+                          .replace("count = 3", "count = 1").replace('"plant.m" = [1.5, 2.5]', '"plant.m" = [2.0]'))
+    assert [c.name for c in sweep.load_sweep(sweep_file).cases] == ["_.._escaped_.hidden-plant.m=2"]
+    before = sorted(p.name for p in tmp_path.iterdir())
+    out = tmp_path / "out"
+    assert main(["sweep", str(sweep_file), "--out", str(out)]) == 0
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(before + ["out"])
+    assert sorted(p.name for p in out.iterdir()) == ["_.._escaped_.hidden-plant.m=2.csv",
+                                                     "_.._escaped_.hidden-plant.m=2.json", "sweep.json"]
+
+
+@pytest.mark.parametrize("text, message", [
+    (SWEEP.replace("count = 3", "count = 1000000000"),
+     r"1 case(s) x 2 grid point(s) x 1000000000 seed(s) ([seeds] count) = 2000000000 runs"),
+    (SWEEP.replace('"plant.m" = [1.5, 2.5]', '"plant.m" = [1.5, 2.5]\n"plant.d" = [' + ", ".join(["1.0"] * 2000) + "]"),
+     "1 case(s) x 4000 grid point(s) x 3 seed(s) ([seeds] count) = 12000 runs"),
+])
+def test_run_count_is_checked_before_anything_runs(sweep_file: Path, tmp_path: Path, capsys, text: str,
+                                                  message: str) -> None:
+    import time
+
+    sweep_file.write_text(text)
+    t0 = time.perf_counter()
+    assert main(["sweep", str(sweep_file), "--out", str(tmp_path / "out")]) == 1
+    assert time.perf_counter() - t0 < 2.0
+    err = capsys.readouterr().err
+    assert f"{sweep_file}: {message}, more than the limit of 10000" in err
+    assert not (tmp_path / "out").exists()
+
+
+def test_run_count_is_printed_and_workers_checked(sweep_file: Path, tmp_path: Path, capsys) -> None:
+    assert main(["sweep", str(sweep_file), "--workers", "0", "--executor", "process",
+                 "--out", str(tmp_path / "w")]) == 1
+    assert "workers: expected a positive number of worker processes, got 0" in capsys.readouterr().err
+    assert main(["sweep", str(sweep_file), "--out", str(tmp_path / "out")]) == 0
+    assert "6 runs (limit 10000): 0 finished earlier, 6 to run" in capsys.readouterr().out
+
+
+def test_run_stop_time_beyond_the_limit_names_the_option(sweep_file: Path, tmp_path: Path, capsys) -> None:
+    out = tmp_path / "r.csv"
+    assert main(["run", str(sweep_file.with_name("loop.toml")), "--stop-time", "1e300", "--out", str(out)]) == 1
+    assert "stop_time = 1e+300 s gives 1e+304 steps of 0.0001 s, more than the limit of 1e+08" in \
+        capsys.readouterr().err
+    assert not out.exists()
+
+
+def test_ctrl_c_on_a_process_pool_sweep_is_exit_130_one_line_and_resumable(sweep_file: Path, tmp_path: Path) -> None:
+    """A real Ctrl-C (SIGINT to the process group, as a terminal sends it) during a process-pool sweep."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    sweep_file.write_text(LONG_SWEEP)
+    out = tmp_path / "out"
+    command = [sys.executable, "-c", "import sys; from motiontwin.cli import main; sys.exit(main())", "sweep", str(sweep_file), "--executor", "process",
+               "--workers", "2", "--out", str(out)]
+    proc = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True, preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    deadline = time.monotonic() + 120
+    while not (out.exists() and any(out.glob("*.csv"))) and time.monotonic() < deadline and proc.poll() is None:
+        time.sleep(0.01)
+    os.killpg(proc.pid, signal.SIGINT)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 130, err
+    assert err.strip().splitlines() == ["motiontwin sweep: interrupted; finished outputs are complete, nothing "
+                                        "half-written was kept (add --resume to continue)"]
+    manifest = json.loads((out / sweep.MANIFEST).read_text())
+    finished = [row["case"] for row in manifest["cases"]]
+    assert manifest["status"] == "interrupted" and 1 <= len(finished) < 8
+    assert sorted(p.name for p in out.iterdir()) == sorted([sweep.MANIFEST] + [f"{n}.{e}" for n in finished
+                                                                                 for e in ("csv", "json")])
+    assert main(["sweep", str(sweep_file), "--resume", "--out", str(out)]) == 0
+    _assert_folder_holds(out, _direct_runs(sweep_file))

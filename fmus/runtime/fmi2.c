@@ -8,7 +8,7 @@
 #define INST ((mt_instance *)c)
 #define CHECK(mask, fn)                                                \
     do {                                                               \
-        if (!c) return fmi2Error;                                      \
+        if (!mt_live(c, (fn))) return fmi2Error;                       \
         if (!mt_allowed(INST, (mask), (fn))) return fmi2Error;         \
     } while (0)
 #define CHECK_ME(fn)                                                                                     \
@@ -54,7 +54,7 @@ const char *fmi2GetVersion(void) { return fmi2Version; }
 fmi2Status fmi2SetDebugLogging(fmi2Component c, fmi2Boolean loggingOn, size_t nCategories,
                                const fmi2String categories[])
 {
-    if (!c) return fmi2Error;
+    if (!mt_live(c, __func__)) return fmi2Error;
     return (fmi2Status)mt_set_debug_logging(INST, loggingOn, nCategories, categories);
 }
 
@@ -75,7 +75,7 @@ fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2Str
                           functions ? functions->componentEnvironment : NULL, loggingOn);
 }
 
-void fmi2FreeInstance(fmi2Component c) { mt_free(INST); }
+void fmi2FreeInstance(fmi2Component c) { mt_release(c, "fmi2FreeInstance"); }
 
 fmi2Status fmi2SetupExperiment(fmi2Component c, fmi2Boolean toleranceDefined, fmi2Real tolerance,
                                fmi2Real startTime, fmi2Boolean stopTimeDefined, fmi2Real stopTime)
@@ -110,7 +110,7 @@ fmi2Status fmi2Terminate(fmi2Component c)
 
 fmi2Status fmi2Reset(fmi2Component c)
 {
-    if (!c) return fmi2Error;
+    if (!mt_live(c, __func__)) return fmi2Error;
     mt_reset(INST);
     return fmi2OK;
 }
@@ -201,7 +201,7 @@ fmi2Status fmi2SetFMUstate(fmi2Component c, fmi2FMUstate FMUstate)
 
 fmi2Status fmi2FreeFMUstate(fmi2Component c, fmi2FMUstate *FMUstate)
 {
-    if (!c) return fmi2Error;
+    if (!mt_live(c, __func__)) return fmi2Error;
     if (FMUstate) {
         free(*FMUstate);
         *FMUstate = NULL;

@@ -11,7 +11,7 @@
 #define ERR(...) mt_log(INST, MT_ERROR, "logStatusError", __VA_ARGS__)
 #define CHECK(mask, fn)                                                \
     do {                                                               \
-        if (!instance) return fmi3Error;                               \
+        if (!mt_live(instance, (fn))) return fmi3Error;                \
         if (!mt_allowed(INST, (mask), (fn))) return fmi3Error;         \
     } while (0)
 #define CHECK_ME(fn)                                                                          \
@@ -30,7 +30,7 @@
     } while (0)
 #define NOT_SUPPORTED(fn, what)                                                               \
     do {                                                                                      \
-        if (!instance) return fmi3Error;                                                      \
+        if (!mt_live(instance, (fn))) return fmi3Error;                                       \
         ERR("%s: not supported by this FMU (%s)", (fn), (what));                              \
         return fmi3Error;                                                                     \
     } while (0)
@@ -50,7 +50,7 @@ const char *fmi3GetVersion(void) { return fmi3Version; }
 fmi3Status fmi3SetDebugLogging(fmi3Instance instance, fmi3Boolean loggingOn, size_t nCategories,
                                const fmi3String categories[])
 {
-    if (!instance) return fmi3Error;
+    if (!mt_live(instance, __func__)) return fmi3Error;
     return (fmi3Status)mt_set_debug_logging(INST, loggingOn, nCategories, categories);
 }
 
@@ -85,7 +85,7 @@ fmi3Instance fmi3InstantiateCoSimulation(fmi3String instanceName, fmi3String ins
     if (inst && nRequiredIntermediateVariables > 0) {
         mt_log(inst, MT_ERROR, "logStatusError", "fmi3InstantiateCoSimulation: intermediate variable access is "
                "not supported (%zu variables requested)", nRequiredIntermediateVariables);
-        mt_free(inst);
+        mt_release(inst, "fmi3InstantiateCoSimulation");
         return NULL;
     }
     if (inst) inst->event_mode_used = eventModeUsed;
@@ -113,7 +113,7 @@ fmi3Instance fmi3InstantiateScheduledExecution(fmi3String instanceName, fmi3Stri
     return NULL;
 }
 
-void fmi3FreeInstance(fmi3Instance instance) { mt_free(INST); }
+void fmi3FreeInstance(fmi3Instance instance) { mt_release(instance, "fmi3FreeInstance"); }
 
 fmi3Status fmi3EnterInitializationMode(fmi3Instance instance, fmi3Boolean toleranceDefined, fmi3Float64 tolerance,
                                        fmi3Float64 startTime, fmi3Boolean stopTimeDefined, fmi3Float64 stopTime)
@@ -157,7 +157,7 @@ fmi3Status fmi3Terminate(fmi3Instance instance)
 
 fmi3Status fmi3Reset(fmi3Instance instance)
 {
-    if (!instance) return fmi3Error;
+    if (!mt_live(instance, __func__)) return fmi3Error;
     mt_reset(INST);
     return fmi3OK;
 }
@@ -309,7 +309,7 @@ fmi3Status fmi3SetFMUState(fmi3Instance instance, fmi3FMUState FMUState)
 
 fmi3Status fmi3FreeFMUState(fmi3Instance instance, fmi3FMUState *FMUState)
 {
-    if (!instance) return fmi3Error;
+    if (!mt_live(instance, __func__)) return fmi3Error;
     if (FMUState) {
         free(*FMUState);
         *FMUState = NULL;

@@ -223,6 +223,53 @@ static void max_work(const mt_function *f, mt_int *a, mt_int *r, mt_int *iw, mt_
     if (sw > *w) *w = sw;
 }
 
+/* The registry: a growing array of live instance pointers guarded by a spin lock (GCC atomics: the FMU
+ * links only libc and libm). Instances are few per process, so a linear search is cheap next to a step. */
+static mt_instance **live_instances;
+static size_t live_count, live_capacity;
+static volatile int live_lock;
+
+static void registry_lock(void)
+{
+    while (__sync_lock_test_and_set(&live_lock, 1)) {
+    }
+}
+
+static void registry_unlock(void) { __sync_lock_release(&live_lock); }
+
+/* Index of ptr among the live instances, or live_count; call with the lock held. */
+static size_t registry_find(const void *ptr)
+{
+    size_t k = 0;
+    while (k < live_count && (const void *)live_instances[k] != ptr) k++;
+    return k;
+}
+
+static int registry_add(mt_instance *inst)
+{
+    int ok = 1;
+    registry_lock();
+    if (live_count == live_capacity) {
+        size_t capacity = live_capacity ? 2 * live_capacity : 16;
+        mt_instance **grown = realloc(live_instances, capacity * sizeof *grown);
+        if (grown) {
+            live_instances = grown;
+            live_capacity = capacity;
+        } else {
+            ok = 0;
+        }
+    }
+    if (ok) live_instances[live_count++] = inst;
+    registry_unlock();
+    return ok;
+}
+
+static void refuse_pointer(const void *ptr, const char *fn)
+{
+    fprintf(stderr, "[ERROR] FMU %s: %s: %p is no live instance of this FMU (freed already, or never returned "
+            "by Instantiate); the call is refused\n", MT_MODEL.identifier, fn, ptr);
+}
+
 mt_instance *mt_instantiate(const char *name, const char *token, int co_simulation, int fmi_version,
                             mt_emit_fn emit, void (*logger)(void), void *env, int logging_on)
 {
@@ -290,7 +337,45 @@ mt_instance *mt_instantiate(const char *name, const char *token, int co_simulati
     inst->solver.scale = m->nominal ? m->nominal + vr_of(m, B_X, 0) : NULL;
     if (m->ode_jac.eval) inst->solver.fjac = solver_fjac;
     mt_reset(inst);
+    if (!registry_add(inst)) {
+        LOG_ERROR(inst, "Instantiate: out of memory");
+        mt_free(inst);
+        return NULL;
+    }
     return inst;
+}
+
+int mt_live(const void *ptr, const char *fn)
+{
+    size_t k;
+    if (!ptr) return 0;
+    registry_lock();
+    k = registry_find(ptr);
+    registry_unlock();
+    if (k < live_count) return 1;
+    refuse_pointer(ptr, fn);
+    return 0;
+}
+
+void mt_release(void *ptr, const char *fn)
+{
+    size_t k;
+    int found;
+    if (!ptr) return;
+    registry_lock();
+    k = registry_find(ptr);
+    found = k < live_count;
+    if (found) live_instances[k] = live_instances[--live_count];
+    if (live_count == 0) {
+        free(live_instances);
+        live_instances = NULL;
+        live_capacity = 0;
+    }
+    registry_unlock();
+    if (found)
+        mt_free((mt_instance *)ptr);
+    else
+        refuse_pointer(ptr, fn);
 }
 
 void mt_free(mt_instance *inst)

@@ -69,6 +69,16 @@ mt_instance *mt_instantiate(const char *name, const char *token, int co_simulati
 void mt_free(mt_instance *inst);
 void mt_reset(mt_instance *inst);
 
+/* Registry of live instances (those mt_instantiate returned and no FreeInstance has released). The FMI
+ * layers check every instance pointer against it before using it, so a second free of an instance or a
+ * pointer that is no instance of this FMU is refused with a message on stderr (the importer's logger
+ * belongs to an instance, which such a pointer is not) instead of reading freed memory. */
+/* 1 when ptr is a live instance; else writes "fn: ..." to stderr and returns 0. NULL: 0, no message. */
+int mt_live(const void *ptr, const char *fn);
+/* FreeInstance: unregisters and frees a live instance; NULL does nothing; any other pointer is refused
+ * with a message (a second free included). */
+void mt_release(void *ptr, const char *fn);
+
 /* printf-style message; warnings, discards and errors always reach the logger, MT_OK messages only
  * when their category is enabled. */
 void mt_log(mt_instance *inst, int status, const char *category, const char *fmt, ...)

@@ -24,7 +24,7 @@ import numpy as np
 
 from motiontwin.fmus import frontend, symbolic
 from motiontwin.harness.recording import Recording, RecordingError, read_recording
-from motiontwin.ident import controller
+from motiontwin.ident import controller, units
 from motiontwin.ident.controller import Controller, field
 
 REQUIRED_COLUMNS = ("time", "r", "u", "q")
@@ -119,6 +119,22 @@ def read_plant(doc: dict, bundle_dir: Path, where: str) -> PlantInfo:
     return PlantInfo(path, class_name, path.read_text(encoding="utf-8"), model, input_name, output_name, pos, vel)
 
 
+def _to_si(rec: Recording, source: str) -> None:
+    """Read the declared units as ``identify joint`` does (ident.units): positions r, q and forces u, u_ext
+    converted to SI (mm, deg, kN ... with a note in the recording's metadata 'unit_notes'), a unit of the
+    wrong kind refused, and q's motion checked for plausibility (mm declared as m); UnitError names the column."""
+    quantities = {"r": "position", "q": "position", "u": "force"}
+    if "u_ext" in rec.columns:
+        quantities["u_ext"] = "force"
+    columns = units.checked_columns(rec, quantities, source=source)
+    units.check_motion(columns, "q", source=source)
+    rec.time = columns.time
+    rec.columns.update(columns.values)
+    rec.units.update({"time": "s", **columns.units})
+    if columns.notes:
+        rec.meta.setdefault("metadata", {})["unit_notes"] = columns.notes
+
+
 def _recording(doc: dict, key: str, bundle_dir: Path, where: str, ts: float) -> Recording:
     name = _field(doc, key, where, str)
     path = bundle_dir / name
@@ -126,6 +142,7 @@ def _recording(doc: dict, key: str, bundle_dir: Path, where: str, ts: float) -> 
         raise BundleError(f"{where}: field 'recordings.{key}' names {name!r}, but {path} does not exist")
     try:
         rec = read_recording(path, REQUIRED_COLUMNS)
+        _to_si(rec, str(path))
     except RecordingError as exc:
         raise BundleError(str(exc)) from None
     if rec.time.size < 20:

@@ -25,16 +25,44 @@ def parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Run one subcommand; every expected failure is one line on stderr.
+
+    Returns
+    -------
+    int
+        0 on success, 1 on an error (bad input, a path that cannot be read or written, a failing FMU or
+        build), 130 when interrupted (Ctrl-C). The writers are atomic, so an error or an interruption leaves
+        earlier results untouched and no half-written file.
+    """
+    import zipfile
+
+    from fmpy.fmi1 import FMICallException
+
+    from motiontwin.cli.errors import os_error_message, preflight
     from motiontwin.fmus.frontend import ModelicaError
     from motiontwin.fmus.package import BuildError
     from motiontwin.harness.fmu_instance import FMUCallError
 
     args = parser().parse_args(argv)
     func: Callable[[argparse.Namespace], int] = args.func
+    prefix = f"motiontwin {args.command}"
     try:
+        preflight(args)
         return func(args)
-    except (ModelicaError, BuildError, FMUCallError, KeyError, ValueError, FileNotFoundError) as exc:
-        print(f"motiontwin {args.command}: {exc}", file=sys.stderr)
+    except KeyboardInterrupt:
+        again = "add --resume to continue" if args.command == "sweep" else "run the command again"
+        print(f"{prefix}: interrupted; finished outputs are complete, nothing half-written was kept ({again})",
+              file=sys.stderr)
+        return 130
+    except OSError as exc:
+        print(f"{prefix}: {os_error_message(exc)}", file=sys.stderr)
+        return 1
+    except zipfile.BadZipFile as exc:
+        print(f"{prefix}: a file given as an FMU or archive is not a zip archive ({exc}); check the paths",
+              file=sys.stderr)
+        return 1
+    except (ModelicaError, BuildError, FMUCallError, FMICallException, KeyError, ValueError) as exc:
+        print(f"{prefix}: {exc}", file=sys.stderr)
         return 1
 
 

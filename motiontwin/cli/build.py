@@ -30,4 +30,4 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--modelica", type=Path, default=MODELICA_DIR, help="Modelica library folder or .mo file")
     p.add_argument("--fmi", nargs="+", choices=FMI_VERSIONS, default=list(FMI_VERSIONS), help="FMI versions")
     p.add_argument("--out", type=Path, default=DEFAULT_OUT, help="output folder (FMUs go to OUT/fmi2, OUT/fmi3)")
-    p.set_defaults(func=_build)
+    p.set_defaults(func=_build, output_folders=("out",))

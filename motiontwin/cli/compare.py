@@ -5,10 +5,25 @@ import argparse
 from pathlib import Path
 
 
+def _check_options(args: argparse.Namespace) -> None:
+    """NaN, non-positive and absurdly long runs are refused before any FMU is built, naming the option."""
+    import math
+
+    from motiontwin.comparison import TS
+    from motiontwin.harness.system import check_run_length
+
+    for name in ("stop_time", "ct_pole_hz"):
+        value = getattr(args, name)
+        if not (math.isfinite(value) and value > 0):
+            raise ValueError(f"--{name.replace('_', '-')} {value!r}: must be a finite number > 0")
+    check_run_length(0.0, args.stop_time, TS, "--stop-time")
+
+
 def _compare(args: argparse.Namespace) -> int:
     """Run both controllers, print the tables, write recordings, tables and figures."""
     from motiontwin.comparison import MOVE_TIME, PRE_MOVE, SS_WINDOW, format_table, run_comparison, write_outputs
 
+    _check_options(args)
     if args.stop_time <= PRE_MOVE + MOVE_TIME + SS_WINDOW:
         raise ValueError(f"--stop-time {args.stop_time:g} s must exceed {PRE_MOVE + MOVE_TIME + SS_WINDOW:g} s "
                          f"(the move plus the steady-state window)")
@@ -32,4 +47,4 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--table2-reading", choices=("per-sample", "continuous"), default="per-sample",
                    help="how Table 2's Kp, Ki, Kd are read (default per-sample: Ki/Ts, Kd*Ts)")
     p.add_argument("--fmu-dir", type=Path, default=None, help="where to build the FMUs (default: OUT/fmus)")
-    p.set_defaults(func=_compare)
+    p.set_defaults(func=_compare, output_folders=("out", "fmu_dir"))

@@ -16,4 +16,4 @@ def register(sub: argparse._SubParsersAction) -> None:
     """Add this module's subcommands to the ``motiontwin`` parser."""
     p = sub.add_parser("demo", help="build the example FMUs and run the example end to end")
     p.add_argument("--out", type=Path, default=Path("build") / "demo")
-    p.set_defaults(func=_demo)
+    p.set_defaults(func=_demo, output_folders=("out",))

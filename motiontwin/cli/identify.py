@@ -256,6 +256,7 @@ def _design_excitation(args: argparse.Namespace) -> int:
     (harness.excitation) that ``motiontwin excite`` samples."""
     from motiontwin.harness.excitation import fourier_experiment_text, periodic_time_grid
     from motiontwin.harness.recording import atomic_write_texts
+    from motiontwin.harness.system import check_run_length
     from motiontwin.ident.excitation_design import (ExcitationLimits, evaluate_design, optimize_excitation,
                                                     random_design)
 
@@ -268,6 +269,7 @@ def _design_excitation(args: argparse.Namespace) -> int:
             raise ValueError(f"{flag} must be >= 1, got {value}")
     if args.periods < 2:
         raise ValueError(f"--periods must be >= 2 (identification averages periods), got {args.periods}")
+    check_run_length(0.0, args.periods / args.f0, args.sample_time, f"--periods / --f0 ({args.periods} periods)")
     try:
         n_per = periodic_time_grid(1.0 / args.f0, 1, args.sample_time).size
     except ValueError as exc:
@@ -346,7 +348,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     q.add_argument("--out", type=Path, default=None,
                    help="JSON in the SerialRobotJoint FMU's parameter names (M, k, q_off, beta_*) for "
                         "writeback --values; the regressor estimates beside them")
-    q.set_defaults(func=_identify_joint)
+    q.set_defaults(func=_identify_joint, output_files=("out",))
     q = kinds.add_parser("frf", help="joint model K/(s(s+alpha)) x resonance/antiresonance pairs (Cheung eqs. 6-8) "
                                      "from a swept-sine recording")
     q.add_argument("recording", type=Path, nargs="+",
@@ -363,7 +365,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     q.add_argument("--alpha", type=float, default=None,
                    help="hold alpha [1/s] at this value (default: fitted if the sweep band determines it, else 10)")
     q.add_argument("--out", type=Path, default=None, help="JSON in the CheungJoint FMU's parameter names")
-    q.set_defaults(func=_identify_frf)
+    q.set_defaults(func=_identify_frf, output_files=("out",))
     q = kinds.add_parser("oe", help="output-error refit of any Modelica plant's parameters (CasADi free run of the "
                                     "equations the FMU is built from; closed loop with --controller)")
     q.add_argument("recording", type=Path, help="recording CSV, uniformly sampled")
@@ -380,7 +382,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="single shooting (Gauss-Newton, default) or multiple shooting (IPOPT, continuity constraints)")
     q.add_argument("--segments", type=int, default=4, help="segments of the recording for --shooting multiple")
     q.add_argument("--out", type=Path, default=None, help="JSON for writeback --values")
-    q.set_defaults(func=_identify_oe)
+    q.set_defaults(func=_identify_oe, output_files=("out",))
 
     q = kinds.add_parser("hexapod", help="hexapod base parameters from a periodic recording of leg lengths "
                                          "L1..L6 [m] and leg forces tau1..tau6 [N]")
@@ -389,7 +391,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     q.add_argument("--cutoff", type=float, required=True, help="low-pass cut-off of the derivatives [Hz]")
     q.add_argument("--min-speed", type=float, default=0.0, help="drop samples where a leg is slower [m/s]")
     q.add_argument("--out", type=Path, default=None, help="write estimates, std and covariance as JSON")
-    q.set_defaults(func=_identify_hexapod)
+    q.set_defaults(func=_identify_hexapod, output_files=("out",))
 
     q = kinds.add_parser("projection", help="closed-loop plant y = B/F u by the projection method (Bona eqs. "
                                             "10-12), printed beside the naive output-error fit")
@@ -405,7 +407,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     q.add_argument("--periodic", action="store_true", help="the recording holds whole periods: shifts wrap around")
     q.add_argument("--skip", type=int, default=None, help="initial samples left out of the fits (default --causal)")
     q.add_argument("--out", type=Path, default=None, help="JSON with both models (B, F, gain, modes)")
-    q.set_defaults(func=_identify_projection)
+    q.set_defaults(func=_identify_projection, output_files=("out",))
 
     p = sub.add_parser("design-excitation", help="optimal periodic Fourier excitation (condition number or "
                                                  "D-optimality) -> experiment file for excite")
@@ -427,4 +429,4 @@ def register(sub: argparse._SubParsersAction) -> None:
     q.add_argument("--name", default=None, help="experiment name (default: the file stem)")
     q.add_argument("--target", default=None, help="port the experiment drives, e.g. r")
     q.add_argument("--out", type=Path, required=True, help="experiment TOML (kind fourier) for motiontwin excite")
-    q.set_defaults(func=_design_excitation)
+    q.set_defaults(func=_design_excitation, output_files=("out",))

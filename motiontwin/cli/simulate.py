@@ -35,33 +35,22 @@ def _run(args: argparse.Namespace) -> int:
 
 
 def _sweep(args: argparse.Namespace) -> int:
-    import json
-    import time
+    import sys
 
-    from motiontwin.harness import recording, sweep
+    from motiontwin.harness import sweep
     from motiontwin.harness.executor import make_executor
-    from motiontwin.harness.master import master_for
-    from motiontwin.harness.simulation import recording_from_log
 
     plan = sweep.load_sweep(args.sweep)
-    t0 = time.perf_counter()
     with make_executor(args.executor, args.workers, args.scheduler) as executor:
-        results = sweep.run(plan, executor)
-    seconds = time.perf_counter() - t0
-    meta = master_for(plan.system).metadata()
-    texts, rows = {}, []
-    for case, logs in zip(plan.cases, results):
-        rec = recording_from_log(logs, plan.log, meta, excited={"sweep": str(args.sweep), "case": case.name},
-                             metadata={"system": str(plan.system.source), "parameters": case.parameters})
-        texts.update(recording.recording_texts(args.out / f"{case.name}.csv", rec))
-        rows.append({"case": case.name, "parameters": case.parameters,
-                     "final": {k: float(rec[k][-1]) for k in rec.columns}})
-    texts[args.out / "sweep.json"] = json.dumps({"sweep": str(args.sweep), "executor": args.executor,
-                                                "runs": len(rows), "seconds": seconds, "cases": rows},
-                                               indent=2) + "\n"
-    args.out.mkdir(parents=True, exist_ok=True)
-    recording.atomic_write_texts(texts)
-    print(f"{len(rows)} runs in {seconds:.2f} s ({len(rows) / seconds:.1f} runs/s, {args.executor}) -> {args.out}")
+        outcome = sweep.run_to_folder(plan, args.out, executor, executor_name=args.executor, resume=args.resume,
+                                      overwrite=args.overwrite, retries=args.retries)
+    runs = len(outcome.completed)
+    rate = f"{runs / outcome.seconds:.1f} runs/s, " if outcome.seconds > 0 else ""
+    print(f"{runs} runs in {outcome.seconds:.2f} s ({rate}{args.executor}) -> {args.out}")
+    if outcome.failed:
+        print(f"motiontwin sweep: {len(outcome.failed)} run(s) failed: {', '.join(outcome.failed)} "
+              f"(errors in {args.out / sweep.MANIFEST}; --resume runs them again)", file=sys.stderr)
+        return 1
     return 0
 
 
@@ -84,7 +73,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("experiment", type=Path, help="experiment TOML, e.g. harness/experiments/swept_sine_80_500.toml")
     p.add_argument("--out", type=Path, required=True, help="recording CSV (a JSON sidecar is written beside it)")
     p.add_argument("--mat", action="store_true", help="also write a MATLAB .mat file")
-    p.set_defaults(func=_excite)
+    p.set_defaults(func=_excite, output_files=("out",))
 
     p = sub.add_parser("run", help="co-simulate a system file and write a recording")
     p.add_argument("system", type=Path, help="system description (TOML)")
@@ -93,7 +82,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--stop-time", type=float, default=None, help="[s] (default: the system file's stop_time)")
     p.add_argument("--log", default=None, help="log group to record (default: the first)")
     p.add_argument("--out", type=Path, required=True, help="recording CSV (a JSON sidecar is written beside it)")
-    p.set_defaults(func=_run)
+    p.set_defaults(func=_run, output_files=("out",))
 
     p = sub.add_parser("sweep", help="run the cases of a sweep file (seeds, grids) through an executor")
     p.add_argument("sweep", type=Path, help="sweep file (TOML, see harness/sweep.py)")
@@ -103,18 +92,25 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--scheduler", default=None, metavar="ADDRESS",
                    help="Dask scheduler, e.g. tcp://host:8786 (default: a LocalCluster on this machine)")
     p.add_argument("--out", type=Path, required=True, help="folder: one recording per case + sweep.json")
-    p.set_defaults(func=_sweep)
+    again = p.add_mutually_exclusive_group()
+    again.add_argument("--resume", action="store_true",
+                       help="continue the sweep in --out: keep its finished runs, run the others")
+    again.add_argument("--overwrite", action="store_true",
+                       help="replace the sweep in --out (its runs are removed first)")
+    p.add_argument("--retries", type=int, default=2,
+                   help="times a run whose worker process died is tried again (default 2)")
+    p.set_defaults(func=_sweep, output_folders=("out",))
 
     p = sub.add_parser("regress", help="run a regression suite against reference recordings (tolerance tubes)")
     p.add_argument("suite", type=Path, help="suite file (TOML)")
     p.add_argument("--update", action="store_true", help="rebaseline: rewrite the reference recordings")
     p.add_argument("--junit", type=Path, default=None, help="write JUnit XML here")
     p.add_argument("--plots", type=Path, default=None, help="write a plot per failing signal here")
-    p.set_defaults(func=_regress)
+    p.set_defaults(func=_regress, output_files=("junit",), output_folders=("plots",))
 
     p = sub.add_parser("ssp", help="export a system file as an SSP archive")
     p.add_argument("system", type=Path)
     p.add_argument("out", type=Path)
     p.add_argument("--drop-external-in-sums", action="store_true",
                    help="drop external inputs from sum junctions (SSP 1.0 has no sum junctions)")
-    p.set_defaults(func=_ssp)
+    p.set_defaults(func=_ssp, output_files=("out",))

@@ -98,6 +98,39 @@ def _tune_manipulator(args: argparse.Namespace) -> int:
     return 0 if not design.infeasible and stable else 2
 
 
+# option -> (lowest value, whether the lowest value itself is allowed); every one must also be finite
+_NUMBER_BOUNDS = {"ts": (0.0, False), "tau": (0.0, False), "gain_spread": (0.0, True),
+                  "resonance_spread": (0.0, True), "tau_max": (0.0, False)}
+_COUNT_BOUNDS = {"delay": 0, "popsize": 1, "maxiter": 1, "refine": 0, "poses": 1}
+_FINITE = ("gm", "pm_min", "pm_max", "ms", "s_below_bw", "bw_min")
+
+
+def check_options(args: argparse.Namespace) -> None:
+    """Refuse NaN, infinite and out-of-range tune options before any FMU is built, naming the option."""
+    import math
+
+    def refuse(name: str, what: str) -> None:
+        raise ValueError(f"--{name.replace('_', '-')} {getattr(args, name)!r}: {what}")
+
+    for name in _FINITE:
+        value = getattr(args, name)
+        if value is not None and not math.isfinite(value):
+            refuse(name, "must be a finite number")
+    for name, (low, inclusive) in _NUMBER_BOUNDS.items():
+        value = getattr(args, name)
+        if value is None or (name == "tau_max" and value == math.inf):
+            continue
+        if math.isnan(value) or math.isinf(value) or value < low or (value == low and not inclusive):
+            refuse(name, f"must be a finite number {'>=' if inclusive else '>'} {low:g}"
+                   + (" (or inf: unconstrained)" if name == "tau_max" else ""))
+    for name in ("gain_spread", "resonance_spread"):
+        if getattr(args, name) >= 1.0:
+            refuse(name, "must be below 1 (a fraction of the nominal value)")
+    for name, low in _COUNT_BOUNDS.items():
+        if getattr(args, name) < low:
+            refuse(name, f"must be at least {low}")
+
+
 def _tune(args: argparse.Namespace) -> int:
     """``motiontwin tune``: one controller on the plant sets (``--plant`` or a linearised ``--plant-fmu``)."""
     from motiontwin.ident.controller_fmu import write_controller_fmu
@@ -106,6 +139,7 @@ def _tune(args: argparse.Namespace) -> int:
                                          format_comparison, format_margins, position_sets,
                                          table2_comparison, tune)
 
+    check_options(args)
     if args.manipulator:
         return _tune_manipulator(args)
     spec = _spec(args)
@@ -197,8 +231,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--rigid", action="store_true", help="with --manipulator: no eq. (8) flexible mode on the channels")
     p.add_argument("--no-feedforward", action="store_true", help="keep Kv, Ka, Kj at the FMU defaults")
     p.add_argument("--no-jerk", action="store_true", help="fit Kv, Ka only (Kj = 0)")
-    p.set_defaults(func=_tune)
+    p.set_defaults(func=_tune, output_files=("out", "fmu_out"), output_folders=("plots",),
+                   input_fmus=("fmu", "plant_fmu"))
     p = sub.add_parser("plot-tuning", help="Bode/Nyquist/sensitivity figures of a 'motiontwin tune --out' design file")
     p.add_argument("design", type=Path, help="JSON written by motiontwin tune --out")
     p.add_argument("--out", type=Path, required=True, help="folder for tuning_*.png")
-    p.set_defaults(func=_plot_tuning)
+    p.set_defaults(func=_plot_tuning, output_folders=("out",))

@@ -10,9 +10,8 @@ from motiontwin.cli.arguments import name_values
 def _writeback(args: argparse.Namespace) -> int:
     import json
 
-    import fmpy
-
     from motiontwin.fmus import writeback
+    from motiontwin.fmus.archive import read_description
     from motiontwin.harness.recording import atomic_write_texts
 
     values: dict[str, float] = {}
@@ -33,7 +32,7 @@ def _writeback(args: argparse.Namespace) -> int:
     if not values:
         raise ValueError("nothing to write back: give --values FILE and/or --set NAME=VALUE")
     out = writeback.write_back(args.fmu, values, args.out, provenance)
-    class_name = fmpy.read_model_description(str(out)).modelName
+    class_name = read_description(out).modelName
     modifier = args.modelica_out or args.out.with_suffix(".mo")
     atomic_write_texts({modifier: writeback.modelica_modifier(class_name, values, provenance),
                         args.out.with_suffix(".provenance.json"):
@@ -55,4 +54,4 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--drop", action="append", default=[], metavar="NAME", help="leave this value out")
     p.add_argument("--modelica-out", type=Path, default=None,
                    help="Modelica modifier file (default: OUT with suffix .mo)")
-    p.set_defaults(func=_writeback)
+    p.set_defaults(func=_writeback, output_files=("out", "modelica_out"), input_fmus=("fmu",))

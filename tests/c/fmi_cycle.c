@@ -1,5 +1,5 @@
 /* A full FMI life cycle on one FMU binary, for valgrind: instantiate, initialise, step, get/set/serialize
- * state, Model Exchange calls, free. Usage: fmi_cycle LIB.so 2|3 TOKEN NVR INPUT_VR NX
+ * state, Model Exchange calls, free, then a second free and calls on invalid instance pointers. Usage: fmi_cycle LIB.so 2|3 TOKEN NVR INPUT_VR NX
  * Exit code 0 when every call that should succeed did. */
 #include <dlfcn.h>
 #include <stdarg.h>
@@ -84,6 +84,12 @@ static int run2(void *lib, const char *token, int nvr, unsigned input_vr, int nx
     }
     CHECK(fmi2Terminate(c));
     fmi2FreeInstance(c);
+    /* A second free, a call on the freed instance, calls on a pointer that is no instance: refused. */
+    fmi2FreeInstance(c);
+    if (fmi2Reset(c) != fmi2Error) failures++;
+    static double not_an_instance[64];
+    if (fmi2Terminate((fmi2Component)not_an_instance) != fmi2Error) failures++;
+    fmi2FreeInstance((fmi2Component)not_an_instance);
     return 0;
 }
 
@@ -151,6 +157,12 @@ static int run3(void *lib, const char *token, int nvr, unsigned input_vr, int nx
     }
     CHECK(fmi3Terminate(c));
     fmi3FreeInstance(c);
+    /* A second free, a call on the freed instance, calls on a pointer that is no instance: refused. */
+    fmi3FreeInstance(c);
+    if (fmi3Reset(c) != fmi3Error) failures++;
+    static double not_an_instance[64];
+    if (fmi3Terminate((fmi3Instance)not_an_instance) != fmi3Error) failures++;
+    fmi3FreeInstance((fmi3Instance)not_an_instance);
     return 0;
 }
 
