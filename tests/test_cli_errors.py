@@ -190,7 +190,7 @@ def test_compare_reads_the_design_files_before_building(tmp_path, capsys):
     (["tune", "--gain-spread", "1.5"], "--gain-spread 1.5: must be below 1"),
     (["tune", "--plant", "omega=1000,omega_bar=2000"],
      "field 'omega' = 1000.0 rad/s must be above 'omega_bar' = 2000.0 rad/s"),
-    (["tune", "--plant", "K=nan"], "field 'K' = nan must be finite and positive"),
+    (["tune", "--plant", "K=nan"], "field 'K' = 'nan' is not a finite number"),
     (["sweep", "s.toml", "--workers", "0", "--out", "x"], "workers: expected a positive number of worker processes"),
     (["compare", "--out", "cmp", "--stop-time", "nan"], "--stop-time nan: must be a finite number > 0"),
     (["compare", "--out", "cmp", "--stop-time", "1e300"], "--stop-time = 1e+300 s gives 2e+303 steps of 0.0005 s, "
@@ -259,8 +259,8 @@ def test_out_into_a_missing_folder_names_the_folder_not_a_temporary_file(tmp_pat
 
 
 def test_plant_fmu_start_values_must_be_finite() -> None:
-    from motiontwin.ident import tuning
+    from motiontwin.cli.arguments import name_values
 
-    assert tuning._start_values("m=1.5, d=2", 0) == {"m": 1.5, "d": 2.0}
-    with pytest.raises(tuning.TuningError, match=r"--plant #2: field 'm' = 'nan' must be finite"):
-        tuning._start_values("d=2,m=nan", 1)
+    assert name_values("m=1.5, d=2", "--plant #1") == {"m": 1.5, "d": 2.0}
+    with pytest.raises(ValueError, match=r"--plant #2 'd=2,m=nan': field 'm' = 'nan' is not a finite number"):
+        name_values("d=2,m=nan", "--plant #2")
