@@ -51,7 +51,7 @@ from motiontwin.ident.leastsquares import LeastSquaresResult, UnidentifiableErro
 
 __all__ = ["Signals", "Loop", "Weights", "Fit", "OutputErrorResult", "build_loop", "default_bounds",
            "simulate", "residuals", "fit", "statistics", "identify", "cli_identify_oe", "bound_arrays",
-           "state_indices", "weighted_jacobian"]
+           "state_indices", "weighted_jacobian", "output_state"]
 
 
 _LOG = logging.getLogger(__name__)
@@ -154,6 +154,36 @@ def _output_expression(model: symbolic.SymbolicModel, name: str) -> ca.SX:
         raise KeyError(f"{model.flat.source}: class {model.name} has no state or output {name!r}; "
                        f"outputs: {', '.join(outputs)}; states: {', '.join(states)}")
     return found[0]
+
+
+def output_state(model: symbolic.SymbolicModel, name: str) -> int | None:
+    """Index of the state the output ``name`` is affine in when it depends on exactly one state and on no
+    input (a position state, an alias, a gear ratio or an offset of one), else None."""
+    try:
+        expr = _output_expression(model, name)
+    except KeyError:
+        return None
+    if ca.depends_on(expr, model.u):
+        return None
+    hits = [i for i in range(model.x.numel()) if ca.depends_on(expr, model.x[i])]
+    if len(hits) != 1 or ca.depends_on(ca.jacobian(expr, model.x[hits[0]]), model.x):
+        return None
+    return hits[0]
+
+
+def _state_for_output(model: symbolic.SymbolicModel, name: str, x0: np.ndarray, p: np.ndarray,
+                      target: float) -> np.ndarray:
+    """``x0`` with the state the output ``name`` is affine in set so that the output equals ``target``."""
+    i = output_state(model, name)
+    if i is None:
+        return x0
+    expr = _output_expression(model, name)
+    fn = ca.Function("h", [model.x, model.u, model.p], [expr, ca.jacobian(expr, model.x[i])])
+    value, slope = (float(o) for o in fn(x0, np.zeros(model.u.numel()), p))
+    x0 = x0.copy()
+    if slope != 0:
+        x0[i] += (target - value) / slope
+    return x0
 
 
 def build_loop(model: symbolic.SymbolicModel, controller: Controller | None, position_state: str, free: list[str],
@@ -311,8 +341,9 @@ def _column(rec: Recording, name: str, optional: bool = False) -> np.ndarray:
 
 def initial_state(loop: Loop, rec: Recording, values: dict[str, float] | None = None,
                   initial: dict[str, float] | None = None) -> np.ndarray:
-    """Start from the first recorded sample at rest: the output state (when the output is a state) = q_0,
-    other plant states at their start values, tracked states at q_0 or u_0, states in ``initial`` at those
+    """Start from the first recorded sample at rest: the output state (when the output is a state) = q_0, or
+    the state an output expression is affine in (an alias, gear ratio or offset) such that the output = q_0,
+    other plant states at their start values, tracked states at that position or u_0, states in ``initial`` at those
     values, and in closed loop the controller state giving the recorded force u_0 (least-norm solution of
     C z = u_0 - u_ext_0 - D y_0)."""
     values = values or loop.values
@@ -323,8 +354,13 @@ def initial_state(loop: Loop, rec: Recording, values: dict[str, float] | None = 
     q_rec = _column(rec, sig.output)
     if loop.position_state in names:
         x0[names.index(loop.position_state)] = q_rec[0]
+        position = q_rec[0]
+    else:
+        x0 = _state_for_output(model, loop.position_state, x0, p, q_rec[0])
+        i_pos = output_state(model, loop.position_state)
+        position = q_rec[0] if i_pos is None else x0[i_pos]
     for state, signal in loop.tracking.items():
-        x0[names.index(state)] = q_rec[0] if signal == "q" else _column(rec, sig.input)[0]
+        x0[names.index(state)] = position if signal == "q" else _column(rec, sig.input)[0]
     for state, value in (initial or {}).items():
         x0[names.index(state)] = value
     if ctrl is None or not ctrl.n_states:
@@ -563,7 +599,8 @@ def identify(model: symbolic.SymbolicModel, rec: Recording, free: list[str], con
 
     The recording must be sampled uniformly (at the controller period in closed loop). Each channel is
     weighted by the RMS of its residual after a first fit, then the fit is repeated. ``estimate_initial``:
-    plant states whose initial value is estimated too (default: the output, when it is a state).
+    plant states whose initial value is estimated too (default: the state the output is affine in, when
+    there is one: the output state itself, or the state behind an alias, gear ratio or offset).
     ``shooting``: "single" (:func:`fit`, ``max_nfev`` free runs per fit) or "multiple"
     (:func:`ident.multipleshooting.fit` over ``segments`` segments, IPOPT)."""
     if not free:
@@ -591,7 +628,8 @@ def identify(model: symbolic.SymbolicModel, rec: Recording, free: list[str], con
     qm = rec[signals.output]
     weights = Weights(_rms_weight(qm - q0), _rms_weight(rec[signals.input] - u0) if loop.closed else 1.0)
     if estimate_initial is None:
-        estimate_initial = [signals.output] if signals.output in [v.name for v in model.states] else []
+        i_out = output_state(model, signals.output)
+        estimate_initial = [] if i_out is None else [model.states[i_out].name]
     if shooting == "multiple":
         from motiontwin.ident import multipleshooting
 

@@ -43,6 +43,7 @@ from motiontwin.harness.master import Master
 from motiontwin.harness.recording import atomic_write_texts, make_recording, write_recording
 from motiontwin.harness.system import system_from_dict
 from motiontwin.ident.diagnosis.bundle import Controller
+from motiontwin.ident.diagnosis.plant_roles import PlantRoles
 
 PLANT_CLASS = "LinearAxis"
 PLANT_TEXT = '''model LinearAxis "Direct-drive linear axis: moving mass with viscous damping, m*der(v) = u - d*v"
@@ -404,7 +405,7 @@ def verify(case: str = "coulomb_friction", seed: int = 10, duration: float = 12.
         values.update({k: v for k, v in true["parameters"].items() if k in {p.name for p in effect.params}})
     folder = Path(tempfile.mkdtemp(prefix="mt-verify-"))
     fx.write_model(folder, PLANT_TEXT.format(m=TRUE_M, d=TRUE_D), PLANT_CLASS, effects, values,
-                   {"m": TRUE_M, "d": TRUE_D}, "Truth")
+                   {"m": TRUE_M, "d": TRUE_D}, "Truth", PlantRoles("u", "q", "x", "v"))
     model = fx.load_augmented(folder, "Truth")
     n = rr.size
     loop = sim.build_loop(model, pid_controller(), "plant.x", [], values, n, substeps=32, with_jacobian=False)
