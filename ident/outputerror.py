@@ -601,6 +601,7 @@ def identify(model: symbolic.SymbolicModel, rec: Recording, free: list[str], con
     weighted by the RMS of its residual after a first fit, then the fit is repeated. ``estimate_initial``:
     plant states whose initial value is estimated too (default: the state the output is affine in, when
     there is one: the output state itself, or the state behind an alias, gear ratio or offset).
+    ``input_name``: the driven plant input (default: the one named like the input column, else the only one).
     ``shooting``: "single" (:func:`fit`, ``max_nfev`` free runs per fit) or "multiple"
     (:func:`ident.multipleshooting.fit` over ``segments`` segments, IPOPT)."""
     if not free:
@@ -622,6 +623,8 @@ def identify(model: symbolic.SymbolicModel, rec: Recording, free: list[str], con
                          f"period {ts} s (the refit needs uniform sampling at the controller's instants)")
     values = {v.name: float(v.start) for v in model.parameters}
     values.update(start or {})
+    if input_name is None and signals.input in [v.name for v in model.inputs]:
+        input_name = signals.input
     loop = build_loop(model, controller, signals.output, list(free), values, rec.time.size, substeps=substeps,
                       tracking=tracking, ts=ts, input_name=input_name, signals=signals)
     q0, u0 = simulate(loop, rec)

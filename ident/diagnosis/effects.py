@@ -166,7 +166,8 @@ def stribeck_friction(ctx: Context) -> Effect:
     return Effect("stribeck_friction", FRICTION, params, "",
                   "MotionTwin.Effects.StribeckFriction($v, stribeck_Fc, stribeck_Fs, stribeck_vs, "
                   "stribeck_v_eps)", [], ["StribeckFriction.mo"], init,
-                  lambda v, c: {"Fc": v["stribeck_Fc"], "Fs": v["stribeck_Fs"], "vs": v["stribeck_vs"]},
+                  lambda v, c: {"Fc": v["stribeck_Fc"], "Fs": v["stribeck_Fs"],
+                                "vs": v["stribeck_vs"] * abs(c.position_gain)},
                   "Friction that is higher near standstill than at speed (Stribeck curve): the force residual "
                   "opposes the motion and its magnitude falls with |v| over the first few mm/s.")
 

@@ -20,8 +20,8 @@ from motiontwin.ident.diagnosis import effects as fx
 from motiontwin.ident.diagnosis import evidence as ev
 from motiontwin.ident import outputerror as sim
 from motiontwin.harness.recording import Recording
-from motiontwin.ident.diagnosis.bundle import Bundle, read_bundle
-from motiontwin.ident.diagnosis.plant_roles import output_map
+from motiontwin.ident.diagnosis.bundle import Bundle, BundleError, read_bundle
+from motiontwin.ident.diagnosis.plant_roles import PlantFormError, output_map
 
 AUGMENTED_CLASS = "Augmented"
 VALIDATION_GAIN = 0.9        # an effect must reduce the validation RMS by at least 10 %
@@ -389,15 +389,18 @@ def validation_floor(loop: sim.Loop, bundle: Bundle, values: dict[str, float], s
 
 def check_plant_form(bundle: Bundle, folder: Path) -> None:
     """Build every candidate effect's augmented model on the bundle's plant before any fitting (raises
-    :class:`plant_roles.PlantFormError` naming the construct and the plant file's line)."""
+    :class:`BundleError` naming the construct and the plant file's line)."""
     plant, ts = bundle.plant, bundle.controller.Ts
     values = {v.name: float(v.start) for v in plant.model.parameters}
-    gain, offset = output_map(plant.model, plant.roles, values)
-    x = (np.concatenate([bundle.train["q"], bundle.validation["q"]]) - offset) / gain
-    v_max = float(np.max(np.abs(np.gradient(x, ts)))) or 1e-3
-    ctx = fx.Context(ts, float(x.min()), float(x.max()), v_max, _mass_equivalent(bundle, values),
-                     position_gain=gain)
-    fx.check_buildable(folder, plant.text, plant.source, plant.class_name, plant.roles, ctx, AUGMENTED_CLASS)
+    try:
+        gain, offset = output_map(plant.model, plant.roles, values)
+        x = (np.concatenate([bundle.train["q"], bundle.validation["q"]]) - offset) / gain
+        v_max = float(np.max(np.abs(np.gradient(x, ts)))) or 1e-3
+        ctx = fx.Context(ts, float(x.min()), float(x.max()), v_max, _mass_equivalent(bundle, values),
+                         position_gain=gain)
+        fx.check_buildable(folder, plant.text, plant.source, plant.class_name, plant.roles, ctx, AUGMENTED_CLASS)
+    except PlantFormError as exc:
+        raise BundleError(str(exc)) from None
 
 
 def run(bundle: Bundle, work: Path, progress=None) -> dict:

@@ -51,20 +51,31 @@ class PlantRoles:
 
 
 def declaration_line(text: str, name: str) -> int | None:
-    """1-based line of the first declaration or equation that mentions ``name`` (None when absent)."""
+    """1-based line of the class or variable declaration of ``name`` (None when absent)."""
     short = re.escape(name.split(".")[-1])
-    patterns = [rf"\b(model|block|class|package)\s+{short}\b", rf"\b(input|output)\b[^;]*\b{short}\b",
-                rf"^\s*{short}\s*=", rf"der\(\s*{short}\s*\)", rf"\b{short}\b"]
-    lines = text.splitlines()
+    return _first_line(text, [rf"\b(model|block|class|package)\s+{short}\b",
+                              rf"\b(input|output|Real|parameter)\b[^;]*\b{short}\b", rf"\b{short}\b"])
+
+
+def equation_line(text: str, name: str) -> int | None:
+    """1-based line of the equation defining ``name`` (``name = ...``, ``... = name`` or ``der(name) = ...``),
+    else of its declaration."""
+    short = re.escape(name)
+    return _first_line(text, [rf"^\s*{short}\s*=", rf"=\s*{short}\s*;", rf"^\s*der\(\s*{short}\s*\)"]) \
+        or declaration_line(text, name)
+
+
+def _first_line(text: str, patterns: list[str]) -> int | None:
+    """First line (1-based) matching the first pattern that matches any line; strings are ignored."""
+    lines = [re.sub(r'"[^"]*"', '""', line) for line in text.splitlines()]
     for pattern in patterns:
         for number, line in enumerate(lines, 1):
-            if re.search(pattern, line.split('"')[0] if '"' in line else line):
+            if re.search(pattern, line):
                 return number
     return None
 
 
-def _where(path: Path, text: str, name: str) -> str:
-    line = declaration_line(text, name)
+def _where(path: Path, line: int | None) -> str:
     return f"{path}, line {line}" if line else str(path)
 
 
@@ -107,7 +118,7 @@ def find_roles(model: symbolic.SymbolicModel, text: str, path: Path, input_name:
         if name is not None and name not in names:
             raise PlantFormError(f"{path}: plant.{role} names {name!r}, which is not a state of class "
                                  f"{model.name}; its states are {', '.join(names)}")
-    where = _where(path, text, output_name)
+    where = _where(path, equation_line(text, output_name))
     if ca.depends_on(expr, model.u):
         raise PlantFormError(f"{where}: output {output_name} = {expr} depends on an input directly; the "
                              f"measured output must be a position (an expression of one state)")
@@ -125,7 +136,7 @@ def find_roles(model: symbolic.SymbolicModel, text: str, path: Path, input_name:
     else:
         chain = [i for i in range(len(names)) if ca.is_equal(model.dx[pos], model.x[i], 2)]
         if not chain:
-            raise PlantFormError(f"{_where(path, text, names[pos])}: der({names[pos]}) = {model.dx[pos]} is not "
+            raise PlantFormError(f"{_where(path, equation_line(text, names[pos]))}: der({names[pos]}) = {model.dx[pos]} is not "
                                  f"a state of class {model.name}, so the velocity is not defined; write "
                                  f"der({names[pos]}) = <velocity state>, or name plant.velocity in "
                                  f"experiment.json")
