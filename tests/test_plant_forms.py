@@ -265,7 +265,7 @@ def test_diagnosis_finds_the_concealed_effect(form, gravity_bundle, tmp_path, ca
 
 @pytest.mark.parametrize("edit, construct", [
     (("q = x;", "q = x*x;"), "output q = sq(x) is not affine in exactly one state"),
-    (("der(x) = v;", "der(x) = 2*v;"), "der(x) = (2*v) is not a state"),
+    (("der(x) = v;", "der(x) = 2*v;"), "der(x) = (2.*v) is not a state"),
 ])
 def test_unsupported_output_names_the_line(edit, construct, gravity_bundle, tmp_path):
     """An output that is not a position, or a position whose derivative is not a state: one message with

@@ -57,12 +57,12 @@ def declaration_line(text: str, name: str) -> int | None:
                               rf"\b(input|output|Real|parameter)\b[^;]*\b{short}\b", rf"\b{short}\b"])
 
 
-def equation_line(text: str, name: str) -> int | None:
-    """1-based line of the equation defining ``name`` (``name = ...``, ``... = name`` or ``der(name) = ...``),
-    else of its declaration."""
+def equation_line(text: str, name: str, derivative: bool = False) -> int | None:
+    """1-based line of the equation defining ``name`` (``name = ...`` or ``... = name``), or with
+    ``derivative`` its derivative (``der(name) = ...``), else of its declaration."""
     short = re.escape(name)
-    return _first_line(text, [rf"^\s*{short}\s*=", rf"=\s*{short}\s*;", rf"^\s*der\(\s*{short}\s*\)"]) \
-        or declaration_line(text, name)
+    patterns = [rf"\bder\(\s*{short}\s*\)"] if derivative else [rf"^\s*{short}\s*=", rf"=\s*{short}\s*;"]
+    return _first_line(text, patterns) or declaration_line(text, name)
 
 
 def _first_line(text: str, patterns: list[str]) -> int | None:
@@ -136,7 +136,7 @@ def find_roles(model: symbolic.SymbolicModel, text: str, path: Path, input_name:
     else:
         chain = [i for i in range(len(names)) if ca.is_equal(model.dx[pos], model.x[i], 2)]
         if not chain:
-            raise PlantFormError(f"{_where(path, equation_line(text, names[pos]))}: der({names[pos]}) = {model.dx[pos]} is not "
+            raise PlantFormError(f"{_where(path, equation_line(text, names[pos], derivative=True))}: der({names[pos]}) = {model.dx[pos]} is not "
                                  f"a state of class {model.name}, so the velocity is not defined; write "
                                  f"der({names[pos]}) = <velocity state>, or name plant.velocity in "
                                  f"experiment.json")
