@@ -87,8 +87,13 @@ def _ls(columns: list[np.ndarray], target: np.ndarray) -> np.ndarray:
     return np.linalg.lstsq(mat, target, rcond=None)[0]
 
 
+def _scale(ctx: Context) -> float:
+    """Measured metres per unit of the plant's position state: floors written in m or m/s are divided by it."""
+    return abs(ctx.position_gain)
+
+
 def _v_eps(ctx: Context) -> float:
-    return max(1e-5, 2e-3 * ctx.v_max)
+    return max(1e-5 / _scale(ctx), 2e-3 * ctx.v_max)
 
 
 def gravity_offset(ctx: Context) -> Effect:
@@ -105,7 +110,7 @@ def gravity_offset(ctx: Context) -> Effect:
 
 
 def _eps_bounds(ctx: Context) -> tuple[float, float]:
-    return 1e-5, max(2e-5, 0.05 * ctx.v_max)
+    return 1e-5 / _scale(ctx), max(2e-5 / _scale(ctx), 0.05 * ctx.v_max)
 
 
 def _sign(c: Context) -> np.ndarray:
@@ -160,7 +165,7 @@ def stribeck_friction(ctx: Context) -> Effect:
         return starts
     params = [_p("stribeck_Fc", "N", "Coulomb (sliding) friction level", 0.0, 1e4),
               _p("stribeck_Fs", "N", "Static (breakaway) friction level", 0.0, 1e4),
-              _p("stribeck_vs", "m/s", "Stribeck velocity", 1e-4, max(ctx.v_max, 1e-3)),
+              _p("stribeck_vs", "m/s", "Stribeck velocity", 1e-4 / _scale(ctx), max(ctx.v_max, 1e-3 / _scale(ctx))),
               _p("stribeck_v_eps", "m/s", "Velocity scale of the tanh (presliding)",
                  *_eps_bounds(ctx))]
     return Effect("stribeck_friction", FRICTION, params, "",
@@ -173,7 +178,7 @@ def stribeck_friction(ctx: Context) -> Effect:
 
 
 def position_ripple(ctx: Context) -> Effect:
-    span = max(ctx.x_max - ctx.x_min, 1e-6)
+    span = max(ctx.x_max - ctx.x_min, 1e-6 / _scale(ctx))
 
     def init(c: Context) -> list[dict[str, float]]:
         periods = span / np.linspace(0.75, 40, 400)
@@ -204,7 +209,7 @@ def position_ripple(ctx: Context) -> Effect:
 
 def position_dependent_inertia(ctx: Context) -> Effect:
     centre = 0.5 * (ctx.x_min + ctx.x_max)
-    half = max(0.5 * (ctx.x_max - ctx.x_min), 1e-6)
+    half = max(0.5 * (ctx.x_max - ctx.x_min), 1e-6 / _scale(ctx))
 
     def init(c: Context) -> list[dict[str, float]]:
         if c.force is None:

@@ -136,7 +136,8 @@ def find_roles(model: symbolic.SymbolicModel, text: str, path: Path, input_name:
     else:
         chain = [i for i in range(len(names)) if ca.is_equal(model.dx[pos], model.x[i], 2)]
         if not chain:
-            raise PlantFormError(f"{_where(path, equation_line(text, names[pos], derivative=True))}: der({names[pos]}) = {model.dx[pos]} is not "
+            line = equation_line(text, names[pos], derivative=True)
+            raise PlantFormError(f"{_where(path, line)}: der({names[pos]}) = {model.dx[pos]} is not "
                                  f"a state of class {model.name}, so the velocity is not defined; write "
                                  f"der({names[pos]}) = <velocity state>, or name plant.velocity in "
                                  f"experiment.json")
