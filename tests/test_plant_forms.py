@@ -17,6 +17,7 @@ import shutil
 from dataclasses import dataclass
 from pathlib import Path
 
+import casadi as ca
 import numpy as np
 import pytest
 import scipy.signal as sps
@@ -280,3 +281,23 @@ def test_unsupported_output_names_the_line(edit, construct, gravity_bundle, tmp_
     assert f"plant.mo, line {line}" in str(info.value) and construct in str(info.value), str(info.value)
     assert main([str(bundle), "--out", str(tmp_path / "out"), "--quiet"]) == 2
     assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("name", sorted(bench.PLANT_FORMS))
+def test_benchmark_plant_forms_are_the_same_axis(name, tmp_path):
+    """Every form the benchmark generator writes is the rigid axis m = 2 kg, d = 15 N.s/m seen from the
+    measured output: d(q'')/du = 1/m and d(q'')/dq' = -d/m, with the roles found from the derivative chain."""
+    form = bench.PLANT_FORMS[name]
+    path = tmp_path / "plant.mo"
+    path.write_text(form.text.format(a=TRUE_M * form.scale, b=TRUE_D * form.scale))
+    model = symbolic.build(frontend.load(path, form.class_name))
+    roles = pr.find_roles(model, path.read_text(), path, form.input, form.output)
+    values = [float(v.start) for v in model.parameters]
+    gain, offset = pr.output_map(model, roles, dict(zip([v.name for v in model.parameters], values)))
+    i_v = [s.name for s in model.states].index(roles.velocity)
+    acc = gain * model.dx[i_v]                 # q'' = gain*der(velocity state), q' = gain*velocity state
+    fn = ca.Function("f", [model.x, model.u, model.p], [ca.jacobian(acc, model.u), ca.jacobian(acc, model.x[i_v])])
+    du, dv = (float(o) for o in fn(np.zeros(2), np.zeros(model.u.numel()), values))
+    assert du == pytest.approx(1 / TRUE_M, rel=1e-12)
+    assert dv / gain == pytest.approx(-TRUE_D / TRUE_M, rel=1e-12)
+    assert offset == 0.0 and roles.source == pr.CHAIN
