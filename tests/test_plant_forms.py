@@ -138,17 +138,16 @@ def _state_values(form: Form) -> dict[str, float]:
 
 def _closed_loop_q(form: Form, folder: Path) -> np.ndarray:
     """Closed-loop free run (benchmark PID, 0.4 s of moves from q0 = 12 mm) of the form's plant with all
-    eight effects, at the true mass and damping."""
-    model = _load(form)
+    eight effects, at the true mass and damping: the model is the one the diagnosis' first pass builds."""
     roles = _roles(form)
     ctx = fx.Context(bench.TS, 0.0, 0.1 / form.gain, 0.2 / form.gain, TRUE_M * form.gain)
-    effects = [factory(ctx) for factory in fx.VOCABULARY.values()]
-    values = {**{p.name: float(np.mean(p.bounds)) for e in effects for p in e.params}, **_state_values(form)}
-    fx.write_model(folder, form.path.read_text(), form.class_name, effects, values, form.truth(), "Augmented",
-                   roles)
-    augmented = fx.load_augmented(folder, "Augmented")
+    augmented = fx.check_buildable(folder, form.path.read_text(), form.path, form.class_name, roles, ctx,
+                                   "Augmented")
+    text = (folder / "all" / "Augmented.mo").read_text()
+    assert "$" not in text and f"plant.{roles.position}" in text and f"plant.{roles.velocity}" in text
     assert {f"plant.{form.position}", f"plant.{form.velocity}", "resonance_x2", "delay_a"} <= \
         {s.name for s in augmented.states}
+    values = {**_state_values(form), **{f"plant.{k}": v for k, v in form.truth().items()}}
     n = 800
     t = np.arange(n) * bench.TS
     r = 0.012 + 0.03 * (1 - np.cos(np.pi * np.clip(t / 0.3, 0, 1))) / 2
@@ -162,7 +161,15 @@ def _closed_loop_q(form: Form, folder: Path) -> np.ndarray:
 
 @pytest.fixture(scope="module")
 def library_q(tmp_path_factory) -> np.ndarray:
-    return _closed_loop_q(LIBRARY_FORM, tmp_path_factory.mktemp("library"))
+    """The reference run on the library form, whose augmented text is the one written before issue 12."""
+    folder = tmp_path_factory.mktemp("library")
+    q = _closed_loop_q(LIBRARY_FORM, folder)
+    text = (folder / "all" / "Augmented.mo").read_text()
+    for written in ("plant.u = u - delay_a - (gravity_F0)", "CoulombFriction(plant.v, coulomb_Fc",
+                    "RippleForce(plant.x, ripple_a", "inertia_slope*(plant.x - inertia_centre)*der(plant.v)",
+                    "*(plant.x - resonance_x2)", "q = plant.q;"):
+        assert written in text, written
+    return q
 
 
 @pytest.mark.parametrize("form", FORMS, ids=IDS)
@@ -170,13 +177,7 @@ def test_every_effect_builds_and_matches_the_library_form(form, library_q, tmp_p
     """The first pass of the diagnosis builds every catalogue effect's augmented model on the form, and the
     model with all eight effects reproduces the same physics on the library's LinearAxis (the form the
     benchmark verifies against FMU co-simulations) to round-off."""
-    roles = _roles(form)
-    ctx = fx.Context(bench.TS, 0.0, 0.1, 0.2, 2.0)
-    fx.check_buildable(tmp_path / "check", form.path.read_text(), form.path, form.class_name, roles, ctx,
-                       "Augmented")
-    text = (tmp_path / "check" / "all" / "Augmented.mo").read_text()
-    assert "$" not in text and f"plant.{roles.position}" in text and f"plant.{roles.velocity}" in text
-    q = _closed_loop_q(form, tmp_path / "sim")
+    q = _closed_loop_q(form, tmp_path)
     assert np.all(np.isfinite(q)) and np.ptp(q) > 0.02
     assert np.max(np.abs(q - library_q)) < 1e-9, np.max(np.abs(q - library_q))
 
@@ -260,6 +261,7 @@ def test_diagnosis_finds_the_concealed_effect(form, gravity_bundle, tmp_path, ca
     f0 = truth["effects"][0]["contract"]["F0"]
     assert doc["effects"][0]["parameters"]["F0"] == pytest.approx(f0, rel=0.05)
     assert doc["validation"]["augmented_rms"] < 0.1 * doc["validation"]["nominal_rms"]
+    assert Path(doc["augmented_fmu"]).is_file()          # built from the augmented model on this form
     assert doc["plant_roles"] == {"input": "u", "output": "q", "position": form.position,
                                   "velocity": form.velocity, "found_from": pr.CHAIN, "held_inputs": {}}
 

@@ -347,7 +347,7 @@ def write_model(folder: Path, plant_text: str, plant_class: str, effects: list[E
 
 
 def check_buildable(folder: Path, plant_text: str, plant_path: Path, plant_class: str, roles: PlantRoles,
-                    ctx: Context, class_name: str) -> None:
+                    ctx: Context, class_name: str) -> symbolic.SymbolicModel:
     """Build the augmented model of every catalogue effect through the front end before any fitting, so
     that an unsupported plant form stops the diagnosis at once with one message.
 
@@ -362,6 +362,11 @@ def check_buildable(folder: Path, plant_text: str, plant_path: Path, plant_class
     roles : where the plant keeps its input, output, position and velocity.
     ctx : recorded ranges (for the effects' parameter bounds).
     class_name : name of the augmented class.
+
+    Returns
+    -------
+    SymbolicModel
+        The augmented model with every effect (written to ``folder / "all"``).
     """
     top = plant_class.split(".")[0]
     if top in (class_name, LIBRARY.name):
@@ -370,7 +375,7 @@ def check_buildable(folder: Path, plant_text: str, plant_path: Path, plant_class
                              f"{LIBRARY.name!r}; rename it")
     effects = [factory(ctx) for factory in VOCABULARY.values()]
 
-    def build(chosen: list[Effect], sub: str) -> None:
+    def build(chosen: list[Effect], sub: str) -> symbolic.SymbolicModel:
         values = {p.name: float(np.mean(p.bounds)) for e in chosen for p in e.params}
         write_model(folder / sub, plant_text, plant_class, chosen, values, {}, class_name, roles)
         model = load_augmented(folder / sub, class_name)
@@ -378,10 +383,10 @@ def check_buildable(folder: Path, plant_text: str, plant_path: Path, plant_class
         missing = [f"plant.{n}" for n in (roles.position, roles.velocity) if f"plant.{n}" not in states]
         if missing:
             raise PlantFormError(f"{', '.join(missing)} is not a state of the augmented model")
+        return model
 
     try:
-        build(effects, "all")
-        return
+        return build(effects, "all")
     except (frontend.ModelicaError, PlantFormError, RuntimeError, ValueError, KeyError):
         pass
     for effect in effects:
