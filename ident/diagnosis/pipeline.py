@@ -111,7 +111,7 @@ def context(bundle: Bundle, nominal: ModelFit) -> fx.Context:
                      position_gain=gain)
     if inv is not None:
         ctx.x, ctx.v, ctx.a, ctx.force, ctx.udot = inv.x, inv.v, inv.a, inv.force, inv.udot
-    ctx.resonance_guess = ev.resonance_guesses(rec["q"] - nominal.fit.q_sim, ts)
+    ctx.resonance_guess = ev.resonance_guesses(bundle.train["q"] - nominal.fit.q_sim, ts)
     return ctx
 
 
