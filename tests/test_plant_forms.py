@@ -303,3 +303,21 @@ def test_benchmark_plant_forms_are_the_same_axis(name, tmp_path):
     assert du == pytest.approx(1 / TRUE_M, rel=1e-12)
     assert dv / gain == pytest.approx(-TRUE_D / TRUE_M, rel=1e-12)
     assert offset == 0.0 and roles.source == pr.CHAIN
+
+
+def test_roles_named_in_the_bundle_make_the_form_supported(gravity_bundle, tmp_path):
+    """The same der(x) = 2*v plant is accepted when experiment.json names plant.position and plant.velocity;
+    the first pass then builds every effect's augmented model on it (no fitting)."""
+    from motiontwin.ident.diagnosis import pipeline
+
+    base, _ = gravity_bundle
+    bundle = _bundle_in_form(base, FORMS[1], tmp_path / "bundle")
+    text = (bundle / "plant.mo").read_text()
+    (bundle / "plant.mo").write_text(text.replace("der(x) = v;", "der(x) = 2*v;"))
+    doc = json.loads((bundle / "experiment.json").read_text())
+    doc["plant"].update({"position": "x", "velocity": "v"})
+    (bundle / "experiment.json").write_text(json.dumps(doc))
+    read = read_bundle(bundle)
+    assert (read.plant.roles.position, read.plant.roles.velocity, read.plant.roles.source) == ("x", "v", pr.NAMED)
+    pipeline.check_plant_form(read, tmp_path / "check")
+    assert "CoulombFriction(plant.v," in (tmp_path / "check" / "all" / "Augmented.mo").read_text()
