@@ -50,7 +50,8 @@ def initial_state_function(loop: oe.Loop, rec: Recording, values: dict[str, floa
     x0 = ca.Function("x0", [model.p], [model.x0()])(p)
     base = oe.initial_state(loop, rec, values, known)
     states = [v.name for v in model.states]
-    preset = {loop.position_state, *loop.tracking, *known}
+    i_out = oe.output_state(model, loop.position_state)
+    preset = {loop.position_state, *loop.tracking, *known, *([] if i_out is None else [states[i_out]])}
     entries = [x0[i] if name not in preset else base[i] for i, name in enumerate(states)]
     for k, i in enumerate(oe.state_indices(loop, estimate_initial)):
         entries[i] = x_init[k]

@@ -157,25 +157,47 @@ def _output_expression(model: symbolic.SymbolicModel, name: str) -> ca.SX:
     return found[0]
 
 
-def output_state(model: symbolic.SymbolicModel, name: str) -> str | None:
-    """The plant state that output ``name`` is (the state itself, or an output equation ``q = x``), or None."""
-    states = [v.name for v in model.states]
-    if name in states:
-        return name
+def output_state(model: symbolic.SymbolicModel, name: str) -> int | None:
+    """Index of the state the output ``name`` is affine in when it depends on exactly one state and on no
+    input (a position state, an alias, a gear ratio or an offset of one), else None."""
+    try:
+        expr = _output_expression(model, name)
+    except KeyError:
+        return None
+    if ca.depends_on(expr, model.u):
+        return None
+    hits = [i for i in range(model.x.numel()) if ca.depends_on(expr, model.x[i])]
+    if len(hits) != 1 or ca.depends_on(ca.jacobian(expr, model.x[hits[0]]), model.x):
+        return None
+    return hits[0]
+
+
+def _state_for_output(model: symbolic.SymbolicModel, name: str, x0: np.ndarray, p: np.ndarray,
+                      target: float) -> np.ndarray:
+    """``x0`` with the state the output ``name`` is affine in set so that the output equals ``target``."""
+    i = output_state(model, name)
+    if i is None:
+        return x0
     expr = _output_expression(model, name)
-    return next((s for i, s in enumerate(states) if ca.is_equal(expr, model.x[i], 2)), None)
+    fn = ca.Function("h", [model.x, model.u, model.p], [expr, ca.jacobian(expr, model.x[i])])
+    value, slope = (float(o) for o in fn(x0, np.zeros(model.u.numel()), p))
+    x0 = x0.copy()
+    if slope != 0:
+        x0[i] += (target - value) / slope
+    return x0
 
 
 def initial_motion_states(model: symbolic.SymbolicModel, output: str) -> list[str]:
-    """The states that fix where a recording starts: the output's state and, when its derivative is a state
-    (der(x) = v), that velocity state too, so a loop already moving at t = 0 is not forced to start at rest."""
-    position = output_state(model, output)
-    if position is None:
+    """The states that fix where a recording starts: the state the output is affine in and, when its
+    derivative is a state (der(x) = v), that velocity state too, so a loop already moving at t = 0 is not
+    forced to start at rest."""
+    i_pos = output_state(model, output)
+    if i_pos is None:
         return []
     states = [v.name for v in model.states]
-    rate = model.dx[states.index(position)]
-    velocity = next((s for i, s in enumerate(states) if s != position and ca.is_equal(rate, model.x[i], 2)), None)
-    return [position] + ([velocity] if velocity else [])
+    rate = model.dx[i_pos]
+    velocity = next((s for i, s in enumerate(states) if i != i_pos and ca.is_equal(rate, model.x[i], 2)), None)
+    return [states[i_pos]] + ([velocity] if velocity else [])
 
 
 def build_loop(model: symbolic.SymbolicModel, controller: Controller | None, position_state: str, free: list[str],
@@ -333,8 +355,9 @@ def _column(rec: Recording, name: str, optional: bool = False) -> np.ndarray:
 
 def initial_state(loop: Loop, rec: Recording, values: dict[str, float] | None = None,
                   initial: dict[str, float] | None = None) -> np.ndarray:
-    """Start from the first recorded sample at rest: the output's state (the output, or the state it equals) = q_0,
-    other plant states at their start values, tracked states at q_0 or u_0, states in ``initial`` at those
+    """Start from the first recorded sample at rest: the output state (when the output is a state) = q_0, or
+    the state an output expression is affine in (an alias, gear ratio or offset) such that the output = q_0,
+    other plant states at their start values, tracked states at that position or u_0, states in ``initial`` at those
     values, and in closed loop the controller state giving the recorded force u_0 (least-norm solution of
     C z = u_0 - u_ext_0 - D y_0)."""
     values = values or loop.values
@@ -343,11 +366,15 @@ def initial_state(loop: Loop, rec: Recording, values: dict[str, float] | None = 
     x0 = np.array(ca.Function("x0", [model.p], [model.x0()])(p)).ravel()
     names = [v.name for v in model.states]
     q_rec = _column(rec, sig.output)
-    position = output_state(model, loop.position_state)
-    if position is not None:
-        x0[names.index(position)] = q_rec[0]
+    if loop.position_state in names:
+        x0[names.index(loop.position_state)] = q_rec[0]
+        position = q_rec[0]
+    else:
+        x0 = _state_for_output(model, loop.position_state, x0, p, q_rec[0])
+        i_pos = output_state(model, loop.position_state)
+        position = q_rec[0] if i_pos is None else x0[i_pos]
     for state, signal in loop.tracking.items():
-        x0[names.index(state)] = q_rec[0] if signal == "q" else _column(rec, sig.input)[0]
+        x0[names.index(state)] = position if signal == "q" else _column(rec, sig.input)[0]
     for state, value in (initial or {}).items():
         x0[names.index(state)] = value
     if ctrl is None or not ctrl.n_states:
@@ -596,8 +623,10 @@ def identify(model: symbolic.SymbolicModel, rec: Recording, free: list[str], con
 
     The recording must be sampled uniformly (at the controller period in closed loop). Each channel is
     weighted by the RMS of its residual after a first fit, then the fit is repeated. ``estimate_initial``:
-    plant states whose initial value is estimated too (default: :func:`initial_motion_states`, the output's state
-    and its velocity).
+    plant states whose initial value is estimated too (default: :func:`initial_motion_states`: the state the
+    output is affine in (the output state itself, or the state behind an alias, gear ratio or offset) and its
+    velocity state).
+    ``input_name``: the driven plant input (default: the one named like the input column, else the only one).
     ``shooting``: "single" (:func:`fit`, ``max_nfev`` free runs per fit) or "multiple"
     (:func:`ident.multipleshooting.fit` over ``segments`` segments, IPOPT)."""
     if not free:
@@ -619,6 +648,8 @@ def identify(model: symbolic.SymbolicModel, rec: Recording, free: list[str], con
                          f"period {ts} s (the refit needs uniform sampling at the controller's instants)")
     values = {v.name: float(v.start) for v in model.parameters}
     values.update(start or {})
+    if input_name is None and signals.input in [v.name for v in model.inputs]:
+        input_name = signals.input
     loop = build_loop(model, controller, signals.output, list(free), values, rec.time.size, substeps=substeps,
                       tracking=tracking, ts=ts, input_name=input_name, signals=signals)
     q0, u0 = simulate(loop, rec)

@@ -43,6 +43,7 @@ from motiontwin.harness.master import Master
 from motiontwin.harness.recording import atomic_write_texts, make_recording, write_recording
 from motiontwin.harness.system import system_from_dict
 from motiontwin.ident.diagnosis.bundle import Controller
+from motiontwin.ident.diagnosis.plant_roles import PlantRoles
 
 PLANT_CLASS = "LinearAxis"
 PLANT_TEXT = '''model LinearAxis "Direct-drive linear axis: moving mass with viscous damping, m*der(v) = u - d*v"
@@ -58,6 +59,76 @@ equation
   q = x;
 end LinearAxis;
 '''
+LEAD = 0.002               # m/rad, screw lead of the gear-ratio plant form
+
+
+@dataclass(frozen=True)
+class PlantForm:
+    """How a bundle's nominal plant is written: Modelica template (``{a}``, ``{b}``: the mass-like and
+    damping-like values), class, input and output names, the names of the mass-like and damping-like
+    parameters and the factor from kg (and N.s/m) to them."""
+
+    text: str
+    class_name: str
+    input: str = "u"
+    output: str = "q"
+    mass: str = "m"
+    damping: str = "d"
+    scale: float = 1.0
+
+
+PLANT_FORMS = {
+    "alias": PlantForm(PLANT_TEXT.replace("{m!r}", "{a!r}").replace("{d!r}", "{b!r}"), PLANT_CLASS),
+    "state_output": PlantForm('''model RigidJoint "Rigid moving mass with viscous friction; the output is the position state"
+  parameter Real m(unit = "kg") = {a!r} "Moving mass";
+  parameter Real d(unit = "N.s/m") = {b!r} "Viscous friction coefficient";
+  input Real u(unit = "N") "Actuator force";
+  output Real q(unit = "m") "Measured position";
+  Real v(unit = "m/s") "Velocity";
+equation
+  der(q) = v;
+  m*der(v) = u - d*v;
+end RigidJoint;
+''', "RigidJoint"),
+    "gear_ratio": PlantForm('''model BallScrewAxis "Motor angle and speed as states; the table position is the angle times the lead"
+  parameter Real J(unit = "kg.m2") = {a!r} "Inertia seen by the motor";
+  parameter Real b(unit = "N.m.s/rad") = {b!r} "Viscous damping seen by the motor";
+  input Real u(unit = "N") "Axial actuator force";
+  output Real q(unit = "m") "Measured table position";
+  Real phi(unit = "rad", start = 0) "Motor angle";
+  Real w(unit = "rad/s", start = 0) "Motor speed";
+equation
+  der(phi) = w;
+  J*der(w) = %r*u - b*w;
+  q = %r*phi;
+end BallScrewAxis;
+''' % (LEAD, LEAD), "BallScrewAxis", mass="J", damping="b", scale=LEAD ** 2),
+    "renamed_in_package": PlantForm('''package Machines "A plant inside a package, with its own names"
+  model Carriage "Carriage with input F, output y"
+    parameter Real mass(unit = "kg", min = 1e-3) = {a!r} "Carriage mass";
+    parameter Real damping(unit = "N.s/m") = {b!r} "Viscous damping";
+    input Real F(unit = "N") "Motor force";
+    output Real y(unit = "m") "Encoder reading";
+    Real pos_m(unit = "m") "Carriage position";
+    Real vel_mps(unit = "m/s") "Carriage velocity";
+  equation
+    der(pos_m) = vel_mps;
+    mass*der(vel_mps) = F - damping*vel_mps;
+    y = pos_m;
+  end Carriage;
+end Machines;
+''', "Machines.Carriage", input="F", output="y", mass="mass", damping="damping"),
+}
+
+
+def plant_form(which: str, seed: int) -> str:
+    """The plant form of a bundle: the library's alias form in the tuning set; held out, the forms in turn
+    by seed (consecutive seeds, so every form is diagnosed in the held-out set)."""
+    if which == "tuning":
+        return "alias"
+    return sorted(PLANT_FORMS)[seed % len(PLANT_FORMS)]
+
+
 TS = 5e-4
 PLANT_SUBSTEPS = 4         # plant and encoder communication steps per controller sample
 TRUE_M, TRUE_D = 2.0, 15.0
@@ -284,10 +355,12 @@ def simulate_truth(case: str, t: np.ndarray, r: np.ndarray, u_ext: np.ndarray, r
 def write_bundle(folder: Path, case: str, seed: int, scale: float = 1.0, nominal_error: float | None = None,
                  durations: tuple[float, float] = (12.0, 6.0), noise_std: float = NOISE,
                  resolution: float = RESOLUTION, fmu_dir: Path | None = None, stroke: float = 0.1,
-                 sweep_fraction: float = 0.25) -> dict:
+                 sweep_fraction: float = 0.25, form: str = "alias") -> dict:
     """Write one bundle (experiment.json, plant.mo, train.csv, validation.csv) and its ``NAME.truth.json``
     next to it (true effects, truth model, concealment: max and RMS |q_truth - q_rigid| [m] and max |u_truth -
-    u_rigid| [N] on the training run, the rigid axis at the true m, d driven by the same r, u_ext and noise)."""
+    u_rigid| [N] on the training run, the rigid axis at the true m, d driven by the same r, u_ext and noise).
+    ``form``: how plant.mo is written, a key of :data:`PLANT_FORMS` (the same axis and nominal guesses)."""
+    written = PLANT_FORMS[form]
     rng = np.random.default_rng(seed)
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
@@ -317,19 +390,22 @@ def write_bundle(folder: Path, case: str, seed: int, scale: float = 1.0, nominal
                              metadata={"truth": plant.class_name, "noise_seed": noise_seed})
         write_recording(folder / f"{part}.csv", rec)
     experiment = {
-        "plant": {"modelica": "plant.mo", "class": PLANT_CLASS, "input": "u", "output": "q"},
+        "plant": {"modelica": "plant.mo", "class": written.class_name, "input": written.input,
+                  "output": written.output},
         "controller": {"kind": "discrete_state_space", "Ts": TS, "inputs": ["r", "q"], "outputs": ["u"],
                        "A": ctrl.A.tolist(), "B": ctrl.B.tolist(), "C": ctrl.C.tolist(), "D": ctrl.D.tolist()},
         "recordings": {"train": "train.csv", "validation": "validation.csv"},
     }
     truth = {"case": case, "seed": seed, "scale": scale, "m": TRUE_M, "d": TRUE_D, "stroke": stroke,
+             "plant_form": form, "mass_parameter": written.mass, "mass_scale": written.scale,
              "sweep_fraction": sweep_fraction,
              "truth_model": {"class": plant.class_name, "parameters": plant.parameters,
                              "plant_step": TS / PLANT_SUBSTEPS, "encoder_resolution": resolution,
                              "noise_std": noise_std},
              "effects": plant.effects, "concealment": concealment}
     atomic_write_texts({
-        folder / "plant.mo": PLANT_TEXT.format(m=float(round(m_nom, 3)), d=float(round(d_nom, 3))),
+        folder / "plant.mo": written.text.format(a=float(round(m_nom, 3)) * written.scale,
+                                                 b=float(round(d_nom, 3)) * written.scale),
         folder / "experiment.json": json.dumps(experiment, indent=2),
         folder.parent / f"{folder.name}.truth.json": json.dumps(truth, indent=2),
     })
@@ -366,8 +442,9 @@ def generate(out: Path, which: str) -> None:
     for case, seed, scale in case_list(which):
         t0 = time.perf_counter()
         shape = trajectory(which, seed)
-        truth = write_bundle(out / which / case, case, seed, scale, fmu_dir=out / "fmus", **shape)
-        print(f"{which}/{case}: seed {seed}, scale {scale:.2f}, stroke {shape['stroke'] * 1e3:.0f} mm, "
+        form = plant_form(which, seed)
+        truth = write_bundle(out / which / case, case, seed, scale, fmu_dir=out / "fmus", form=form, **shape)
+        print(f"{which}/{case}: seed {seed}, scale {scale:.2f}, plant form {form}, stroke {shape['stroke'] * 1e3:.0f} mm, "
               f"sweep {shape['sweep_fraction']:.2f}, truth {truth['truth_model']['class']}, "
               f"concealment {truth['concealment']['max_abs_m'] * 1e6:.2f} um "
               f"({truth['concealment']['force_max_abs_N']:.3g} N), {time.perf_counter() - t0:.1f} s",
@@ -404,7 +481,7 @@ def verify(case: str = "coulomb_friction", seed: int = 10, duration: float = 12.
         values.update({k: v for k, v in true["parameters"].items() if k in {p.name for p in effect.params}})
     folder = Path(tempfile.mkdtemp(prefix="mt-verify-"))
     fx.write_model(folder, PLANT_TEXT.format(m=TRUE_M, d=TRUE_D), PLANT_CLASS, effects, values,
-                   {"m": TRUE_M, "d": TRUE_D}, "Truth")
+                   {"m": TRUE_M, "d": TRUE_D}, "Truth", PlantRoles("u", "q", "x", "v"))
     model = fx.load_augmented(folder, "Truth")
     n = rr.size
     loop = sim.build_loop(model, pid_controller(), "plant.x", [], values, n, substeps=32, with_jacobian=False)
@@ -456,7 +533,8 @@ def run(out: Path, which: str, only: list[str] | None = None) -> int:
                 errors.append(f"{key} {fv:.4g}/{true_value:.4g} ({100 * (fv / true_value - 1):+.0f}%)")
         val = doc["validation"]
         ratio = val["augmented_rms"] / val["nominal_rms"]
-        m_err = 100 * (doc["augmented_parameters"].get("m", math.nan) / TRUE_M - 1)
+        mass = doc["augmented_parameters"].get(truth.get("mass_parameter", "m"), math.nan)
+        m_err = 100 * (mass / truth.get("mass_scale", 1.0) / TRUE_M - 1)
         truth_text, found_text = ",".join(true_names) or "-", ",".join(found) or "-"
         print(f"{case:28s} truth={truth_text:40s} found={found_text:40s} {'; '.join(errors)} m_err={m_err:+.1f}% "
               f"val {val['nominal_rms']:.3g}->{val['augmented_rms']:.3g} m (x{ratio:.2f}) {seconds:.0f} s",

@@ -9,6 +9,10 @@ with ``fmus.build.load_model`` and its sampled matrices (Tustin, or ``method="di
 the parameters (the others at their Modelica defaults), exactly as its FMU executes them. Inputs other
 than ``r`` and ``q`` (reference derivatives of a feedforward) are not recorded, so their gains must be 0.
 
+The plant is ``{"modelica": FILE, "class": NAME, "input": "u", "output": "q"}`` with the optional state
+names ``"position"`` and ``"velocity"``; without them both are found from the derivative chain of the output
+(:mod:`ident.diagnosis.plant_roles`).
+
 Every problem raises :class:`BundleError` whose message names the file and the field or column at fault.
 Units: time [s], positions [m], forces [N].
 """
@@ -19,13 +23,13 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import casadi as ca
 import numpy as np
 
 from motiontwin.fmus import frontend, symbolic
 from motiontwin.harness.recording import Recording, RecordingError, read_recording
 from motiontwin.ident import controller, units
 from motiontwin.ident.controller import Controller, field
+from motiontwin.ident.diagnosis.plant_roles import PlantFormError, PlantRoles, find_roles
 
 REQUIRED_COLUMNS = ("time", "r", "u", "q")
 
@@ -44,8 +48,9 @@ class PlantInfo:
     model: symbolic.SymbolicModel
     input_name: str
     output_name: str
-    position_state: str          # state whose value is the measured output
-    velocity_state: str          # state whose derivative is the position state's derivative
+    position_state: str          # state the measured output is affine in (the position)
+    velocity_state: str          # state equal to the position state's derivative
+    roles: PlantRoles            # the above, the held inputs and how they were found
 
 
 @dataclass
@@ -70,30 +75,6 @@ def read_controller(doc: dict, where: str) -> Controller:
         raise BundleError(str(exc)) from None
 
 
-def _state_roles(model: symbolic.SymbolicModel, output: str, where: str) -> tuple[str, str]:
-    """Names of the position state (equal to the output) and the velocity state (its derivative)."""
-    names = [v.name for v in model.states]
-    if output in model.state_outputs:
-        q_expr = model.x[names.index(output)]
-    else:
-        found = [c.expr for c in model.computed if c.var.name == output]
-        if not found:
-            raise BundleError(f"{where}: the plant has no output {output!r}")
-        q_expr = found[0]
-    jac = ca.jacobian(q_expr, model.x)
-    hits = [i for i in range(len(names)) if not ca.is_equal(jac[0, i], 0)]
-    if len(hits) != 1 or not ca.is_equal(ca.simplify(q_expr - model.x[hits[0]]), 0, 2) \
-            or ca.depends_on(q_expr, model.u):
-        raise BundleError(f"{where}: output {output!r} must equal one state of the plant (a position), "
-                          f"got {q_expr}")
-    pos = hits[0]
-    dpos = model.dx[pos]
-    vel = [i for i in range(len(names)) if ca.is_equal(dpos, model.x[i], 2)]
-    if not vel:
-        raise BundleError(f"{where}: der({names[pos]}) must equal a velocity state of the plant, got {dpos}")
-    return names[pos], names[vel[0]]
-
-
 def read_plant(doc: dict, bundle_dir: Path, where: str) -> PlantInfo:
     """Load the nominal plant with the project's front end and check it has input u and output q."""
     file_name = _field(doc, "modelica", where, str)
@@ -108,15 +89,19 @@ def read_plant(doc: dict, bundle_dir: Path, where: str) -> PlantInfo:
     except frontend.ModelicaError as exc:
         raise BundleError(str(exc)) from None
     inputs = [v.name for v in model.inputs]
-    if inputs != [input_name]:
-        raise BundleError(f"{path}: class {class_name} must have exactly one input {input_name!r} "
+    if input_name not in inputs:
+        raise BundleError(f"{path}: class {class_name} must have an input {input_name!r} "
                           f"(field 'plant.input' of {where}); it has inputs {inputs}")
     if model.sampled:
         raise BundleError(f"{path}: class {class_name} is a sampled model; the plant must be continuous")
     if not model.parameters:
         raise BundleError(f"{path}: class {class_name} has no parameters to refit")
-    pos, vel = _state_roles(model, output_name, f"{path}: class {class_name}")
-    return PlantInfo(path, class_name, path.read_text(encoding="utf-8"), model, input_name, output_name, pos, vel)
+    text = path.read_text(encoding="utf-8")
+    try:
+        roles = find_roles(model, text, path, input_name, output_name, doc.get("position"), doc.get("velocity"))
+    except PlantFormError as exc:
+        raise BundleError(str(exc)) from None
+    return PlantInfo(path, class_name, text, model, input_name, output_name, roles.position, roles.velocity, roles)
 
 
 def _to_si(rec: Recording, source: str) -> None:

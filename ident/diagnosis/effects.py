@@ -1,15 +1,20 @@
 """Candidate effects (the issue-7 vocabulary) and the augmented Modelica model that adds them to a plant.
 
-The augmented class instantiates the nominal class as ``plant`` and drives it with
-``plant.u = u_applied - sum(F_effect)``, the library's sign convention ``m*der(v) = u - d*v - F_effect``
+The augmented class instantiates the nominal class as ``plant`` and drives its input with
+``plant.<input> = u_applied - sum(F_effect)``, the library's sign convention ``m*der(v) = u - d*v - F_effect``
 (a positive effect force opposes positive motion). Force laws come from ``MotionTwin.Effects`` functions,
 copied next to the written model so that the folder is self-contained; structural effects (an extra
-mass, a Pade input delay, a position-dependent mass) add states or terms. Units: SI (m, s, N, kg, Hz).
+mass, a Pade input delay, a position-dependent mass) add states or terms. Effects write the plant's position
+and velocity as ``$x`` and ``$v``; they become the plant's own states (:class:`plant_roles.PlantRoles`),
+so the augmented model does not depend on how the plant names them. Positions, velocities and the
+:class:`Context` are in the plant's state coordinates (``position_gain`` converts them to the measured
+output). Units: SI (m, s, N, kg, Hz).
 """
 from __future__ import annotations
 
 import math
 import shutil
+import string
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
@@ -18,6 +23,7 @@ import numpy as np
 
 from motiontwin.fmus import frontend, symbolic
 from motiontwin.fmus.build import MODELICA_DIR
+from motiontwin.ident.diagnosis.plant_roles import PlantFormError, PlantRoles, declaration_line
 
 LIBRARY = MODELICA_DIR / "MotionTwin"
 FRICTION = "friction"
@@ -38,6 +44,7 @@ class Context:
     force: np.ndarray | None = None
     udot: np.ndarray | None = None
     resonance_guess: list[float] = field(default_factory=list)  # candidate frequencies [Hz]
+    position_gain: float = 1.0    # measured output per unit of the plant's position state
 
 
 @dataclass
@@ -80,8 +87,13 @@ def _ls(columns: list[np.ndarray], target: np.ndarray) -> np.ndarray:
     return np.linalg.lstsq(mat, target, rcond=None)[0]
 
 
+def _scale(ctx: Context) -> float:
+    """Measured metres per unit of the plant's position state: floors written in m or m/s are divided by it."""
+    return abs(ctx.position_gain)
+
+
 def _v_eps(ctx: Context) -> float:
-    return max(1e-5, 2e-3 * ctx.v_max)
+    return max(1e-5 / _scale(ctx), 2e-3 * ctx.v_max)
 
 
 def gravity_offset(ctx: Context) -> Effect:
@@ -98,7 +110,7 @@ def gravity_offset(ctx: Context) -> Effect:
 
 
 def _eps_bounds(ctx: Context) -> tuple[float, float]:
-    return 1e-5, max(2e-5, 0.05 * ctx.v_max)
+    return 1e-5 / _scale(ctx), max(2e-5 / _scale(ctx), 0.05 * ctx.v_max)
 
 
 def _sign(c: Context) -> np.ndarray:
@@ -113,7 +125,7 @@ def coulomb_friction(ctx: Context) -> Effect:
               _p("coulomb_v_eps", "m/s", "Velocity scale of the tanh (presliding)",
                  *_eps_bounds(ctx))]
     return Effect("coulomb_friction", FRICTION, params, "",
-                  "MotionTwin.Effects.CoulombFriction(plant.v, coulomb_Fc, coulomb_v_eps)", [],
+                  "MotionTwin.Effects.CoulombFriction($v, coulomb_Fc, coulomb_v_eps)", [],
                   ["CoulombFriction.mo"], init, lambda v, c: {"Fc": v["coulomb_Fc"]},
                   "A friction force of constant magnitude opposes the motion: the force residual jumps with "
                   "the sign of the velocity and is flat in |v|.")
@@ -135,7 +147,7 @@ def asymmetric_friction(ctx: Context) -> Effect:
               _p("asym_v_eps", "m/s", "Velocity scale of the tanh (presliding)",
                  *_eps_bounds(ctx))]
     return Effect("asymmetric_friction", FRICTION, params, "",
-                  "MotionTwin.Effects.AsymmetricFriction(plant.v, asym_zero, asym_zero, asym_Fc_pos, "
+                  "MotionTwin.Effects.AsymmetricFriction($v, asym_zero, asym_zero, asym_Fc_pos, "
                   "asym_Fc_neg, asym_v_eps)", [], ["AsymmetricFriction.mo"], init,
                   lambda v, c: {"Fc_pos": v["asym_Fc_pos"], "Fc_neg": v["asym_Fc_neg"]},
                   "Friction whose level depends on the direction of motion: the force residual jumps at "
@@ -153,19 +165,20 @@ def stribeck_friction(ctx: Context) -> Effect:
         return starts
     params = [_p("stribeck_Fc", "N", "Coulomb (sliding) friction level", 0.0, 1e4),
               _p("stribeck_Fs", "N", "Static (breakaway) friction level", 0.0, 1e4),
-              _p("stribeck_vs", "m/s", "Stribeck velocity", 1e-4, max(ctx.v_max, 1e-3)),
+              _p("stribeck_vs", "m/s", "Stribeck velocity", 1e-4 / _scale(ctx), max(ctx.v_max, 1e-3 / _scale(ctx))),
               _p("stribeck_v_eps", "m/s", "Velocity scale of the tanh (presliding)",
                  *_eps_bounds(ctx))]
     return Effect("stribeck_friction", FRICTION, params, "",
-                  "MotionTwin.Effects.StribeckFriction(plant.v, stribeck_Fc, stribeck_Fs, stribeck_vs, "
+                  "MotionTwin.Effects.StribeckFriction($v, stribeck_Fc, stribeck_Fs, stribeck_vs, "
                   "stribeck_v_eps)", [], ["StribeckFriction.mo"], init,
-                  lambda v, c: {"Fc": v["stribeck_Fc"], "Fs": v["stribeck_Fs"], "vs": v["stribeck_vs"]},
+                  lambda v, c: {"Fc": v["stribeck_Fc"], "Fs": v["stribeck_Fs"],
+                                "vs": v["stribeck_vs"] * abs(c.position_gain)},
                   "Friction that is higher near standstill than at speed (Stribeck curve): the force residual "
                   "opposes the motion and its magnitude falls with |v| over the first few mm/s.")
 
 
 def position_ripple(ctx: Context) -> Effect:
-    span = max(ctx.x_max - ctx.x_min, 1e-6)
+    span = max(ctx.x_max - ctx.x_min, 1e-6 / _scale(ctx))
 
     def init(c: Context) -> list[dict[str, float]]:
         periods = span / np.linspace(0.75, 40, 400)
@@ -185,18 +198,18 @@ def position_ripple(ctx: Context) -> Effect:
               _p("ripple_zero", "rad", "Phase of the sine part", 0.0, 0.0, False),
               _p("ripple_quarter", "rad", "Phase of the cosine part", math.pi / 2, math.pi / 2, False)]
     return Effect("position_ripple", "position_ripple", params, "",
-                  "MotionTwin.Effects.RippleForce(plant.x, ripple_a, ripple_period, ripple_zero) + "
-                  "MotionTwin.Effects.RippleForce(plant.x, ripple_b, ripple_period, ripple_quarter)", [],
+                  "MotionTwin.Effects.RippleForce($x, ripple_a, ripple_period, ripple_zero) + "
+                  "MotionTwin.Effects.RippleForce($x, ripple_b, ripple_period, ripple_quarter)", [],
                   ["RippleForce.mo"], init,
                   lambda v, c: {"amplitude": float(math.hypot(v["ripple_a"], v["ripple_b"])),
-                                "period": v["ripple_period"]},
+                                "period": v["ripple_period"] * abs(c.position_gain)},
                   "A force periodic in position (cogging or motor force ripple): the residual oscillates as a "
                   "function of position with a fixed spatial period, at any speed.")
 
 
 def position_dependent_inertia(ctx: Context) -> Effect:
     centre = 0.5 * (ctx.x_min + ctx.x_max)
-    half = max(0.5 * (ctx.x_max - ctx.x_min), 1e-6)
+    half = max(0.5 * (ctx.x_max - ctx.x_min), 1e-6 / _scale(ctx))
 
     def init(c: Context) -> list[dict[str, float]]:
         if c.force is None:
@@ -208,7 +221,7 @@ def position_dependent_inertia(ctx: Context) -> Effect:
     params = [_p("inertia_slope", "kg/m", "Change of the moving mass per metre", -bound, bound),
               _p("inertia_centre", "m", "Position where the mass equals plant.m", centre, centre, False)]
     return Effect("position_dependent_inertia", "position_dependent_inertia", params, "",
-                  "inertia_slope*(plant.x - inertia_centre)*der(plant.v) + 0.5*inertia_slope*plant.v^2", [],
+                  "inertia_slope*($x - inertia_centre)*der($v) + 0.5*inertia_slope*$v^2", [],
                   [], init,
                   lambda v, c: _mass_range(v, c),
                   "The moving mass changes along the stroke (a cable chain, an arm or a payload that moves "
@@ -219,7 +232,7 @@ def position_dependent_inertia(ctx: Context) -> Effect:
 def _mass_range(v: dict[str, float], c: Context) -> dict[str, float]:
     centre = v["inertia_centre"]
     m = v.get("plant.m", c.mass)
-    ends = [m + v["inertia_slope"] * (x - centre) for x in (c.x_min, c.x_max)]
+    ends = [(m + v["inertia_slope"] * (x - centre)) / abs(c.position_gain) for x in (c.x_min, c.x_max)]
     return {"mass_min": float(min(ends)), "mass_max": float(max(ends))}
 
 
@@ -262,7 +275,7 @@ def resonance(ctx: Context) -> Effect:
     c = "2*resonance_zeta*resonance_m2*6.283185307179586*resonance_fa"
     eqs = ["der(resonance_x2) = resonance_v2",
            "resonance_m2*der(resonance_v2) = resonance_F",
-           f"resonance_F = {k}*(plant.x - resonance_x2) + {c}*(plant.v - resonance_v2)"]
+           f"resonance_F = {k}*($x - resonance_x2) + {c}*($v - resonance_v2)"]
     return Effect("resonance", "resonance", params, decl, "resonance_F", eqs, [], init, _resonance_contract,
                   "An unmodelled structural mode: a second mass coupled by a spring and a damper to the driven "
                   "mass (as MotionTwin.Effects.TwoMassJoint); the residual concentrates in a narrow frequency "
@@ -290,33 +303,38 @@ NESTED = {"stribeck_friction": "coulomb_friction", "asymmetric_friction": "coulo
 
 
 def modelica_text(plant_class: str, effects: list[Effect], values: dict[str, float],
-                  plant_values: dict[str, float], class_name: str) -> str:
-    """Source text of the augmented class (the nominal class is instantiated as ``plant``)."""
+                  plant_values: dict[str, float], class_name: str, roles: PlantRoles) -> str:
+    """Source text of the augmented class (the nominal class is instantiated as ``plant``; ``roles`` name
+    its input, output, position and velocity)."""
     mods = ", ".join(f"{k} = {float(v)!r}" for k, v in plant_values.items())
     names = ", ".join(e.name for e in effects) or "no effect"
     lines = [f'model {class_name} "{plant_class} augmented by the diagnosis with: {names}"',
              '  input Real u(unit = "N") "Commanded actuator force";',
-             '  output Real q(unit = "m") "Measured position";',
+             f'  output Real q(unit = "m") "Measured position (plant.{roles.output})";',
              f'  {plant_class} plant({mods}) "Nominal plant, refitted";']
     body = "".join(_decl(e.params, values) + e.declarations for e in effects)
     lines.append(body.rstrip("\n")) if body else None
     lines.append("equation")
     applied = "u - delay_a" if any(e.delays_input for e in effects) else "u"
     forces = [f"({e.force})" for e in effects if e.force]
-    lines.append(f"  plant.u = {applied}" + "".join(f" - {f}" for f in forces) + ";")
+    lines.append(f"  plant.{roles.input} = {applied}" + "".join(f" - {f}" for f in forces) + ";")
+    lines.extend(f"  plant.{name} = {value!r};" for name, value in roles.held_inputs.items())
     lines.extend(f"  {eq};" for e in effects for eq in e.equations)
-    lines.append("  q = plant.q;")
+    lines.append(f"  q = plant.{roles.output};")
     lines.append(f"end {class_name};")
-    return "\n".join(lines) + "\n"
+    text = "\n".join(lines) + "\n"
+    return string.Template(text).substitute(x=f"plant.{roles.position}", v=f"plant.{roles.velocity}")
 
 
 def write_model(folder: Path, plant_text: str, plant_class: str, effects: list[Effect],
-                values: dict[str, float], plant_values: dict[str, float], class_name: str) -> Path:
+                values: dict[str, float], plant_values: dict[str, float], class_name: str,
+                roles: PlantRoles) -> Path:
     """Write a self-contained Modelica folder (nominal plant, augmented class, library functions used)."""
     folder.mkdir(parents=True, exist_ok=True)
     (folder / "plant.mo").write_text(plant_text, encoding="utf-8")
     path = folder / f"{class_name}.mo"
-    path.write_text(modelica_text(plant_class, effects, values, plant_values, class_name), encoding="utf-8")
+    path.write_text(modelica_text(plant_class, effects, values, plant_values, class_name, roles),
+                    encoding="utf-8")
     used = sorted({f for e in effects for f in e.library})
     if used:
         lib = folder / "MotionTwin"
@@ -326,6 +344,65 @@ def write_model(folder: Path, plant_text: str, plant_class: str, effects: list[E
         for name in used:
             shutil.copyfile(LIBRARY / "Effects" / name, lib / "Effects" / name)
     return path
+
+
+def check_buildable(folder: Path, plant_text: str, plant_path: Path, plant_class: str, roles: PlantRoles,
+                    ctx: Context, class_name: str) -> symbolic.SymbolicModel:
+    """Build the augmented model of every catalogue effect through the front end before any fitting, so
+    that an unsupported plant form stops the diagnosis at once with one message.
+
+    All effects go into one model (one front-end pass); only when it fails is each effect built alone to
+    name the one at fault. Raises :class:`plant_roles.PlantFormError` naming the effect, the construct and
+    the line of ``plant_path``.
+
+    Parameters
+    ----------
+    folder : empty scratch folder for the written models.
+    plant_text, plant_path, plant_class : the plant file's source, path and the class used.
+    roles : where the plant keeps its input, output, position and velocity.
+    ctx : recorded ranges (for the effects' parameter bounds).
+    class_name : name of the augmented class.
+
+    Returns
+    -------
+    SymbolicModel
+        The augmented model with every effect (written to ``folder / "all"``).
+    """
+    top = plant_class.split(".")[0]
+    if top in (class_name, LIBRARY.name):
+        raise PlantFormError(f"{plant_path}, line {declaration_line(plant_text, top)}: the plant's top-level "
+                             f"class name {top!r} clashes with the diagnosis' own {class_name!r} or "
+                             f"{LIBRARY.name!r}; rename it")
+    effects = [factory(ctx) for factory in VOCABULARY.values()]
+
+    def build(chosen: list[Effect], sub: str) -> symbolic.SymbolicModel:
+        values = {p.name: float(np.mean(p.bounds)) for e in chosen for p in e.params}
+        write_model(folder / sub, plant_text, plant_class, chosen, values, {}, class_name, roles)
+        model = load_augmented(folder / sub, class_name)
+        states = {s.name for s in model.states}
+        missing = [f"plant.{n}" for n in (roles.position, roles.velocity) if f"plant.{n}" not in states]
+        if missing:
+            raise PlantFormError(f"{', '.join(missing)} is not a state of the augmented model")
+        return model
+
+    try:
+        return build(effects, "all")
+    except (frontend.ModelicaError, PlantFormError, RuntimeError, ValueError, KeyError):
+        pass
+    for effect in effects:
+        try:
+            build([effect], effect.name)
+        except (frontend.ModelicaError, PlantFormError, RuntimeError, ValueError, KeyError) as exc:
+            source = effect.force + " ".join(effect.equations)
+            used = [roles.input] + [name for token, name in (("$x", roles.position), ("$v", roles.velocity))
+                                    if token in source]
+            construct = ", ".join(f"plant.{name}" for name in used)
+            line = declaration_line(plant_text, plant_class)
+            raise PlantFormError(f"{plant_path}, line {line}: class {plant_class}: the augmented model with "
+                                 f"effect {effect.name} (which uses {construct}) cannot be built, so this plant "
+                                 f"form is not supported: {exc}") from None
+    raise PlantFormError(f"{plant_path}, line {declaration_line(plant_text, plant_class)}: class {plant_class}: "
+                         f"the augmented model with all effects cannot be built although each effect alone can")
 
 
 def load_augmented(folder: Path, class_name: str) -> symbolic.SymbolicModel:

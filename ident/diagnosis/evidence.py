@@ -55,8 +55,10 @@ def _mirror_derivatives(signal: np.ndarray, fs: float, fc: float) -> tuple[np.nd
 
 
 def inverse_dynamics(rec: Recording, model: symbolic.SymbolicModel, values: dict[str, float],
-                     position_state: str, velocity_state: str, ts: float) -> InverseDynamics | None:
-    """Force residual u - (force the nominal model needs for the measured motion), for two-state plants."""
+                     position_state: str, velocity_state: str, ts: float,
+                     input_index: int = 0) -> InverseDynamics | None:
+    """Force residual u - (force the nominal model needs for the measured motion), for two-state plants
+    (``input_index``: the driven input; the others are held at 0)."""
     if model.x.numel() != 2:
         return None
     fs = 1 / ts
@@ -67,10 +69,12 @@ def inverse_dynamics(rec: Recording, model: symbolic.SymbolicModel, values: dict
     i_x, i_v = names.index(position_state), names.index(velocity_state)
     p = np.array([values[s.name] for s in model.parameters])
     acc = model.dx[i_v]
-    fn = ca.Function("acc", [model.x, model.u, model.p], [acc, ca.jacobian(acc, model.u)])
+    fn = ca.Function("acc", [model.x, model.u, model.p], [acc, ca.jacobian(acc, model.u[input_index])])
     states = np.zeros((2, x.size))
     states[i_x], states[i_v] = x, v
-    a_model, gain = (np.array(o).ravel() for o in fn.map(x.size)(states, u_f[None, :], p))
+    inputs = np.zeros((model.u.numel(), x.size))
+    inputs[input_index] = u_f
+    a_model, gain = (np.array(o).ravel() for o in fn.map(x.size)(states, inputs, p))
     force = (a_model - a) / gain
     return InverseDynamics(x, v, a, udot, force, fc)
 

@@ -19,7 +19,9 @@ import numpy as np
 from motiontwin.ident.diagnosis import effects as fx
 from motiontwin.ident.diagnosis import evidence as ev
 from motiontwin.ident import outputerror as sim
-from motiontwin.ident.diagnosis.bundle import Bundle, read_bundle
+from motiontwin.harness.recording import Recording
+from motiontwin.ident.diagnosis.bundle import Bundle, BundleError, read_bundle
+from motiontwin.ident.diagnosis.plant_roles import PlantFormError, output_map
 
 AUGMENTED_CLASS = "Augmented"
 VALIDATION_GAIN = 0.9        # an effect must reduce the validation RMS by at least 10 %
@@ -72,7 +74,8 @@ def fit_nominal(bundle: Bundle, progress=None) -> tuple[ModelFit, sim.Weights]:
     model = bundle.plant.model
     free, bounds = _nominal_bounds(bundle)
     values = {v.name: float(v.start) for v in model.parameters}
-    loop = sim.build_loop(model, bundle.controller, bundle.plant.position_state, free, values, bundle.train.time.size)
+    loop = sim.build_loop(model, bundle.controller, bundle.plant.output_name, free, values, bundle.train.time.size,
+                          input_name=bundle.plant.input_name)
     q0, u0 = sim.simulate(loop, bundle.train)
     ts = bundle.controller.Ts
     weights = sim.Weights(ev.noise_level(bundle.train["q"] - q0, ts), ev.noise_level(bundle.train["u"] - u0, ts))
@@ -88,26 +91,40 @@ def _fmt(values: dict[str, float]) -> str:
     return ", ".join(f"{k}={v:.4g}" for k, v in values.items())
 
 
+def _in_state_coordinates(rec: Recording, gain: float, offset: float) -> Recording:
+    """``rec`` with the measured q replaced by the plant's position state (q - offset)/gain."""
+    return Recording(rec.time, {**rec.columns, "q": (rec["q"] - offset) / gain}, rec.units, rec.meta)
+
+
 def context(bundle: Bundle, nominal: ModelFit) -> fx.Context:
-    rec, ts = bundle.train, bundle.controller.Ts
+    """Recorded ranges and inverse-dynamics signals in the plant's state coordinates."""
+    ts = bundle.controller.Ts
     plant = bundle.plant
-    inv = ev.inverse_dynamics(rec, plant.model, nominal.fit.values, plant.position_state, plant.velocity_state, ts)
-    q = np.concatenate([rec["q"], bundle.validation["q"]])
+    gain, offset = output_map(plant.model, plant.roles, nominal.fit.values)
+    rec = _in_state_coordinates(bundle.train, gain, offset)
+    inv = ev.inverse_dynamics(rec, plant.model, nominal.fit.values, plant.position_state, plant.velocity_state, ts,
+                              _input_index(bundle))
+    q = np.concatenate([rec["q"], _in_state_coordinates(bundle.validation, gain, offset)["q"]])
     v = inv.v if inv else np.gradient(rec["q"], ts)
     mass = _mass_equivalent(bundle, nominal.fit.values)
-    ctx = fx.Context(ts, float(q.min()), float(q.max()), float(np.max(np.abs(v))) or 1e-3, mass)
+    ctx = fx.Context(ts, float(q.min()), float(q.max()), float(np.max(np.abs(v))) or 1e-3, mass,
+                     position_gain=gain)
     if inv is not None:
         ctx.x, ctx.v, ctx.a, ctx.force, ctx.udot = inv.x, inv.v, inv.a, inv.force, inv.udot
-    ctx.resonance_guess = ev.resonance_guesses(rec["q"] - nominal.fit.q_sim, ts)
+    ctx.resonance_guess = ev.resonance_guesses(bundle.train["q"] - nominal.fit.q_sim, ts)
     return ctx
 
 
 def _mass_equivalent(bundle: Bundle, values: dict[str, float]) -> float:
     model = bundle.plant.model
     i_v = [s.name for s in model.states].index(bundle.plant.velocity_state)
-    gain = ca.Function("g", [model.x, model.u, model.p], [ca.jacobian(model.dx[i_v], model.u)])
+    gain = ca.Function("g", [model.x, model.u, model.p], [ca.jacobian(model.dx[i_v], model.u[_input_index(bundle)])])
     p = np.array([values[s.name] for s in model.parameters])
-    return float(1 / np.array(gain(np.zeros(model.x.numel()), 0.0, p)).item())
+    return float(1 / np.array(gain(np.zeros(model.x.numel()), np.zeros(model.u.numel()), p)).item())
+
+
+def _input_index(bundle: Bundle) -> int:
+    return [v.name for v in bundle.plant.model.inputs].index(bundle.plant.input_name)
 
 
 @dataclass
@@ -134,7 +151,7 @@ def build_structure(bundle: Bundle, effects: list[fx.Effect], values: dict[str, 
     if model is None:
         plant_values = {k[len("plant."):]: v for k, v in values.items() if k.startswith("plant.")}
         fx.write_model(folder, bundle.plant.text, bundle.plant.class_name, effects, values, plant_values,
-                       AUGMENTED_CLASS)
+                       AUGMENTED_CLASS, bundle.plant.roles)
         model = _CACHE.models[names] = fx.load_augmented(folder, AUGMENTED_CLASS)
     free, bounds = _nominal_bounds(bundle, "plant.")
     for effect in effects:
@@ -149,7 +166,7 @@ def build_structure(bundle: Bundle, effects: list[fx.Effect], values: dict[str, 
     substeps = substeps or max(min_substeps, sim.stable_substeps(model, all_values, bundle.controller.Ts))
     key = (names, n_samples, substeps, with_jacobian)
     if key not in _CACHE.loops:
-        _CACHE.loops[key] = sim.build_loop(model, bundle.controller, "plant." + bundle.plant.position_state,
+        _CACHE.loops[key] = sim.build_loop(model, bundle.controller, "q",
                                            free, all_values, n_samples, substeps=substeps, tracking=tracking,
                                            with_jacobian=with_jacobian)
     return _CACHE.loops[key].with_values(all_values), bounds
@@ -193,9 +210,9 @@ def validate(bundle: Bundle, structure: ModelFit, folder: Path) -> None:
                                   with_jacobian=False, min_substeps=structure.loop.substeps)
     else:
         model = bundle.plant.model
-        loop = sim.build_loop(model, bundle.controller, bundle.plant.position_state, structure.loop.free,
+        loop = sim.build_loop(model, bundle.controller, bundle.plant.output_name, structure.loop.free,
                               structure.fit.values, rec.time.size, with_jacobian=False,
-                              min_substeps=structure.loop.substeps)
+                              min_substeps=structure.loop.substeps, input_name=bundle.plant.input_name)
     q, _ = sim.simulate(loop, rec, structure.fit.values)
     structure.val_q = q
     structure.val_rms = float(np.sqrt(np.mean((rec["q"] - q) ** 2))) if np.all(np.isfinite(q)) else math.inf
@@ -370,11 +387,30 @@ def validation_floor(loop: sim.Loop, bundle: Bundle, values: dict[str, float], s
     return float(np.sqrt(np.mean(power)))
 
 
+def check_plant_form(bundle: Bundle, folder: Path) -> None:
+    """Build every candidate effect's augmented model on the bundle's plant before any fitting (raises
+    :class:`BundleError` naming the construct and the plant file's line)."""
+    plant, ts = bundle.plant, bundle.controller.Ts
+    values = {v.name: float(v.start) for v in plant.model.parameters}
+    try:
+        gain, offset = output_map(plant.model, plant.roles, values)
+        x = (np.concatenate([bundle.train["q"], bundle.validation["q"]]) - offset) / gain
+        v_max = float(np.max(np.abs(np.gradient(x, ts)))) or 1e-3
+        ctx = fx.Context(ts, float(x.min()), float(x.max()), v_max, _mass_equivalent(bundle, values),
+                         position_gain=gain)
+        fx.check_buildable(folder, plant.text, plant.source, plant.class_name, plant.roles, ctx, AUGMENTED_CLASS)
+    except PlantFormError as exc:
+        raise BundleError(str(exc)) from None
+
+
 def run(bundle: Bundle, work: Path, progress=None) -> dict:
     """The whole diagnosis in ``work``; returns what the report needs."""
     t0 = time.perf_counter()
     _CACHE.loops.clear()
     _CACHE.models.clear()
+    _log(progress, bundle.plant.roles.describe())
+    check_plant_form(bundle, work / "check")
+    _log(progress, f"every candidate effect's augmented model builds ({time.perf_counter() - t0:.1f} s)")
     nominal, weights = fit_nominal(bundle, progress)
     validate(bundle, nominal, work / "v_nominal")
     ctx = context(bundle, nominal)

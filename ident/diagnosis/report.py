@@ -70,6 +70,7 @@ def diagnosis_document(result: dict, out: Path, fmu_path: Path | None) -> dict:
         "noise": {"sigma_q": result["weights"].sigma_q, "sigma_u": result["weights"].sigma_u},
         "candidates": [{k: v for k, v in entry.items()} for entry in result["log"]],
         "runtime_s": round(result["seconds"], 2),
+        "plant_roles": result["bundle"].plant.roles.as_dict(),
     }
 
 
