@@ -37,7 +37,7 @@ import scipy.io
 from motiontwin.harness.recording import atomic_write_texts
 from motiontwin.ident.controller import controller_document
 from motiontwin.ident.diagnosis import benchmark
-from motiontwin.ident.trajectory import fourier_trajectory
+from motiontwin.harness.excitation import fourier_trajectory
 
 PLANT = "MotionTwin.Plants.PrismaticAxis"
 TRUTH = {"m": 95.0, "d": 60.0, "Fc": 20.6, "F0": -3.2, "v_eps": 1e-3}
@@ -54,12 +54,12 @@ RECORDINGS = {"axis_a": 1, "axis_b": 2}   # recording -> seed of its Fourier pha
 
 
 def coefficients(seed: int) -> tuple[np.ndarray, np.ndarray]:
-    """Fourier velocity coefficients a_k, b_k [m/s] (ident.trajectory): amplitudes k^0.7 with seeded phases,
+    """Fourier velocity coefficients a_k, b_k [m/s] (harness.excitation): amplitudes k^0.7 with seeded phases,
     scaled to a largest excursion of STROKE, so the higher harmonics excite the inertia."""
     phases = np.random.default_rng(seed).uniform(0, 2 * np.pi, HARMONICS)
     amplitude = np.arange(1, HARMONICS + 1) ** 0.7
     a, b = amplitude * np.cos(phases), amplitude * np.sin(phases)
-    q, _, _ = fourier_trajectory(np.arange(int(round(1 / (F0 * TS)))) * TS, F0, a, b)
+    q = fourier_trajectory(np.arange(int(round(1 / (F0 * TS)))) * TS, F0, a, b).position
     scale = STROKE / float(np.max(np.abs(q)))
     return scale * a, scale * b
 
@@ -78,7 +78,7 @@ def lab_recording(seed: int, periods: int = 6, extra: float = 3.3,
     lead = 1.3 / F0                                   # the loop runs this long before the file starts
     n_lead, n_file = int(round(lead / TS)), int(round((periods / F0 + extra) / TS))
     t_traj = np.arange(n_lead + n_file) * TS
-    r, _, _ = fourier_trajectory(t_traj, F0, a, b, CENTRE)
+    r = fourier_trajectory(t_traj, F0, a, b, CENTRE).position
     rr, u_ext, pre = benchmark.with_preroll(r, np.zeros_like(r))
     noise = NOISE * rng.standard_normal(rr.size)
     plant = benchmark.TruthPlant(PLANT, dict(TRUTH))

@@ -2,7 +2,7 @@
 and a heavy prismatic axis with Coulomb friction and a constant force (issue 13: 95 kg, Coulomb ~20 N + offset).
 
 Reference: the truth parameters of the inverse dynamics m*a + d*v + Fc*sign(v) + F0 along an analytic Fourier
-trajectory (exact derivatives from ident.trajectory), with seeded white noise on position and force.
+trajectory (exact derivatives from harness.excitation), with seeded white noise on position and force.
 """
 import json
 
@@ -12,8 +12,8 @@ import pytest
 from motiontwin.cli import main
 from motiontwin.harness import recording
 from motiontwin.ident.joint import identify_joint_recording
-from motiontwin.ident.ml import identify_joint_ml_recording
-from motiontwin.ident.trajectory import fourier_trajectory
+from motiontwin.ident.maximum_likelihood import identify_joint_ml_recording
+from motiontwin.harness.excitation import fourier_trajectory
 
 TRUTH = {"m": 95.0, "d": 60.0, "Fc": 20.6, "F0": -3.2}
 FS, F0 = 1000.0, 0.5
@@ -24,7 +24,8 @@ def lab_axis(jitter: float = 2e-8, seed: int = 0, sample_time: float | None = 1 
     """A 95 kg axis around 0.24 m, 2e-8 s clock jitter, 1 um / 2 N noise, sidecar sample time 1 ms."""
     rng = np.random.default_rng(seed)
     t = np.arange(N) / FS
-    q, v, a = fourier_trajectory(t, F0, 0.012 * np.array([1.0, -0.5, 0.3]), 0.012 * np.array([0.4, 0.6, -0.2]), 0.24)
+    motion = fourier_trajectory(t, F0, 0.012 * np.array([1.0, -0.5, 0.3]), 0.012 * np.array([0.4, 0.6, -0.2]), 0.24)
+    q, v, a = motion.position, motion.velocity, motion.acceleration
     force = TRUTH["m"] * a + TRUTH["d"] * v + TRUTH["Fc"] * np.tanh(v / 1e-4) + TRUTH["F0"]
     time = t + rng.uniform(-jitter, jitter, N)
     return recording.make_recording(time, {"q": q + 1e-6 * rng.standard_normal(N),
