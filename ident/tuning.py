@@ -1,11 +1,6 @@
 """Tuning of the Cheung & Hung robust joint controller (eqs. 9-13) against eqs. (14)-(18), on the discrete loop.
 
-The loop is what the 2 kHz DSP closes: the plant P(s) (eqs. 6-8, ``ident.frf.JointModel`` or any stable
-continuous LTI) behind a zero-order hold, optionally one sample of computation delay, and the controller
-exactly as the FMU runs it: the Tustin matrices Ad, Bd, Cd, Dd of ``MotionTwin.Controllers.RobustJointController``
-(``fmus.build.load_model``), evaluated numerically with a ``casadi.Function`` of the parameters. The loop
-transfer is L = C(z) z^-d P_zoh(z) with the feedback column of the law (input r; feedforward plays no part in
-the margins).
+The loop and its margins are described in ``ident.tuning_margins``.
 
 The method in modules, one concern each (this module gathers their public names):
 
