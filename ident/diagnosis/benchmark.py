@@ -268,14 +268,55 @@ def cosimulate(plant: TruthPlant, r: np.ndarray, u_ext: np.ndarray, noise: np.nd
             "q_true": log["plant.q"]}
 
 
+def casadi_truth(plant: TruthPlant, r: np.ndarray, u_ext: np.ndarray, noise: np.ndarray,
+                 substeps: int = 16) -> dict[str, np.ndarray]:
+    """The closed loop of :func:`cosimulate` computed without FMUs: the truth's effects written as the
+    diagnosis' own augmented model (the ``MotionTwin.Effects`` functions through the project's front end),
+    RK4 with ``substeps`` steps per sample, the controller reading q + noise, no quantisation. Much faster
+    to generate (no FMU build, no co-simulation); used by the fast decision tests. Returns r, u, q
+    (measured = true + noise), u_ext and q_true on the controller grid, starting at rest at x = 0."""
+    from motiontwin.ident import outputerror as sim
+    from motiontwin.ident.diagnosis import effects as fx
+
+    if plant.class_name.endswith("VariableInertiaJoint"):
+        raise ValueError("position_dependent_inertia: the truth (cosine mass) has no exact CasADi counterpart")
+    ctx = fx.Context(TS, 0.0, 0.1, 0.2, TRUE_M)
+    m, d = plant.parameters.get("m", plant.parameters.get("m1", TRUE_M)), TRUE_D
+    effects, values = [], {"plant.m": m, "plant.d": d}
+    for true in plant.effects:
+        effect = fx.VOCABULARY[true["name"]](ctx)
+        effects.append(effect)
+        values.update({p.name: float(np.mean(p.bounds)) for p in effect.params})
+        values.update({k: v for k, v in true["parameters"].items() if k in {p.name for p in effect.params}})
+    with tempfile.TemporaryDirectory(prefix="mt-truth-") as folder:
+        fx.write_model(Path(folder), PLANT_TEXT.format(m=m, d=d), PLANT_CLASS, effects, values,
+                       {"m": m, "d": d}, "Truth")
+        model = fx.load_augmented(Path(folder), "Truth")
+    n = r.size
+    t = np.arange(n) * TS
+    loop = sim.build_loop(model, pid_controller(), "plant.x", [], values, n, substeps=substeps,
+                          with_jacobian=False)
+    rec = make_recording(t, {"r": r, "u": np.zeros(n), "q": np.zeros(n), "u_ext": u_ext})
+    q_true, u = sim.simulate(loop, rec, values, noise=noise)
+    return {"time": t, "r": r, "u": u, "q": q_true + noise, "u_ext": u_ext, "q_true": q_true}
+
+
 def simulate_truth(case: str, t: np.ndarray, r: np.ndarray, u_ext: np.ndarray, rng: np.random.Generator,
                    scale: float, with_effects: bool = True, noise_std: float = NOISE,
-                   resolution: float = RESOLUTION, fmu_dir: Path | None = None) -> tuple[np.ndarray, ...]:
-    """Closed-loop truth (pre-roll cut off); returns the measured q, the force u and the true q."""
+                   resolution: float = RESOLUTION, fmu_dir: Path | None = None,
+                   engine: str = "fmu") -> tuple[np.ndarray, ...]:
+    """Closed-loop truth (pre-roll cut off); returns the measured q, the force u and the true q.
+    ``engine``: "fmu" (library FMUs co-simulated by the harness, quantised encoder) or "casadi"
+    (:func:`casadi_truth`)."""
     plant = truth_plant(case if with_effects else "params_only_a", scale)
     rr, ue, pre = with_preroll(r, u_ext)
     noise = measurement.add_noise(np.zeros(rr.size), noise_std, rng)
-    out = cosimulate(plant, rr, ue, noise, resolution, fmu_dir=fmu_dir)
+    if engine == "casadi":
+        out = casadi_truth(plant, rr, ue, noise)
+    elif engine == "fmu":
+        out = cosimulate(plant, rr, ue, noise, resolution, fmu_dir=fmu_dir)
+    else:
+        raise ValueError(f"engine must be 'fmu' or 'casadi', not {engine!r}")
     return out["q"][pre:], out["u"][pre:], out["q_true"][pre:]
 
 
@@ -284,10 +325,11 @@ def simulate_truth(case: str, t: np.ndarray, r: np.ndarray, u_ext: np.ndarray, r
 def write_bundle(folder: Path, case: str, seed: int, scale: float = 1.0, nominal_error: float | None = None,
                  durations: tuple[float, float] = (12.0, 6.0), noise_std: float = NOISE,
                  resolution: float = RESOLUTION, fmu_dir: Path | None = None, stroke: float = 0.1,
-                 sweep_fraction: float = 0.25) -> dict:
+                 sweep_fraction: float = 0.25, engine: str = "fmu") -> dict:
     """Write one bundle (experiment.json, plant.mo, train.csv, validation.csv) and its ``NAME.truth.json``
     next to it (true effects, truth model, concealment: max and RMS |q_truth - q_rigid| [m] and max |u_truth -
-    u_rigid| [N] on the training run, the rigid axis at the true m, d driven by the same r, u_ext and noise)."""
+    u_rigid| [N] on the training run, the rigid axis at the true m, d driven by the same r, u_ext and noise).
+    ``engine``: how the truth is computed, see :func:`simulate_truth`."""
     rng = np.random.default_rng(seed)
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
@@ -301,11 +343,12 @@ def write_bundle(folder: Path, case: str, seed: int, scale: float = 1.0, nominal
         t, r, u_ext = reference(duration, rng, stroke, duration * sweep_fraction)
         noise_seed = int(rng.integers(2 ** 31))
         q, u, q_true = simulate_truth(case, t, r, u_ext, np.random.default_rng(noise_seed), scale,
-                                      noise_std=noise_std, resolution=resolution, fmu_dir=fmu_dir)
+                                      noise_std=noise_std, resolution=resolution, fmu_dir=fmu_dir,
+                                      engine=engine)
         if part == "train":
             _, u_rigid, q_rigid = simulate_truth(case, t, r, u_ext, np.random.default_rng(noise_seed), scale,
                                                  with_effects=False, noise_std=noise_std, resolution=resolution,
-                                                 fmu_dir=fmu_dir)
+                                                 fmu_dir=fmu_dir, engine=engine)
             concealment = {"max_abs_m": float(np.max(np.abs(q_true - q_rigid))),
                            "rms_m": float(np.sqrt(np.mean((q_true - q_rigid) ** 2))),
                            "force_max_abs_N": float(np.max(np.abs(u - u_rigid)))}
@@ -324,7 +367,7 @@ def write_bundle(folder: Path, case: str, seed: int, scale: float = 1.0, nominal
     }
     truth = {"case": case, "seed": seed, "scale": scale, "m": TRUE_M, "d": TRUE_D, "stroke": stroke,
              "sweep_fraction": sweep_fraction,
-             "truth_model": {"class": plant.class_name, "parameters": plant.parameters,
+             "truth_model": {"class": plant.class_name, "parameters": plant.parameters, "engine": engine,
                              "plant_step": TS / PLANT_SUBSTEPS, "encoder_resolution": resolution,
                              "noise_std": noise_std},
              "effects": plant.effects, "concealment": concealment}

@@ -1,0 +1,210 @@
+"""Tests that break when the diagnosis' decisions break (issue 13, item 9).
+
+* The decision end to end: a parameters-only bundle gives no effect, and three concealed single-effect
+  bundles give exactly their effect. The bundles are short closed-loop runs of the truth written as the
+  diagnosis' augmented model (``benchmark.casadi_truth``: the ``MotionTwin.Effects`` functions through the
+  project's front end, RK4 at 16 substeps, white encoder noise fed back), so they cost ~2 s each to
+  generate; the slow FMU co-simulated benchmark is covered by ``test_diagnosis_benchmark.py``.
+* The significance test is a real gate: on the parameters-only bundle some candidates fail it and are never
+  validated.
+* The effect force laws of the Modelica library (and of the augmented model the diagnosis writes) against
+  their closed forms, evaluated through the project's front end and CasADi.
+* The output-error integrator's order by step halving against the exact zero-order-hold discretisation.
+"""
+from __future__ import annotations
+
+import math
+import tempfile
+from pathlib import Path
+
+import casadi as ca
+import numpy as np
+import pytest
+import scipy.signal as sps
+
+from motiontwin.fmus import build
+from motiontwin.harness.recording import make_recording
+from motiontwin.ident import outputerror as sim
+from motiontwin.ident.diagnosis import benchmark as bench
+from motiontwin.ident.diagnosis import effects as fx
+from motiontwin.ident.diagnosis import pipeline
+from motiontwin.ident.diagnosis.bundle import read_bundle
+
+CASES = {"params_only_a": [], "gravity_offset": ["gravity_offset"], "coulomb_friction": ["coulomb_friction"],
+         "position_ripple": ["position_ripple"]}
+SEED = 21
+DURATIONS = (3.0, 1.5)      # train, validation [s] at 2 kHz
+
+
+@pytest.fixture(scope="module")
+def diagnoses(tmp_path_factory) -> dict[str, dict]:
+    """Case -> the pipeline's result (decisions and candidate log), each case generated and diagnosed once."""
+    root = tmp_path_factory.mktemp("decisions")
+    done: dict[str, dict] = {}
+
+    def get(case: str) -> dict:
+        if case not in done:
+            folder = root / case
+            bench.write_bundle(folder, case, seed=SEED, durations=DURATIONS, engine="casadi")
+            with tempfile.TemporaryDirectory(dir=root) as work:
+                done[case] = pipeline.run(read_bundle(folder), Path(work))
+        return done[case]
+    return get
+
+
+@pytest.mark.parametrize("case", list(CASES))
+def test_concealed_single_effect_gives_exactly_that_effect(diagnoses, case):
+    """Parameters only -> no effect; one concealed effect -> exactly that effect (a second, spurious one fails
+    the validation rule, VALIDATION_GAIN; a missing one fails the significance or validation test)."""
+    result = diagnoses(case)
+    assert [e.name for e in result["final"].effects] == CASES[case]
+
+
+def test_significance_test_rejects_candidates_on_parameters_only(diagnoses):
+    """The noise-aware null test gates the validation: on a parameters-only bundle at least one fitted
+    candidate stays below its 99.9 % null threshold, and no such candidate is ever validated or kept."""
+    result = diagnoses("params_only_a")
+    log = result["log"]
+    assert log, "every round logs the candidates it fitted"
+    rejected = [e for e in log if e["cost_reduction"] <= e["null_threshold"]]
+    assert rejected, [(e["effect"], e["evidence_ratio"]) for e in log]
+    for entry in rejected:
+        assert "validation_rms_after" not in entry, entry
+
+
+def test_true_effect_is_far_above_its_null_threshold(diagnoses):
+    """The concealed gravity offset is decided by a wide margin: cost reduction > 100 x the null threshold and
+    a validation RMS that falls by more than half (both rules, not a marginal call)."""
+    log = diagnoses("gravity_offset")["log"]
+    entry = [e for e in log if e["round"] == 1 and e["effect"] == "gravity_offset"][0]
+    assert entry["evidence_ratio"] > 100
+    assert entry["validation_rms_after"] < 0.5 * entry["validation_rms_before"]
+
+
+# -- effect force laws against closed forms ---------------------------------------------------------
+
+def _effect_force(class_name: str, values: dict[str, float], x: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """F_effect of a ``MotionTwin.Effects.*Joint`` from its CasADi form: m*der(v) = u - d*v - F_effect with
+    u = 0, so F_effect = -m*der(v) - d*v."""
+    model = build.load_model(class_name)
+    names = [p.name for p in model.parameters]
+    p = np.array([values.get(n, model.parameters[i].start) for i, n in enumerate(names)], float)
+    i_v = [s.name for s in model.states].index("v")
+    acc = ca.Function("a", [model.x, model.u, model.p], [model.dx[i_v]])
+    states = np.vstack([x, v])
+    a = np.array(acc.map(x.size)(states, np.zeros((1, x.size)), p)).ravel()
+    prm = dict(zip(names, p))
+    return -prm["m"] * a - prm["d"] * v
+
+
+V = np.array([-0.3, -0.02, -0.004, -0.001, -2e-4, 0.0, 2e-4, 0.001, 0.004, 0.02, 0.3])
+X = np.linspace(-0.05, 0.13, V.size)
+
+
+def test_coulomb_law():
+    fc, eps = 0.7, 1e-3
+    got = _effect_force("MotionTwin.Effects.CoulombJoint", {"Fc": fc, "v_eps": eps}, X, V)
+    np.testing.assert_allclose(got, fc * np.tanh(V / eps), rtol=1e-12, atol=1e-12)
+
+
+def test_stribeck_law_is_gaussian_in_velocity():
+    """(Fc + (Fs - Fc) exp(-(v/vs)^2)) tanh(v/v_eps); at |v| = vs/2 and 2 vs the exponent's square matters
+    (exp(-|v/vs|) would differ by 17 % and 12 %)."""
+    fc, fs, vs, eps = 1.0, 3.0, 0.004, 1e-4
+    v = np.concatenate([V, [0.5 * vs, -0.5 * vs, 2 * vs, -2 * vs]])
+    x = np.zeros(v.size)
+    got = _effect_force("MotionTwin.Effects.StribeckJoint", {"Fc": fc, "Fs": fs, "vs": vs, "v_eps": eps}, x, v)
+    ref = (fc + (fs - fc) * np.exp(-(v / vs) ** 2)) * np.tanh(v / eps)
+    np.testing.assert_allclose(got, ref, rtol=1e-12, atol=1e-12)
+    assert got[-4] == pytest.approx(fc + (fs - fc) * math.exp(-0.25), rel=1e-9)
+
+
+def test_asymmetric_law_branches():
+    prm = {"beta_vp": 10.0, "beta_vn": 15.0, "beta_cp": 2.0, "beta_cn": 1.5, "v_eps": 1e-5}
+    got = _effect_force("MotionTwin.Effects.AsymmetricFrictionJoint", {**prm, "d": 0.0}, X, V)
+    t = np.tanh(V / prm["v_eps"])
+    sp = (1 + t) / 2
+    ref = V * (prm["beta_vp"] * sp + prm["beta_vn"] * (1 - sp)) + t * (prm["beta_cp"] * sp + prm["beta_cn"] * (1 - sp))
+    np.testing.assert_allclose(got, ref, rtol=1e-12, atol=1e-12)
+    fast = np.abs(V) >= 1e-3       # tanh saturated: Bona eq. (2) branches
+    branch = np.where(V > 0, prm["beta_vp"] * V + prm["beta_cp"], prm["beta_vn"] * V - prm["beta_cn"])
+    np.testing.assert_allclose(got[fast], branch[fast], rtol=1e-12)
+    assert got[V == 0] == 0
+
+
+def test_ripple_and_offset_laws():
+    a, period, phase = 0.8, 0.024, 0.3
+    got = _effect_force("MotionTwin.Effects.RippleJoint", {"A": a, "period": period, "phase": phase}, X, V)
+    np.testing.assert_allclose(got, a * np.sin(2 * np.pi * X / period + phase), rtol=1e-12, atol=1e-12)
+    got = _effect_force("MotionTwin.Effects.OffsetForceJoint", {"F0": 19.62}, X, V)
+    np.testing.assert_allclose(got, np.full(X.size, 19.62), rtol=1e-12)
+
+
+def test_variable_inertia_law():
+    """m(x) a + 0.5 m'(x) v^2 = u - d v with m(x) = m0 (1 + dm cos(2 pi x / period))."""
+    m0, dm, period, d, u = 2.0, 0.3, 0.1, 5.0, 4.0
+    model = build.load_model("MotionTwin.Effects.VariableInertiaJoint")
+    names = [p.name for p in model.parameters]
+    vals = {"m0": m0, "dm": dm, "period": period, "d": d}
+    p = np.array([vals[n] for n in names])
+    acc = ca.Function("a", [model.x, model.u, model.p], [model.dx[1]]).map(X.size)
+    got = np.array(acc(np.vstack([X, V]), np.full((1, X.size), u), p)).ravel()
+    k = 2 * np.pi / period
+    mass, dmass = m0 * (1 + dm * np.cos(k * X)), -m0 * dm * k * np.sin(k * X)
+    np.testing.assert_allclose(got, (u - d * V - 0.5 * dmass * V ** 2) / mass, rtol=1e-12)
+
+
+def test_augmented_model_uses_the_library_laws(tmp_path):
+    """The model the diagnosis writes and refits (nominal plant + Effects functions copied beside it) has the
+    closed-form Stribeck and ripple forces: plant.u = u - F_stribeck - F_ripple."""
+    ctx = fx.Context(bench.TS, 0.0, 0.1, 0.2, bench.TRUE_M)
+    effects = [fx.stribeck_friction(ctx), fx.position_ripple(ctx)]
+    values = {"stribeck_Fc": 0.08, "stribeck_Fs": 0.25, "stribeck_vs": 0.004, "stribeck_v_eps": 5e-4,
+              "ripple_a": 0.3, "ripple_b": -0.2, "ripple_period": 0.016, "ripple_zero": 0.0,
+              "ripple_quarter": math.pi / 2}
+    m, d = 2.0, 15.0
+    fx.write_model(tmp_path, bench.PLANT_TEXT.format(m=m, d=d), bench.PLANT_CLASS, effects, values,
+                   {"m": m, "d": d}, "Augmented")
+    model = fx.load_augmented(tmp_path, "Augmented")
+    names = [s.name for s in model.states]
+    assert names == ["plant.x", "plant.v"]
+    p = np.array([values.get(v.name, v.start) for v in model.parameters], float)
+    v = np.concatenate([V, [0.002, -0.002, 0.008, -0.008]])
+    x = np.linspace(-0.05, 0.13, v.size)
+    acc = ca.Function("a", [model.x, model.u, model.p], [model.dx[1]]).map(v.size)
+    got = -m * np.array(acc(np.vstack([x, v]), np.zeros((1, v.size)), p)).ravel() - d * v
+    k = 2 * np.pi / values["ripple_period"]
+    stribeck = (0.08 + (0.25 - 0.08) * np.exp(-(v / 0.004) ** 2)) * np.tanh(v / 5e-4)
+    ripple = 0.3 * np.sin(k * x) - 0.2 * np.cos(k * x)
+    np.testing.assert_allclose(got, stribeck + ripple, rtol=1e-10, atol=1e-12)
+
+
+# -- the output-error integrator ------------------------------------------------------------------
+
+def test_output_error_integrator_is_fourth_order():
+    """Open-loop free run of m q'' = u - d q' with the input held per sample: the error against the exact ZOH
+    discretisation (scipy cont2discrete) falls by 2^4 = 16 per halving of the RK4 step."""
+    text = bench.PLANT_TEXT.format(m=0.5, d=15.0)
+    with tempfile.TemporaryDirectory() as folder:
+        path = Path(folder) / "plant.mo"
+        path.write_text(text)
+        model = build.load_model(bench.PLANT_CLASS, path)
+    ts, n = 0.01, 200                  # fastest mode -d/m = -30 1/s: lambda*ts = 0.3
+    t = np.arange(n) * ts
+    u = np.sin(2 * np.pi * 2 * t) + 0.5 * np.sign(np.sin(2 * np.pi * 0.7 * t))
+    rec = make_recording(t, {"u": u, "q": np.zeros(n)})
+    ad, bd, *_ = sps.cont2discrete((np.array([[0, 1], [0, -30.0]]), np.array([[0], [2.0]]), np.eye(2),
+                                    np.zeros((2, 1))), ts, method="zoh")
+    x, q_ref = np.zeros(2), np.zeros(n)
+    for k in range(n):
+        q_ref[k] = x[0]
+        x = ad @ x + bd[:, 0] * u[k]
+    errors = []
+    for substeps in (1, 2, 4):
+        loop = sim.build_loop(model, None, "x", [], {}, n, substeps=substeps, ts=ts, with_jacobian=False)
+        q, _ = sim.simulate(loop, rec)
+        errors.append(float(np.max(np.abs(q - q_ref))))
+    ratios = [errors[0] / errors[1], errors[1] / errors[2]]
+    assert errors[2] > 1e-13, errors                    # still above round-off
+    for ratio in ratios:
+        assert 13 < ratio < 19, (errors, ratios)
