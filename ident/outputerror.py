@@ -46,6 +46,7 @@ from scipy.optimize import least_squares
 from motiontwin.fmus import symbolic
 from motiontwin.harness.recording import Recording
 from motiontwin.ident import chain as native_chain
+from motiontwin.ident import startvalues
 from motiontwin.ident.controller import Controller
 from motiontwin.ident.leastsquares import LeastSquaresResult, UnidentifiableError, check_identifiability
 
@@ -324,11 +325,19 @@ def initial_state(loop: Loop, rec: Recording, values: dict[str, float] | None = 
     if loop.position_state in names:
         x0[names.index(loop.position_state)] = q_rec[0]
     for state, signal in loop.tracking.items():
-        x0[names.index(state)] = q_rec[0] if signal == "q" else _column(rec, sig.input)[0]
+        if signal == "dq":      # a velocity state: the slope of the first samples (a loop moving at t = 0)
+            x0[names.index(state)] = startvalues.first_samples(q_rec, float(np.median(np.diff(rec.time))))[1]
+        else:
+            x0[names.index(state)] = q_rec[0] if signal == "q" else _column(rec, sig.input)[0]
     for state, value in (initial or {}).items():
         x0[names.index(state)] = value
     if ctrl is None or not ctrl.n_states:
         return np.concatenate([x0, np.zeros(ctrl.n_states if ctrl is not None else 0)])
+    if "dq" in loop.tracking.values():   # moving at t = 0: the controller state from its first outputs
+        count = min(q_rec.size, max(20, 4 * ctrl.n_states))
+        y = np.column_stack([_column(rec, sig.reference)[:count], q_rec[:count]])
+        u = _column(rec, sig.input)[:count] - _column(rec, sig.disturbance, True)[:count]
+        return np.concatenate([x0, startvalues.controller_state(ctrl.A, ctrl.B, ctrl.C, ctrl.D, y, u)])
     y0 = np.array([_column(rec, sig.reference)[0], q_rec[0]])
     target = _column(rec, sig.input)[0] - _column(rec, sig.disturbance, True)[0] - float((ctrl.D @ y0)[0])
     z0 = np.linalg.pinv(ctrl.C) @ np.atleast_1d(target)
@@ -557,7 +566,7 @@ def identify(model: symbolic.SymbolicModel, rec: Recording, free: list[str], con
              start: dict[str, float] | None = None, substeps: int | None = None,
              tracking: dict[str, str] | None = None, max_nfev: int = 50,
              input_name: str | None = None, estimate_initial: list[str] | None = None,
-             shooting: str = "single", segments: int = 4) -> OutputErrorResult:
+             shooting: str = "single", segments: int = 4, auto_start: bool = False) -> OutputErrorResult:
     """Refit ``free`` parameters of ``model`` (values of the others: ``start`` or the Modelica start values)
     so that its free run reproduces ``rec``; closed loop when ``controller`` is given.
 
@@ -565,7 +574,10 @@ def identify(model: symbolic.SymbolicModel, rec: Recording, free: list[str], con
     weighted by the RMS of its residual after a first fit, then the fit is repeated. ``estimate_initial``:
     plant states whose initial value is estimated too (default: the output, when it is a state).
     ``shooting``: "single" (:func:`fit`, ``max_nfev`` free runs per fit) or "multiple"
-    (:func:`ident.multipleshooting.fit` over ``segments`` segments, IPOPT)."""
+    (:func:`ident.multipleshooting.fit` over ``segments`` segments, IPOPT). ``auto_start``: free parameters
+    not in ``start`` that enter the inverse dynamics linearly start from its least-squares estimate
+    (:func:`ident.startvalues.inverse_dynamics_start`). A free run that diverges from the start values raises
+    :class:`ident.startvalues.DivergenceError` naming the values and what to set."""
     if not free:
         raise ValueError("name at least one free parameter")
     if shooting not in ("single", "multiple"):
@@ -585,10 +597,19 @@ def identify(model: symbolic.SymbolicModel, rec: Recording, free: list[str], con
                          f"period {ts} s (the refit needs uniform sampling at the controller's instants)")
     values = {v.name: float(v.start) for v in model.parameters}
     values.update(start or {})
+    if auto_start:
+        guess = [n for n in free if n not in (start or {})]
+        position = startvalues.output_state(model, signals.output)
+        if position is not None:
+            values.update(startvalues.inverse_dynamics_start(model, rec[signals.output], rec[signals.input], ts,
+                                                             position, guess, values, bounds, input_name))
     loop = build_loop(model, controller, signals.output, list(free), values, rec.time.size, substeps=substeps,
                       tracking=tracking, ts=ts, input_name=input_name, signals=signals)
     q0, u0 = simulate(loop, rec)
     qm = rec[signals.output]
+    startvalues.check_free_run(q0, qm, rec.time, f"the {'closed' if loop.closed else 'open'}-loop free run of "
+                               f"{model.name} on the recording", {n: values[n] for n in free},
+                               "Give start values: --set NAME=VALUE or --values FILE (identify oe), or start=.")
     weights = Weights(_rms_weight(qm - q0), _rms_weight(rec[signals.input] - u0) if loop.closed else 1.0)
     if estimate_initial is None:
         estimate_initial = [signals.output] if signals.output in [v.name for v in model.states] else []
@@ -622,8 +643,16 @@ def cli_identify_oe(args) -> int:
     model = build.load_model(args.class_name, args.modelica)
     free = [n.strip() for n in args.free.split(",") if n.strip()]
     shooting, segments = getattr(args, "shooting", "single"), getattr(args, "segments", 4)
+    start = getattr(args, "start_values", None) or {}
+    startvalues.check_parameters(model, start, "--set/--values")
+    position = startvalues.output_state(model, signals.output)
+    velocity = startvalues.velocity_state(model, position) if position else None
+    tracking = {position: "q"} if position and position != signals.output else {}   # starts at q_0
+    if getattr(args, "initial", "samples") == "samples" and velocity is not None:
+        tracking[velocity] = "dq"
     result = identify(model, rec, free, controller, signals, max_nfev=args.max_nfev, shooting=shooting,
-                      segments=segments)
+                      segments=segments, start=start, auto_start=getattr(args, "auto_start", False),
+                      tracking=tracking or None)
     stats = result.statistics
     print(stats.summary())
     how = f"multiple shooting, {segments} segments" if shooting == "multiple" else "single shooting"

@@ -8,6 +8,7 @@ import sys
 
 from motiontwin.ident.diagnosis.bundle import BundleError, read_bundle
 from motiontwin.ident.diagnosis.pipeline import diagnose
+from motiontwin.ident.startvalues import DivergenceError
 
 __all__ = ["BundleError", "diagnose", "main", "read_bundle"]
 
@@ -20,11 +21,19 @@ def run(bundle: str, out: str, quiet: bool = False) -> int:
     except BundleError as exc:
         print(f"motiontwin diagnose: bad bundle: {exc}", file=sys.stderr)
         return 2
+    except DivergenceError as exc:
+        print(f"motiontwin diagnose: {exc}", file=sys.stderr)
+        return 2
     names = ", ".join(e["name"] for e in doc["effects"]) or "none (only parameters were off)"
     val = doc["validation"]
-    print(f"effects: {names}; validation RMS {val['nominal_rms']:.3g} m -> {val['augmented_rms']:.3g} m; "
+    print(f"effects: {names}; validation RMS {_metres(val['nominal_rms'])} -> {_metres(val['augmented_rms'])}; "
           f"report: {out}/report.md")
     return 0
+
+
+def _metres(value: float | None) -> str:
+    """A length for the summary line; a diverged (None) value says so instead of failing to format."""
+    return "diverged" if value is None else f"{value:.3g} m"
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import json
 from dataclasses import dataclass
+from dataclasses import field as dataclass_field
 from pathlib import Path
 from typing import Any
 
@@ -24,7 +25,7 @@ import numpy as np
 
 from motiontwin.fmus import frontend, symbolic
 from motiontwin.harness.recording import Recording, RecordingError, read_recording
-from motiontwin.ident import controller
+from motiontwin.ident import controller, startvalues
 from motiontwin.ident.controller import Controller, field
 
 REQUIRED_COLUMNS = ("time", "r", "u", "q")
@@ -46,6 +47,7 @@ class PlantInfo:
     output_name: str
     position_state: str          # state whose value is the measured output
     velocity_state: str          # state whose derivative is the position state's derivative
+    parameters: dict[str, float] = dataclass_field(default_factory=dict)   # plant.parameters: user start values
 
 
 @dataclass
@@ -56,6 +58,11 @@ class Bundle:
     controller: Controller
     train: Recording
     validation: Recording
+    start: dict[str, float] = dataclass_field(default_factory=dict)   # nominal start values (set by the pipeline)
+
+    def recording_path(self, part: str) -> Path:
+        """Path of the ``train`` or ``validation`` recording."""
+        return self.directory / self.experiment["recordings"][part]
 
 
 def _field(doc: dict, key: str, where: str, kind: type | tuple[type, ...]) -> Any:
@@ -116,7 +123,16 @@ def read_plant(doc: dict, bundle_dir: Path, where: str) -> PlantInfo:
     if not model.parameters:
         raise BundleError(f"{path}: class {class_name} has no parameters to refit")
     pos, vel = _state_roles(model, output_name, f"{path}: class {class_name}")
-    return PlantInfo(path, class_name, path.read_text(encoding="utf-8"), model, input_name, output_name, pos, vel)
+    parameters = doc.get("parameters", {})
+    if not isinstance(parameters, dict):
+        raise BundleError(f"{where}: field 'parameters' must be an object {{NAME: VALUE}}, got {parameters!r}")
+    try:
+        parameters = startvalues.check_numbers(parameters, where)
+        startvalues.check_parameters(model, parameters, f"{where}.parameters")
+    except startvalues.StartValueError as exc:
+        raise BundleError(str(exc).replace("field 'parameters.", "field 'plant.parameters.")) from None
+    return PlantInfo(path, class_name, path.read_text(encoding="utf-8"), model, input_name, output_name, pos, vel,
+                     parameters)
 
 
 def _recording(doc: dict, key: str, bundle_dir: Path, where: str, ts: float) -> Recording:

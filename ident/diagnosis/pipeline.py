@@ -19,6 +19,7 @@ import numpy as np
 from motiontwin.ident.diagnosis import effects as fx
 from motiontwin.ident.diagnosis import evidence as ev
 from motiontwin.ident import outputerror as sim
+from motiontwin.ident import startvalues
 from motiontwin.ident.diagnosis.bundle import Bundle, read_bundle
 
 AUGMENTED_CLASS = "Augmented"
@@ -53,7 +54,7 @@ class ModelFit:
 def _nominal_bounds(bundle: Bundle, prefix: str = "") -> tuple[list[str], dict[str, tuple[float, float]]]:
     free, bounds = [], {}
     for var in bundle.plant.model.parameters:
-        value = float(var.start)
+        value = float(bundle.start.get(var.name, var.start))
         if value == 0:
             continue
         lo, hi = sorted((value / 5, value * 5))
@@ -68,12 +69,44 @@ def _log(progress, message: str) -> None:
         progress(message)
 
 
+def nominal_start(bundle: Bundle, progress=None) -> dict[str, float]:
+    """Start values of the nominal refit: the Modelica defaults, over them ``plant.parameters`` of the bundle,
+    and for every other non-zero parameter that enters the plant's force linearly (mass, viscous
+    friction, ...) the inverse-dynamics least-squares estimate on the training recording (kept when it has
+    the default's sign), so that a 2 kg default never meets a 95 kg axis in a closed-loop free run."""
+    model, plant = bundle.plant.model, bundle.plant
+    values = {v.name: float(v.start) for v in model.parameters} | plant.parameters
+    guess = [n for n, v in values.items() if n not in plant.parameters and v != 0]
+    estimate = startvalues.inverse_dynamics_start(model, bundle.train["q"], bundle.train["u"], bundle.controller.Ts,
+                                                  plant.position_state, guess, values)
+    kept = {n: v for n, v in estimate.items() if v * values[n] > 0}
+    if kept:
+        _log(progress, f"start values from inverse dynamics: {_fmt(kept)} (defaults: "
+                       f"{_fmt({n: values[n] for n in kept})})")
+    return values | kept
+
+
+def _moving_start(bundle: Bundle, prefix: str = "") -> dict[str, str]:
+    """The velocity state starts at the slope of the first samples (a loop may be moving at t = 0)."""
+    return {prefix + bundle.plant.velocity_state: "dq"}
+
+
+def _divergence_hint(bundle: Bundle) -> str:
+    return (f"Set start values in {bundle.directory / 'experiment.json'}, field \"plant.parameters\", e.g. "
+            f"\"parameters\": {{\"m\": 95.0}}, or check the controller and the recorded signals' units.")
+
+
 def fit_nominal(bundle: Bundle, progress=None) -> tuple[ModelFit, sim.Weights]:
     model = bundle.plant.model
     free, bounds = _nominal_bounds(bundle)
-    values = {v.name: float(v.start) for v in model.parameters}
-    loop = sim.build_loop(model, bundle.controller, bundle.plant.position_state, free, values, bundle.train.time.size)
+    values = dict(bundle.start)
+    loop = sim.build_loop(model, bundle.controller, bundle.plant.position_state, free, values, bundle.train.time.size,
+                          tracking=_moving_start(bundle))
     q0, u0 = sim.simulate(loop, bundle.train)
+    startvalues.check_free_run(q0, bundle.train["q"], bundle.train.time,
+                               f"the nominal closed loop ({bundle.plant.class_name} with the bundle's controller) on "
+                               f"{bundle.recording_path('train')}", {n: values[n] for n in free},
+                               _divergence_hint(bundle))
     ts = bundle.controller.Ts
     weights = sim.Weights(ev.noise_level(bundle.train["q"] - q0, ts), ev.noise_level(bundle.train["u"] - u0, ts))
     result = sim.fit(loop, bundle.train, weights, bounds, max_nfev=40)
@@ -144,7 +177,7 @@ def build_structure(bundle: Bundle, effects: list[fx.Effect], values: dict[str, 
                 bounds[p.name] = p.bounds
     all_values = {v.name: float(v.start) for v in model.parameters}
     all_values.update({k: v for k, v in values.items() if k in all_values})
-    tracking = {s: "q" for e in effects for s in e.tracks_position}
+    tracking = {s: "q" for e in effects for s in e.tracks_position} | _moving_start(bundle, "plant.")
     tracking.update({s: "u" for e in effects for s in e.tracks_force})
     substeps = substeps or max(min_substeps, sim.stable_substeps(model, all_values, bundle.controller.Ts))
     key = (names, n_samples, substeps, with_jacobian)
@@ -195,7 +228,7 @@ def validate(bundle: Bundle, structure: ModelFit, folder: Path) -> None:
         model = bundle.plant.model
         loop = sim.build_loop(model, bundle.controller, bundle.plant.position_state, structure.loop.free,
                               structure.fit.values, rec.time.size, with_jacobian=False,
-                              min_substeps=structure.loop.substeps)
+                              min_substeps=structure.loop.substeps, tracking=_moving_start(bundle))
     q, _ = sim.simulate(loop, rec, structure.fit.values)
     structure.val_q = q
     structure.val_rms = float(np.sqrt(np.mean((rec["q"] - q) ** 2))) if np.all(np.isfinite(q)) else math.inf
@@ -375,8 +408,13 @@ def run(bundle: Bundle, work: Path, progress=None) -> dict:
     t0 = time.perf_counter()
     _CACHE.loops.clear()
     _CACHE.models.clear()
+    bundle.start = nominal_start(bundle, progress)
     nominal, weights = fit_nominal(bundle, progress)
     validate(bundle, nominal, work / "v_nominal")
+    startvalues.check_free_run(nominal.val_q, bundle.validation["q"], bundle.validation.time,
+                               f"the refitted nominal closed loop on {bundle.recording_path('validation')}",
+                               {k: v for k, v in nominal.fit.values.items() if k in nominal.loop.free},
+                               _divergence_hint(bundle))
     ctx = context(bundle, nominal)
     final, log = select(bundle, nominal, weights, ctx, work / "trials", progress)
     model_dir = work / "out" / "augmented_model"

@@ -102,7 +102,11 @@ def _identify_frf(args: argparse.Namespace) -> int:
 
 
 def _identify_oe(args: argparse.Namespace) -> int:
+    from motiontwin.ident import startvalues
     from motiontwin.ident.outputerror import cli_identify_oe
+
+    args.start_values = {**(startvalues.read_values_file(args.values) if args.values else {}),
+                         **startvalues.parse_assignments(args.set)}
 
     return cli_identify_oe(args)
 
@@ -190,6 +194,15 @@ def register(sub: argparse._SubParsersAction) -> None:
     q.add_argument("--shooting", choices=("single", "multiple"), default="single",
                    help="single shooting (Gauss-Newton, default) or multiple shooting (IPOPT, continuity constraints)")
     q.add_argument("--segments", type=int, default=4, help="segments of the recording for --shooting multiple")
+    q.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
+                   help="start value of a plant parameter (repeatable; over --values and the Modelica default)")
+    q.add_argument("--values", type=Path, default=None, metavar="FILE",
+                   help="start values as JSON, {\"parameters\": {NAME: VALUE}} (as identify --out writes) or flat")
+    q.add_argument("--no-auto-start", dest="auto_start", action="store_false",
+                   help="do not start the free parameters from inverse-dynamics least squares (default: those "
+                        "entering the plant's force linearly, e.g. m, d, Fc, without --set/--values, do)")
+    q.add_argument("--initial", choices=("samples", "rest"), default="samples",
+                   help="initial velocity: from the first samples (default; a loop moving at t = 0) or at rest")
     q.add_argument("--out", type=Path, default=None, help="JSON for writeback --values")
     q.set_defaults(func=_identify_oe)
 
