@@ -648,11 +648,13 @@ def cli_identify_oe(args) -> int:
     position = startvalues.output_state(model, signals.output)
     velocity = startvalues.velocity_state(model, position) if position else None
     tracking = {position: "q"} if position and position != signals.output else {}   # starts at q_0
+    estimate = None
     if getattr(args, "initial", "samples") == "samples" and velocity is not None:
-        tracking[velocity] = "dq"
+        tracking[velocity] = "dq"          # first guess from the first samples, then estimated with the position
+        estimate = [position, velocity]
     result = identify(model, rec, free, controller, signals, max_nfev=args.max_nfev, shooting=shooting,
                       segments=segments, start=start, auto_start=getattr(args, "auto_start", False),
-                      tracking=tracking or None)
+                      tracking=tracking or None, estimate_initial=estimate)
     stats = result.statistics
     print(stats.summary())
     how = f"multiple shooting, {segments} segments" if shooting == "multiple" else "single shooting"

@@ -38,7 +38,10 @@ def _metres(value: float | None) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     """``python -m motiontwin.ident.diagnosis BUNDLE_DIR --out OUT_DIR`` (the same as ``motiontwin diagnose``)."""
-    parser = argparse.ArgumentParser(prog="motiontwin diagnose",
+    from motiontwin.ident.diagnosis.bundle import BUNDLE_FORMAT
+
+    parser = argparse.ArgumentParser(prog="motiontwin diagnose", epilog=BUNDLE_FORMAT,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter,
                                      description="Diagnose the mismatch between a nominal model and a recording.")
     parser.add_argument("bundle", help="bundle directory holding experiment.json")
     parser.add_argument("--out", required=True, help="output directory")
