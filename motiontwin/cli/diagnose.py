@@ -13,7 +13,7 @@ def _diagnose(args: argparse.Namespace) -> int:
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Add this module's subcommands to the ``motiontwin`` parser."""
-    from motiontwin.ident.diagnosis.bundle import BUNDLE_FORMAT
+    from motiontwin.ident.bundleformat import BUNDLE_FORMAT
 
     p = sub.add_parser("diagnose", help="locate and name the physics a recording shows and the model lacks; "
                                         "refit, rebuild the FMU, validate",
