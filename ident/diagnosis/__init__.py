@@ -6,18 +6,19 @@ from __future__ import annotations
 import argparse
 import sys
 
-from motiontwin.ident.diagnosis.bundle import BundleError, read_bundle
-from motiontwin.ident.diagnosis.pipeline import diagnose
+from motiontwin.ident.diagnosis.bundle import BundleError, make_bundle, read_bundle
+from motiontwin.ident.diagnosis.pipeline import Diagnosis, diagnose, diagnose_bundle
 from motiontwin.ident.startvalues import DivergenceError
 
-__all__ = ["BundleError", "diagnose", "main", "read_bundle"]
+__all__ = ["BundleError", "Diagnosis", "DivergenceError", "diagnose", "diagnose_bundle", "main", "make_bundle",
+           "read_bundle"]
 
 
 def run(bundle: str, out: str, quiet: bool = False) -> int:
     """Diagnose ``bundle`` into ``out``; print a one-line summary; exit code 0, or 2 on a bad bundle."""
     progress = None if quiet else (lambda msg: print(msg, file=sys.stderr, flush=True))
     try:
-        doc = diagnose(bundle, out, progress=progress)
+        doc = diagnose_bundle(bundle, out, progress=progress)
     except BundleError as exc:
         print(f"motiontwin diagnose: bad bundle: {exc}", file=sys.stderr)
         return 2

@@ -483,7 +483,7 @@ VOCABULARY = list(_MAIN)
 
 def run(out: Path, which: str, only: list[str] | None = None) -> int:
     """Diagnose every bundle of the set and print one line per case and the confusion table."""
-    from motiontwin.ident.diagnosis import diagnose
+    from motiontwin.ident.diagnosis import diagnose_bundle
 
     names = VOCABULARY
     confusion = {n: {m: 0 for m in names + ["(none)"]} for n in names + ["(none)"]}
@@ -493,7 +493,7 @@ def run(out: Path, which: str, only: list[str] | None = None) -> int:
         bundle = out / which / case
         truth = json.loads((out / which / f"{case}.truth.json").read_text())
         t0 = time.perf_counter()
-        doc = diagnose(bundle, out / "results" / which / case)
+        doc = diagnose_bundle(bundle, out / "results" / which / case)
         seconds = time.perf_counter() - t0
         found = [e["name"] for e in doc["effects"]]
         true_names = [e["name"] for e in truth["effects"]]

@@ -4,14 +4,17 @@ Modelica model, its FMU and the report. Units: SI (s, m, N)."""
 from __future__ import annotations
 
 import concurrent.futures
+import itertools
 import math
 import multiprocessing
 import os
 import shutil
 import tempfile
+import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Callable
 
 import casadi as ca
 import numpy as np
@@ -20,7 +23,9 @@ from motiontwin.ident.diagnosis import effects as fx
 from motiontwin.ident.diagnosis import evidence as ev
 from motiontwin.ident import outputerror as sim
 from motiontwin.ident import startvalues
-from motiontwin.ident.diagnosis.bundle import Bundle, read_bundle
+from motiontwin.harness.recording import Recording
+from motiontwin.ident.controller import Controller
+from motiontwin.ident.diagnosis.bundle import Bundle, make_bundle, read_bundle
 
 AUGMENTED_CLASS = "Augmented"
 VALIDATION_GAIN = 0.9        # an effect must reduce the validation RMS by at least 10 %
@@ -31,6 +36,7 @@ MAX_NFEV = 15               # full fit of the best-ranked candidates
 FULL_FITS = 3
 FLOOR_REPLICATES = 5         # noise re-simulations for the validation noise floor
 MULTI_START = ("position_ripple", "resonance")   # nonlinear in a period/frequency: screen every start
+_TOKENS = itertools.count()  # screening-job tokens (itertools.count is thread-safe in CPython)
 
 
 @dataclass
@@ -153,7 +159,12 @@ class LoopCache:
     models: dict[tuple[str, ...], object] = field(default_factory=dict)
 
 
-_CACHE = LoopCache()
+
+def write_structure(bundle: Bundle, effects: list[fx.Effect], values: dict[str, float], folder: Path) -> Path:
+    """Write the self-contained Modelica folder of the nominal plant + ``effects`` at ``values``."""
+    plant_values = {k[len("plant."):]: v for k, v in values.items() if k.startswith("plant.")}
+    return fx.write_model(folder, bundle.plant.text, bundle.plant.class_name, effects, values, plant_values,
+                          AUGMENTED_CLASS)
 
 
 def build_structure(bundle: Bundle, effects: list[fx.Effect], values: dict[str, float], folder: Path,
@@ -161,14 +172,14 @@ def build_structure(bundle: Bundle, effects: list[fx.Effect], values: dict[str, 
                     substeps: int | None = None) -> tuple[sim.Loop, dict[str, tuple[float, float]]]:
     """Write and load the augmented model with ``effects`` and compile its loop (at least ``min_substeps``
     RK4 steps per sample, so that structures compared with each other share the integration accuracy).
-    A structure already compiled with the same samples/substeps is reused from :data:`_CACHE`."""
+    A structure already compiled with the same samples/substeps is reused from ``bundle.cache`` (one
+    :class:`LoopCache` per diagnosis, so concurrent or repeated diagnoses share nothing)."""
+    cache: LoopCache = bundle.cache
     names = tuple(e.name for e in effects)
-    model = _CACHE.models.get(names)
+    model = cache.models.get(names)
     if model is None:
-        plant_values = {k[len("plant."):]: v for k, v in values.items() if k.startswith("plant.")}
-        fx.write_model(folder, bundle.plant.text, bundle.plant.class_name, effects, values, plant_values,
-                       AUGMENTED_CLASS)
-        model = _CACHE.models[names] = fx.load_augmented(folder, AUGMENTED_CLASS)
+        write_structure(bundle, effects, values, folder)
+        model = cache.models[names] = fx.load_augmented(folder, AUGMENTED_CLASS)
     free, bounds = _nominal_bounds(bundle, "plant.")
     for effect in effects:
         for p in effect.params:
@@ -181,11 +192,11 @@ def build_structure(bundle: Bundle, effects: list[fx.Effect], values: dict[str, 
     tracking.update({s: "u" for e in effects for s in e.tracks_force})
     substeps = substeps or max(min_substeps, sim.stable_substeps(model, all_values, bundle.controller.Ts))
     key = (names, n_samples, substeps, with_jacobian)
-    if key not in _CACHE.loops:
-        _CACHE.loops[key] = sim.build_loop(model, bundle.controller, "plant." + bundle.plant.position_state,
+    if key not in cache.loops:
+        cache.loops[key] = sim.build_loop(model, bundle.controller, "plant." + bundle.plant.position_state,
                                            free, all_values, n_samples, substeps=substeps, tracking=tracking,
                                            with_jacobian=with_jacobian)
-    return _CACHE.loops[key].with_values(all_values), bounds
+    return cache.loops[key].with_values(all_values), bounds
 
 
 def fit_structure(bundle: Bundle, current: ModelFit, candidate: fx.Effect, ctx: fx.Context,
@@ -313,12 +324,14 @@ def select(bundle: Bundle, nominal: ModelFit, weights: sim.Weights, ctx: fx.Cont
     return current, log
 
 
-_SCREEN_JOB: tuple | None = None   # (bundle, current, ctx, weights, folder) inherited by forked workers
+#: screening jobs by token, (bundle, current, ctx, weights, folder): forked workers inherit the table and are
+#: sent only (token, name); every call adds its own token and removes it, so concurrent diagnoses do not collide
+_SCREEN_JOBS: dict[int, tuple] = {}
 
 
-def _screen_one(name: str) -> tuple[str, sim.Fit | None, int, float, str]:
+def _screen_one(token: int, name: str) -> tuple[str, sim.Fit | None, int, float, str]:
     """Cheap fit of the current structure plus the effect ``name`` (run in a worker or in-process)."""
-    bundle, current, ctx, weights, folder = _SCREEN_JOB
+    bundle, current, ctx, weights, folder = _SCREEN_JOBS[token]
     t0 = time.perf_counter()
     try:
         trial = fit_structure(bundle, current, fx.VOCABULARY[name](ctx), ctx, weights, folder / name,
@@ -330,7 +343,10 @@ def _screen_one(name: str) -> tuple[str, sim.Fit | None, int, float, str]:
 
 def screen_workers() -> int:
     """Processes for the candidate screening: ``MOTIONTWIN_DIAGNOSIS_WORKERS`` or the machine's cores
-    (at most 4); 1 runs in-process. The results do not depend on it (each fit is deterministic)."""
+    (at most 4); 1 runs in-process, as does every diagnosis outside the main thread (forking a threaded
+    process can deadlock). The results do not depend on it (each fit is deterministic)."""
+    if threading.current_thread() is not threading.main_thread():
+        return 1
     value = os.environ.get("MOTIONTWIN_DIAGNOSIS_WORKERS")
     count = int(value) if value and value.isdigit() else min(4, os.cpu_count() or 1)
     return max(1, count) if "fork" in multiprocessing.get_all_start_methods() else 1
@@ -340,18 +356,18 @@ def screen(bundle: Bundle, current: ModelFit, names: list[str], ctx: fx.Context,
            folder: Path, progress=None) -> dict[str, tuple[sim.Fit, int]]:
     """Screen every candidate effect with a few Gauss-Newton steps, in parallel processes (forked, so
     they share the bundle and the current fit): name -> (fit, RK4 substeps of its loop)."""
-    global _SCREEN_JOB
-    _SCREEN_JOB = (bundle, current, ctx, weights, folder)
+    token = next(_TOKENS)
+    _SCREEN_JOBS[token] = (bundle, current, ctx, weights, folder)
     workers = min(screen_workers(), len(names))
     try:
         if workers > 1:
             with concurrent.futures.ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("fork")) \
                     as pool:
-                results = list(pool.map(_screen_one, names))
+                results = list(pool.map(_screen_one, [token] * len(names), names))
         else:
-            results = [_screen_one(name) for name in names]
+            results = [_screen_one(token, name) for name in names]
     finally:
-        _SCREEN_JOB = None
+        del _SCREEN_JOBS[token]
     out: dict[str, tuple[sim.Fit, int]] = {}
     for name, result, substeps, seconds, error in results:
         if result is None:
@@ -406,8 +422,7 @@ def validation_floor(loop: sim.Loop, bundle: Bundle, values: dict[str, float], s
 def run(bundle: Bundle, work: Path, progress=None) -> dict:
     """The whole diagnosis in ``work``; returns what the report needs."""
     t0 = time.perf_counter()
-    _CACHE.loops.clear()
-    _CACHE.models.clear()
+    bundle.cache = LoopCache()
     bundle.start = nominal_start(bundle, progress)
     nominal, weights = fit_nominal(bundle, progress)
     validate(bundle, nominal, work / "v_nominal")
@@ -417,38 +432,102 @@ def run(bundle: Bundle, work: Path, progress=None) -> dict:
                                _divergence_hint(bundle))
     ctx = context(bundle, nominal)
     final, log = select(bundle, nominal, weights, ctx, work / "trials", progress)
-    model_dir = work / "out" / "augmented_model"
+    model_dir = work / "final_model"
     values = dict(final.fit.values)
     if not final.effects:
         values = {"plant." + k: v for k, v in values.items()}
     names = tuple(e.name for e in final.effects)
-    _CACHE.models.pop(names, None)     # write model_dir with the fitted values and build the FMU from it
+    bundle.cache.models.pop(names, None)   # the final model at the fitted values (Diagnosis.write writes it again)
     loop, _ = build_structure(bundle, final.effects, values, model_dir, bundle.validation.time.size,
                               with_jacobian=False, min_substeps=final.loop.substeps)
-    written = _CACHE.models[names]
+    written = bundle.cache.models[names]
     q_aug, _ = sim.simulate(loop, bundle.validation, values)
     floor = validation_floor(loop, bundle, values, weights.sigma_q)
     _log(progress, f"diagnosis done in {time.perf_counter() - t0:.1f} s")
     return {"bundle": bundle, "nominal": nominal, "final": final, "weights": weights, "context": ctx,
-            "log": log, "model_dir": model_dir, "augmented_values": values, "q_augmented": q_aug,
+            "log": log, "augmented_values": values, "q_augmented": q_aug,
             "augmented_model": written, "validation_floor": floor, "seconds": time.perf_counter() - t0}
 
 
-def diagnose(bundle_dir: str | os.PathLike, out_dir: str | os.PathLike, progress=None) -> dict:
-    """Diagnose a bundle and write diagnosis.json, validation_prediction.csv, report.md (+ PNGs), the
-    augmented Modelica model and its FMU into ``out_dir``. Nothing is written when the input is bad."""
-    from motiontwin.ident.diagnosis import report
+@dataclass
+class Diagnosis:
+    """The outcome of a diagnosis: the effects found, the refitted parameters and the validation fit.
 
-    bundle = read_bundle(bundle_dir)
-    out = Path(out_dir)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    with tempfile.TemporaryDirectory(dir=out.parent, prefix=f".{out.name}.work-") as tmp:
-        work = Path(tmp)
-        result = run(bundle, work, progress)
-        staging = work / "out"
-        document = report.write_all(result, staging, out)
-        _publish(staging, out)
-    return document
+    ``effects``: names of the effects added to the nominal model (empty: only its parameters were off);
+    ``parameters``: every parameter of the augmented model (plant ones without the ``plant.`` prefix) [SI];
+    ``nominal_parameters``: the refitted nominal plant; ``validation``: validation RMS of both [m] and the
+    noise floor [m]; ``result``: everything the report uses. :meth:`write` writes the report and the FMU."""
+
+    effects: list[str]
+    parameters: dict[str, float]
+    nominal_parameters: dict[str, float]
+    validation: dict[str, float]
+    result: dict = field(repr=False)
+
+    @classmethod
+    def from_result(cls, result: dict) -> "Diagnosis":
+        strip = {k[len("plant."):] if k.startswith("plant.") else k: float(v)
+                 for k, v in result["augmented_values"].items()}
+        val_q = result["bundle"].validation["q"]
+        augmented = float(np.sqrt(np.mean((val_q - result["q_augmented"]) ** 2)))
+        return cls([e.name for e in result["final"].effects], strip,
+                   {k: float(v) for k, v in result["nominal"].fit.values.items()},
+                   {"nominal_rms": float(result["nominal"].val_rms), "augmented_rms": augmented,
+                    "noise_floor_rms": float(result["validation_floor"])}, result)
+
+    def write(self, folder: str | os.PathLike) -> dict:
+        """Write diagnosis.json, validation_prediction.csv, report.md (+ PNGs), the augmented Modelica model
+        and its FMU into ``folder`` (staged beside it, then moved in); returns the diagnosis.json document."""
+        from motiontwin.ident.diagnosis import report
+
+        out = Path(folder)
+        out.parent.mkdir(parents=True, exist_ok=True)
+        result = self.result
+        with tempfile.TemporaryDirectory(dir=out.parent, prefix=f".{out.name}.work-") as tmp:
+            staging = Path(tmp) / "out"
+            write_structure(result["bundle"], result["final"].effects, result["augmented_values"],
+                            staging / "augmented_model")
+            document = report.write_all(result, staging, out)
+            _publish(staging, out)
+        return document
+
+
+def diagnose(plant: str | Path, controller: Controller | dict, train: Recording, validation: Recording, *,
+             plant_class: str | None = None, parameters: dict[str, float] | None = None,
+             progress: Callable[[str], None] | None = None) -> Diagnosis:
+    """Diagnose the mismatch between a nominal plant and two closed-loop recordings (in memory).
+
+    Parameters
+    ----------
+    plant : Modelica file or Modelica source text of the nominal plant (input u [N], output q [m]).
+    controller : the sampled controller (:class:`ident.controller.Controller` or its experiment.json object).
+    train, validation : :class:`harness.recording.Recording` with time [s], r [m], u [N], q [m][, u_ext [N]].
+    plant_class : the plant class (default: the first ``model`` in the source).
+    parameters : start values of plant parameters (default: Modelica values and inverse dynamics).
+    progress : called with one line per step.
+
+    Returns
+    -------
+    Diagnosis
+        Effects, parameters and validation; ``.write(folder)`` writes the report and the FMU.
+
+    Re-entrant: every call compiles its own loops (no module-level cache), so repeated calls and calls from
+    several threads give the same result as one call.
+    """
+    bundle = make_bundle(plant, controller, train, validation, plant_class, parameters)
+    return diagnose_bundle_object(bundle, progress)
+
+
+def diagnose_bundle_object(bundle: Bundle, progress: Callable[[str], None] | None = None) -> Diagnosis:
+    """:func:`diagnose` of an already read :class:`Bundle` (working files in a temporary folder)."""
+    with tempfile.TemporaryDirectory(prefix="motiontwin-diagnosis-") as tmp:
+        return Diagnosis.from_result(run(bundle, Path(tmp), progress))
+
+
+def diagnose_bundle(bundle_dir: str | os.PathLike, out_dir: str | os.PathLike, progress=None) -> dict:
+    """Diagnose a bundle folder and write diagnosis.json, validation_prediction.csv, report.md (+ PNGs), the
+    augmented Modelica model and its FMU into ``out_dir``. Nothing is written when the input is bad."""
+    return diagnose_bundle_object(read_bundle(bundle_dir), progress).write(out_dir)
 
 
 def _publish(staging: Path, out: Path) -> None:
