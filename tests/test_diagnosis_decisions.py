@@ -208,3 +208,63 @@ def test_output_error_integrator_is_fourth_order():
     assert errors[2] > 1e-13, errors                    # still above round-off
     for ratio in ratios:
         assert 13 < ratio < 19, (errors, ratios)
+
+
+# -- the report of a decision: equivalent explanations, units, location, every parameter ----------------
+
+def test_coulomb_report_lists_equivalent_explanations(diagnoses, tmp_path):
+    """On a Coulomb truth, asymmetric (and Stribeck) friction fit within noise too: the report lists them with
+    their parameters and states the rule that picked Coulomb friction (parsimony); units everywhere, the
+    location in words and mm, every refitted parameter, an HTML report beside report.md."""
+    diagnosis = pipeline.Diagnosis.from_result(diagnoses("coulomb_friction"))
+    doc = diagnosis.write(tmp_path / "out")
+    effect = doc["effects"][0]
+    assert effect["name"] == "coulomb_friction" and effect["units"] == {"Fc": "N"}
+    others = {e["name"]: e for e in effect["equivalent_explanations"]}
+    assert "asymmetric_friction" in others
+    asym = others["asymmetric_friction"]["parameters"]
+    assert asym["Fc_pos"] == pytest.approx(effect["parameters"]["Fc"], rel=0.05)   # the same friction level
+    assert effect["selection_rule"].startswith("parsimony")
+    assert "while moving in" in effect["location_text"] and " mm" in effect["location_text"]
+    report = (tmp_path / "out" / "report.md").read_text()
+    assert "#### Equivalent explanations" in report and "Rule that picked coulomb_friction: parsimony" in report
+    assert "### coulomb_friction (Fc = " in report and " N)" in report
+    for name, unit in (("m", "kg"), ("d", "N.s/m"), ("coulomb_Fc", "N"), ("coulomb_v_eps", "m/s")):
+        assert f"| {name} | {unit} |" in report, name
+    html = (tmp_path / "out" / "report.html").read_text()
+    assert html.count("<table>") == report.count("|---|") and '<img src="validation_fit.png"' in html
+
+
+def test_asymmetric_friction_is_also_coulomb_plus_offset():
+    """Issue 13's axis: 17.4 N / 23.9 N asymmetric = Coulomb 20.65 N with a -3.25 N constant force while moving."""
+    from motiontwin.ident.diagnosis import report
+
+    forms = report.equivalent_forms("asymmetric_friction", {"Fc_pos": 17.4, "Fc_neg": 23.9})
+    assert forms == pytest.approx({"Fc_equivalent": 20.65, "offset_while_moving": -3.25})
+    v = np.array([-0.2, -0.01, 0.01, 0.2])
+    asym = np.where(v > 0, 17.4, -23.9)
+    assert np.allclose(asym, forms["Fc_equivalent"] * np.sign(v) + forms["offset_while_moving"])
+
+
+def test_robust_residual_limits_keep_the_friction_step():
+    """+-20 N friction step with 1 N noise, and 150 samples of +-1600 N at the record end: the step stays inside
+    the plot limits, the end effects are clipped and counted."""
+    from motiontwin.ident.diagnosis import report
+
+    rng = np.random.default_rng(0)
+    n = 25000
+    force = 20 * np.sign(np.sin(np.arange(n) / 500)) + rng.normal(0, 1, n)
+    force[-150:] = 1600 * np.sin(np.arange(150) + 0.5)
+    lo, hi, count = report.robust_limits(force)
+    assert lo < -24 and hi > 24 and lo > -100 and hi < 100
+    assert count == int(np.sum(np.abs(force[-150:]) > hi))
+    assert count > 140
+
+
+def test_location_in_words():
+    from motiontwin.ident.diagnosis import report
+
+    text = report.location_text({"velocity_range": [-0.02, -0.01], "position_range": [0.234, 0.246],
+                                 "frequency_peak_hz": 12.0, "time_windows": [(1.0, 2.5)]})
+    assert "while moving in -x at 10 to 20 mm/s between 234 and 246 mm" in text
+    assert "12 Hz" in text and "1-2.5 s" in text

@@ -18,6 +18,7 @@ from typing import Callable
 
 import casadi as ca
 import numpy as np
+from scipy import stats
 
 from motiontwin.ident.diagnosis import effects as fx
 from motiontwin.ident.diagnosis import evidence as ev
@@ -316,9 +317,11 @@ def select(bundle: Bundle, nominal: ModelFit, weights: sim.Weights, ctx: fx.Cont
         if chosen is None:
             break
         gain, threshold = trials[chosen.effects[-1].name][1:3]
+        equivalents, rule = equivalent_explanations(bundle, chosen, trials, work / f"e{rounds}", progress)
         chosen.evidence = {**current.evidence, chosen.effects[-1].name: {
             "cost_reduction": gain, "null_threshold": threshold, "validation_rms_before": current.val_rms,
-            "validation_rms_after": chosen.val_rms, "previous": current}}
+            "validation_rms_after": chosen.val_rms, "previous": current, "equivalents": equivalents,
+            "rule": rule}}
         used_families.add(chosen.effects[-1].family)
         current = chosen
     return current, log
@@ -396,6 +399,55 @@ def _simplest(name: str, trials: dict, null: np.ndarray, bundle: Bundle, work: P
     _log(progress, f"  {name} vs {simple}: extra -{extra:.4g}, null {threshold:.4g}, validation "
                    f"{rich[0].val_rms:.4g} vs {small[0].val_rms:.4g}")
     return name if rich[0].val_rms < VALIDATION_GAIN * small[0].val_rms else simple
+
+
+def _fitted_count(structure: ModelFit) -> int:
+    return len(structure.loop.free)
+
+
+def equivalent_explanations(bundle: Bundle, chosen: ModelFit, trials: dict, work: Path,
+                            progress=None) -> tuple[list[dict], str]:
+    """Other structures of the same round that explain the data as well as ``chosen``: significant, a
+    training cost within the 99.9 % chi-square band of noise for the parameter-count difference (the cost is
+    noise-weighted, so a correct model's differences are chi-square distributed), and a validation RMS within
+    the validation rule's 10 %. Returns them (name, parameters, costs, AIC = cost + 2 k) and the rule that
+    picked ``chosen``: parsimony (fewer fitted parameters; nested simpler effect) or, at equal counts, the
+    information criterion."""
+    name = chosen.effects[-1].name
+    k_chosen = _fitted_count(chosen)
+    aic_chosen = chosen.fit.cost + 2 * k_chosen
+    found = []
+    for other, (trial, gain, threshold, _) in trials.items():
+        if other == name or gain <= threshold:
+            continue
+        k = _fitted_count(trial)
+        band = stats.chi2.ppf(ev.NULL_QUANTILE, max(abs(k - k_chosen), 1))
+        if abs(trial.fit.cost - chosen.fit.cost) > band:
+            continue
+        if not math.isfinite(trial.val_rms):
+            validate(bundle, trial, work / other)
+        if not abs(trial.val_rms - chosen.val_rms) <= (1 - VALIDATION_GAIN) * chosen.val_rms:
+            continue
+        effect = trial.effects[-1]
+        found.append({"name": other, "parameters": _effect_values(trial, effect),
+                      "units": {p.name: p.unit for p in effect.params},
+                      "train_cost": trial.fit.cost, "chosen_train_cost": chosen.fit.cost,
+                      "validation_rms": trial.val_rms, "chosen_validation_rms": chosen.val_rms,
+                      "fitted_parameters": k, "chosen_fitted_parameters": k_chosen,
+                      "aic": trial.fit.cost + 2 * k, "chosen_aic": aic_chosen})
+        _log(progress, f"  {other} explains the data as well as {name} (train cost {trial.fit.cost:.4g} vs "
+                       f"{chosen.fit.cost:.4g}, validation {trial.val_rms:.4g} vs {chosen.val_rms:.4g} m)")
+    if not found:
+        return [], ""
+    fewer = all(e["fitted_parameters"] > k_chosen for e in found)
+    if fewer:
+        rule = (f"parsimony: {name} has the fewest fitted parameters ({k_chosen}) of the structures that fit "
+                f"within noise on training and validation data")
+    else:
+        rule = (f"information criterion: {name} has AIC = cost + 2k = {aic_chosen:.4g}, the others "
+                + ", ".join(f"{e['name']} {e['aic']:.4g}" for e in found)
+                + " (the cost reduction decides among structures of equal size)")
+    return found, rule
 
 
 def _effect_values(structure: ModelFit, effect: fx.Effect) -> dict[str, float]:
