@@ -197,8 +197,8 @@ def _plots(result: dict, staging: Path) -> tuple[list[str], dict[str, int]]:
         a.grid(alpha=0.3)
     axes[0].set_ylabel(label)
     axes[0].set_xlabel("velocity [mm/s]"), axes[1].set_xlabel("position [mm]")
-    fig.suptitle(f"Inverse-dynamics residual against velocity and position ({count} of {shown.size} points outside "
-                 f"the 1-99 % range widened by {CLIP_WIDEN:g}x its width, clipped to the edge)")
+    fig.suptitle(f"Inverse-dynamics residual against velocity and position; {count} of {shown.size} outliers "
+                 f"clipped", fontsize=10)
     clipped["residual_velocity_position.png"] = count
     names.append(_save(fig, staging, "residual_velocity_position.png"))
 
@@ -286,7 +286,8 @@ def _markdown(doc: dict, plots: list[str], result: dict, clipped: dict[str, int]
               "reduction exceeds the 99.9 % null level and it lowers the validation RMS by at least 10 %.", "",
               "## Plots", ""]
     for p in plots:
-        note = f" ({clipped[p]} outliers clipped to the plot's robust limits)" if clipped.get(p) else ""
+        note = (f" ({clipped[p]} outliers beyond the 1-99 % range widened by {CLIP_WIDEN:g} of its width on each "
+                f"side, drawn at the edge)" if p in clipped else "")
         lines += [f"![{p}]({p})", f"{p}{note}", ""]
     lines += [f"Augmented model: `{doc['augmented_model']}`; FMU: `{doc['augmented_fmu']}`.", ""]
     return "\n".join(lines)
