@@ -46,6 +46,7 @@ from scipy.optimize import least_squares
 from motiontwin.fmus import symbolic
 from motiontwin.harness.recording import Recording
 from motiontwin.ident import chain as native_chain
+from motiontwin.ident import startvalues
 from motiontwin.ident.controller import Controller
 from motiontwin.ident.leastsquares import (LeastSquaresResult, UnidentifiableError, check_identifiability,
                                           hac_covariance)
@@ -170,6 +171,20 @@ def output_state(model: symbolic.SymbolicModel, name: str) -> int | None:
     if len(hits) != 1 or ca.depends_on(ca.jacobian(expr, model.x[hits[0]]), model.x):
         return None
     return hits[0]
+
+
+def _output_gain(model: symbolic.SymbolicModel, name: str, x0: np.ndarray, p: np.ndarray) -> float:
+    """d(output ``name``)/d(the state it is affine in) at ``x0``: 1 when the output is a state itself (and when
+    no single state carries it)."""
+    if name in [v.name for v in model.states]:
+        return 1.0
+    i = output_state(model, name)
+    if i is None:
+        return 1.0
+    expr = _output_expression(model, name)
+    slope = float(ca.Function("g", [model.x, model.u, model.p], [ca.jacobian(expr, model.x[i])])(
+        x0, np.zeros(model.u.numel()), p))
+    return slope or 1.0
 
 
 def _state_for_output(model: symbolic.SymbolicModel, name: str, x0: np.ndarray, p: np.ndarray,
@@ -374,11 +389,20 @@ def initial_state(loop: Loop, rec: Recording, values: dict[str, float] | None = 
         i_pos = output_state(model, loop.position_state)
         position = q_rec[0] if i_pos is None else x0[i_pos]
     for state, signal in loop.tracking.items():
-        x0[names.index(state)] = position if signal == "q" else _column(rec, sig.input)[0]
+        if signal == "dq":      # a velocity state: the slope of the first samples (a loop moving at t = 0)
+            slope = startvalues.first_samples(q_rec, float(np.median(np.diff(rec.time))))[1]
+            x0[names.index(state)] = slope / _output_gain(model, loop.position_state, x0, p)
+        else:
+            x0[names.index(state)] = position if signal == "q" else _column(rec, sig.input)[0]
     for state, value in (initial or {}).items():
         x0[names.index(state)] = value
     if ctrl is None or not ctrl.n_states:
         return np.concatenate([x0, np.zeros(ctrl.n_states if ctrl is not None else 0)])
+    if "dq" in loop.tracking.values():   # moving at t = 0: the controller state from its first outputs
+        count = min(q_rec.size, max(20, 4 * ctrl.n_states))
+        y = np.column_stack([_column(rec, sig.reference)[:count], q_rec[:count]])
+        u = _column(rec, sig.input)[:count] - _column(rec, sig.disturbance, True)[:count]
+        return np.concatenate([x0, startvalues.controller_state(ctrl.A, ctrl.B, ctrl.C, ctrl.D, y, u)])
     y0 = np.array([_column(rec, sig.reference)[0], q_rec[0]])
     target = _column(rec, sig.input)[0] - _column(rec, sig.disturbance, True)[0] - float((ctrl.D @ y0)[0])
     z0 = np.linalg.pinv(ctrl.C) @ np.atleast_1d(target)
@@ -617,7 +641,7 @@ def identify(model: symbolic.SymbolicModel, rec: Recording, free: list[str], con
              start: dict[str, float] | None = None, substeps: int | None = None,
              tracking: dict[str, str] | None = None, max_nfev: int = 50,
              input_name: str | None = None, estimate_initial: list[str] | None = None,
-             shooting: str = "single", segments: int = 4) -> OutputErrorResult:
+             shooting: str = "single", segments: int = 4, auto_start: bool = False) -> OutputErrorResult:
     """Refit ``free`` parameters of ``model`` (values of the others: ``start`` or the Modelica start values)
     so that its free run reproduces ``rec``; closed loop when ``controller`` is given.
 
@@ -628,7 +652,10 @@ def identify(model: symbolic.SymbolicModel, rec: Recording, free: list[str], con
     velocity state).
     ``input_name``: the driven plant input (default: the one named like the input column, else the only one).
     ``shooting``: "single" (:func:`fit`, ``max_nfev`` free runs per fit) or "multiple"
-    (:func:`ident.multipleshooting.fit` over ``segments`` segments, IPOPT)."""
+    (:func:`ident.multipleshooting.fit` over ``segments`` segments, IPOPT). ``auto_start``: free parameters
+    not in ``start`` that enter the inverse dynamics linearly start from its least-squares estimate
+    (:func:`ident.startvalues.inverse_dynamics_start`). A free run that diverges from the start values raises
+    :class:`ident.startvalues.DivergenceError` naming the values and what to set."""
     if not free:
         raise ValueError("name at least one free parameter")
     if shooting not in ("single", "multiple"):
@@ -650,10 +677,19 @@ def identify(model: symbolic.SymbolicModel, rec: Recording, free: list[str], con
     values.update(start or {})
     if input_name is None and signals.input in [v.name for v in model.inputs]:
         input_name = signals.input
+    if auto_start:
+        guess = [n for n in free if n not in (start or {})]
+        position = startvalues.output_state(model, signals.output)
+        if position is not None:
+            values.update(startvalues.inverse_dynamics_start(model, rec[signals.output], rec[signals.input], ts,
+                                                             position, guess, values, bounds, input_name))
     loop = build_loop(model, controller, signals.output, list(free), values, rec.time.size, substeps=substeps,
                       tracking=tracking, ts=ts, input_name=input_name, signals=signals)
     q0, u0 = simulate(loop, rec)
     qm = rec[signals.output]
+    startvalues.check_free_run(q0, qm, rec.time, f"the {'closed' if loop.closed else 'open'}-loop free run of "
+                               f"{model.name} on the recording", {n: values[n] for n in free},
+                               "Give start values: --set NAME=VALUE or --values FILE (identify oe), or start=.")
     weights = Weights(_rms_weight(qm - q0), _rms_weight(rec[signals.input] - u0) if loop.closed else 1.0)
     if estimate_initial is None:
         estimate_initial = initial_motion_states(model, signals.output)

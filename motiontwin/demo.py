@@ -38,7 +38,7 @@ def concealed_friction(out: Path) -> dict[str, float]:
     bundle = out / "bundle" / "coulomb_friction"
     benchmark.write_bundle(bundle, "coulomb_friction", seed=21, durations=(6.0, 3.0))
     print(f"bundle (truth in {bundle.parent / 'coulomb_friction.truth.json'}): {bundle}")
-    doc = diagnosis.diagnose(bundle, out / "diagnosis")
+    doc = diagnosis.diagnose_bundle(bundle, out / "diagnosis")
     for effect in doc["effects"]:
         print(f"found {effect['name']} {effect['parameters']}: {effect['explanation']}")
     val = doc["validation"]

@@ -6,30 +6,43 @@ from __future__ import annotations
 import argparse
 import sys
 
-from motiontwin.ident.diagnosis.bundle import BundleError, read_bundle
-from motiontwin.ident.diagnosis.pipeline import diagnose
+from motiontwin.ident.diagnosis.bundle import BundleError, make_bundle, read_bundle
+from motiontwin.ident.diagnosis.pipeline import Diagnosis, diagnose, diagnose_bundle
+from motiontwin.ident.startvalues import DivergenceError
 
-__all__ = ["BundleError", "diagnose", "main", "read_bundle"]
+__all__ = ["BundleError", "Diagnosis", "DivergenceError", "diagnose", "diagnose_bundle", "main", "make_bundle",
+           "read_bundle"]
 
 
 def run(bundle: str, out: str, quiet: bool = False) -> int:
     """Diagnose ``bundle`` into ``out``; print a one-line summary; exit code 0, or 2 on a bad bundle."""
     progress = None if quiet else (lambda msg: print(msg, file=sys.stderr, flush=True))
     try:
-        doc = diagnose(bundle, out, progress=progress)
+        doc = diagnose_bundle(bundle, out, progress=progress)
     except BundleError as exc:
         print(f"motiontwin diagnose: bad bundle: {exc}", file=sys.stderr)
         return 2
+    except DivergenceError as exc:
+        print(f"motiontwin diagnose: {exc}", file=sys.stderr)
+        return 2
     names = ", ".join(e["name"] for e in doc["effects"]) or "none (only parameters were off)"
     val = doc["validation"]
-    print(f"effects: {names}; validation RMS {val['nominal_rms']:.3g} m -> {val['augmented_rms']:.3g} m; "
+    print(f"effects: {names}; validation RMS {_metres(val['nominal_rms'])} -> {_metres(val['augmented_rms'])}; "
           f"report: {out}/report.md")
     return 0
 
 
+def _metres(value: float | None) -> str:
+    """A length for the summary line; a diverged (None) value says so instead of failing to format."""
+    return "diverged" if value is None else f"{value:.3g} m"
+
+
 def main(argv: list[str] | None = None) -> int:
     """``python -m motiontwin.ident.diagnosis BUNDLE_DIR --out OUT_DIR`` (the same as ``motiontwin diagnose``)."""
-    parser = argparse.ArgumentParser(prog="motiontwin diagnose",
+    from motiontwin.ident.bundleformat import BUNDLE_FORMAT
+
+    parser = argparse.ArgumentParser(prog="motiontwin diagnose", epilog=BUNDLE_FORMAT,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter,
                                      description="Diagnose the mismatch between a nominal model and a recording.")
     parser.add_argument("bundle", help="bundle directory holding experiment.json")
     parser.add_argument("--out", required=True, help="output directory")

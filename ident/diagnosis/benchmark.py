@@ -160,10 +160,11 @@ def _effect(name: str, contract: dict[str, float], model: dict[str, float]) -> d
     return {"name": name, "parameters": {**contract, **model}, "contract": contract}
 
 
-def truth_plant(case: str, scale: float = 1.0) -> TruthPlant:
-    """Library model and true values of ``case``; effect sizes are multiplied by ``scale``."""
+def truth_plant(case: str, scale: float = 1.0, mass: float = TRUE_M, damping: float = TRUE_D) -> TruthPlant:
+    """Library model and true values of ``case``; effect sizes are multiplied by ``scale``; ``mass`` [kg] and
+    ``damping`` [N.s/m] of the rigid axis (the parameters-only cases)."""
     s = scale
-    rigid = {"m": TRUE_M, "d": TRUE_D}
+    rigid = {"m": mass, "d": damping}
     if case.startswith("params_only"):
         return TruthPlant(RIGID, rigid)
     if case == "gravity_offset":
@@ -339,14 +340,59 @@ def cosimulate(plant: TruthPlant, r: np.ndarray, u_ext: np.ndarray, noise: np.nd
             "q_true": log["plant.q"]}
 
 
+def casadi_truth(plant: TruthPlant, r: np.ndarray, u_ext: np.ndarray, noise: np.ndarray,
+                 substeps: int = 16, ctrl: Controller | None = None) -> dict[str, np.ndarray]:
+    """The closed loop of :func:`cosimulate` computed without FMUs: the truth's effects written as the
+    diagnosis' own augmented model (the ``MotionTwin.Effects`` functions through the project's front end),
+    RK4 with ``substeps`` steps per sample, the controller reading q + noise, no quantisation. Much faster
+    to generate (no FMU build, no co-simulation); used by the fast decision tests. Returns r, u, q
+    (measured = true + noise), u_ext and q_true on the controller grid, starting at rest at x = 0."""
+    from motiontwin.ident import outputerror as sim
+    from motiontwin.ident.diagnosis import effects as fx
+
+    if plant.class_name.endswith("VariableInertiaJoint"):
+        raise ValueError("position_dependent_inertia: the truth (cosine mass) has no exact CasADi counterpart")
+    ctx = fx.Context(TS, 0.0, 0.1, 0.2, TRUE_M)
+    m = plant.parameters.get("m", plant.parameters.get("m1", TRUE_M))
+    d = plant.parameters["d"] if plant.parameters.get("d") else TRUE_D
+    effects, values = [], {"plant.m": m, "plant.d": d}
+    for true in plant.effects:
+        effect = fx.VOCABULARY[true["name"]](ctx)
+        effects.append(effect)
+        values.update({p.name: float(np.mean(p.bounds)) for p in effect.params})
+        values.update({k: v for k, v in true["parameters"].items() if k in {p.name for p in effect.params}})
+    with tempfile.TemporaryDirectory(prefix="mt-truth-") as folder:
+        fx.write_model(Path(folder), PLANT_TEXT.format(m=m, d=d), PLANT_CLASS, effects, values,
+                       {"m": m, "d": d}, "Truth")
+        model = fx.load_augmented(Path(folder), "Truth")
+    n = r.size
+    t = np.arange(n) * TS
+    loop = sim.build_loop(model, ctrl or pid_controller(), "plant.x", [], values, n, substeps=substeps,
+                          with_jacobian=False)
+    rec = make_recording(t, {"r": r, "u": np.zeros(n), "q": np.zeros(n), "u_ext": u_ext})
+    q_true, u = sim.simulate(loop, rec, values, noise=noise)
+    return {"time": t, "r": r, "u": u, "q": q_true + noise, "u_ext": u_ext, "q_true": q_true}
+
+
 def simulate_truth(case: str, t: np.ndarray, r: np.ndarray, u_ext: np.ndarray, rng: np.random.Generator,
                    scale: float, with_effects: bool = True, noise_std: float = NOISE,
-                   resolution: float = RESOLUTION, fmu_dir: Path | None = None) -> tuple[np.ndarray, ...]:
-    """Closed-loop truth (pre-roll cut off); returns the measured q, the force u and the true q."""
-    plant = truth_plant(case if with_effects else "params_only_a", scale)
+                   resolution: float = RESOLUTION, fmu_dir: Path | None = None,
+                   engine: str = "fmu", mass: float = TRUE_M, damping: float = TRUE_D,
+                   skip: int = 0) -> tuple[np.ndarray, ...]:
+    """Closed-loop truth (pre-roll and ``skip`` more samples cut off); returns the measured q, the force u and
+    the true q. ``engine``: "fmu" (library FMUs co-simulated by the harness, quantised encoder) or "casadi"
+    (:func:`casadi_truth`); ``mass``, ``damping``: the rigid axis (the PID is tuned for ``mass``)."""
+    plant = truth_plant(case if with_effects else "params_only_a", scale, mass, damping)
     rr, ue, pre = with_preroll(r, u_ext)
     noise = measurement.add_noise(np.zeros(rr.size), noise_std, rng)
-    out = cosimulate(plant, rr, ue, noise, resolution, fmu_dir=fmu_dir)
+    ctrl = pid_controller(mass=mass)
+    if engine == "casadi":
+        out = casadi_truth(plant, rr, ue, noise, ctrl=ctrl)
+    elif engine == "fmu":
+        out = cosimulate(plant, rr, ue, noise, resolution, ctrl=ctrl, fmu_dir=fmu_dir)
+    else:
+        raise ValueError(f"engine must be 'fmu' or 'casadi', not {engine!r}")
+    pre += skip
     return out["q"][pre:], out["u"][pre:], out["q_true"][pre:]
 
 
@@ -355,36 +401,48 @@ def simulate_truth(case: str, t: np.ndarray, r: np.ndarray, u_ext: np.ndarray, r
 def write_bundle(folder: Path, case: str, seed: int, scale: float = 1.0, nominal_error: float | None = None,
                  durations: tuple[float, float] = (12.0, 6.0), noise_std: float = NOISE,
                  resolution: float = RESOLUTION, fmu_dir: Path | None = None, stroke: float = 0.1,
-                 sweep_fraction: float = 0.25, form: str = "alias") -> dict:
+                 sweep_fraction: float = 0.25, form: str = "alias", engine: str = "fmu", mass: float = TRUE_M,
+                 damping: float = TRUE_D, nominal: tuple[float, float] | None = None,
+                 start_offset: float = 0.0) -> dict:
     """Write one bundle (experiment.json, plant.mo, train.csv, validation.csv) and its ``NAME.truth.json``
     next to it (true effects, truth model, concealment: max and RMS |q_truth - q_rigid| [m] and max |u_truth -
     u_rigid| [N] on the training run, the rigid axis at the true m, d driven by the same r, u_ext and noise).
-    ``form``: how plant.mo is written, a key of :data:`PLANT_FORMS` (the same axis and nominal guesses)."""
+    ``form``: how plant.mo is written, a key of :data:`PLANT_FORMS` (the same axis and nominal guesses);
+    ``engine``: how the truth is computed, see :func:`simulate_truth`; ``mass``, ``damping``: the true rigid axis
+    (the PID is tuned for ``mass``); ``nominal``: (m, d) of plant.mo instead of 20-50 % off the truth;
+    ``start_offset`` [s]: the recordings start this long after the pre-roll (inside the first move, so the
+    loop is already moving at t = 0)."""
     written = PLANT_FORMS[form]
     rng = np.random.default_rng(seed)
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     err = nominal_error if nominal_error is not None else rng.uniform(0.2, 0.5)
-    m_nom = TRUE_M * (1 + err * rng.choice([-1, 1]))
-    d_nom = TRUE_D * (1 + rng.uniform(0.2, 0.5) * rng.choice([-1, 1]))
-    plant = truth_plant(case, scale)
-    ctrl = pid_controller()
+    m_nom = mass * (1 + err * rng.choice([-1, 1]))
+    d_nom = damping * (1 + rng.uniform(0.2, 0.5) * rng.choice([-1, 1]))
+    if nominal is not None:
+        m_nom, d_nom = nominal
+    plant = truth_plant(case, scale, mass, damping)
+    ctrl = pid_controller(mass=mass)
+    skip = int(round(start_offset / TS))
     concealment = {}
     for part, duration in zip(("train", "validation"), durations):
-        t, r, u_ext = reference(duration, rng, stroke, duration * sweep_fraction)
+        t, r, u_ext = reference(duration + skip * TS, rng, stroke, duration * sweep_fraction)
         noise_seed = int(rng.integers(2 ** 31))
         q, u, q_true = simulate_truth(case, t, r, u_ext, np.random.default_rng(noise_seed), scale,
-                                      noise_std=noise_std, resolution=resolution, fmu_dir=fmu_dir)
+                                      noise_std=noise_std, resolution=resolution, fmu_dir=fmu_dir,
+                                      engine=engine, mass=mass, damping=damping, skip=skip)
         if part == "train":
             _, u_rigid, q_rigid = simulate_truth(case, t, r, u_ext, np.random.default_rng(noise_seed), scale,
                                                  with_effects=False, noise_std=noise_std, resolution=resolution,
-                                                 fmu_dir=fmu_dir)
+                                                 fmu_dir=fmu_dir, engine=engine, mass=mass, damping=damping,
+                                                 skip=skip)
             concealment = {"max_abs_m": float(np.max(np.abs(q_true - q_rigid))),
                            "rms_m": float(np.sqrt(np.mean((q_true - q_rigid) ** 2))),
                            "force_max_abs_N": float(np.max(np.abs(u - u_rigid)))}
             if plant.class_name.endswith("VariableInertiaJoint"):
                 plant.effects[0]["contract"] = inertia_range(plant, q_true)
                 plant.effects[0]["parameters"] = dict(plant.effects[0]["contract"])
+        t, r, u_ext = t[skip:] - t[skip], r[skip:], u_ext[skip:]
         rec = make_recording(t, {"r": r, "u": u, "q": q, "u_ext": u_ext}, sample_time=TS, seed=seed,
                              excited="point-to-point moves, then a swept sine 20-600 Hz on u_ext",
                              metadata={"truth": plant.class_name, "noise_seed": noise_seed})
@@ -396,10 +454,10 @@ def write_bundle(folder: Path, case: str, seed: int, scale: float = 1.0, nominal
                        "A": ctrl.A.tolist(), "B": ctrl.B.tolist(), "C": ctrl.C.tolist(), "D": ctrl.D.tolist()},
         "recordings": {"train": "train.csv", "validation": "validation.csv"},
     }
-    truth = {"case": case, "seed": seed, "scale": scale, "m": TRUE_M, "d": TRUE_D, "stroke": stroke,
+    truth = {"case": case, "seed": seed, "scale": scale, "m": mass, "d": damping, "stroke": stroke,
              "plant_form": form, "mass_parameter": written.mass, "mass_scale": written.scale,
              "sweep_fraction": sweep_fraction,
-             "truth_model": {"class": plant.class_name, "parameters": plant.parameters,
+             "truth_model": {"class": plant.class_name, "parameters": plant.parameters, "engine": engine,
                              "plant_step": TS / PLANT_SUBSTEPS, "encoder_resolution": resolution,
                              "noise_std": noise_std},
              "effects": plant.effects, "concealment": concealment}
@@ -502,7 +560,7 @@ VOCABULARY = list(_MAIN)
 
 def run(out: Path, which: str, only: list[str] | None = None) -> int:
     """Diagnose every bundle of the set and print one line per case and the confusion table."""
-    from motiontwin.ident.diagnosis import diagnose
+    from motiontwin.ident.diagnosis import diagnose_bundle
 
     names = VOCABULARY
     confusion = {n: {m: 0 for m in names + ["(none)"]} for n in names + ["(none)"]}
@@ -512,7 +570,7 @@ def run(out: Path, which: str, only: list[str] | None = None) -> int:
         bundle = out / which / case
         truth = json.loads((out / which / f"{case}.truth.json").read_text())
         t0 = time.perf_counter()
-        doc = diagnose(bundle, out / "results" / which / case)
+        doc = diagnose_bundle(bundle, out / "results" / which / case)
         seconds = time.perf_counter() - t0
         found = [e["name"] for e in doc["effects"]]
         true_names = [e["name"] for e in truth["effects"]]

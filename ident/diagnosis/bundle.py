@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import json
 from dataclasses import dataclass
+from dataclasses import field as dataclass_field
 from pathlib import Path
 from typing import Any
 
@@ -27,11 +28,34 @@ import numpy as np
 
 from motiontwin.fmus import frontend, symbolic
 from motiontwin.harness.recording import Recording, RecordingError, read_recording
-from motiontwin.ident import controller, units
+from motiontwin.ident import controller, startvalues, units
 from motiontwin.ident.controller import Controller, field
 from motiontwin.ident.diagnosis.plant_roles import PlantFormError, PlantRoles, find_roles
 
 REQUIRED_COLUMNS = ("time", "r", "u", "q")
+#: JSON Schema of experiment.json, shipped with the package (``motiontwin diagnose --help`` shows the format)
+SCHEMA_PATH = Path(__file__).with_name("bundle.schema.json")
+_TYPE_WORDS = {"number": "a finite number", "string": "a string", "object": "an object {...}", "array": "a list [...]"}
+
+
+def validate_experiment(doc: Any, exp_path: Path) -> None:
+    """Check experiment.json against the shipped JSON Schema; the first error raises :class:`BundleError`
+    naming the file and the field (dotted path), e.g. ``field 'plant.parameters.m' must be a finite number``."""
+    import jsonschema
+
+    schema = json.loads(SCHEMA_PATH.read_text(encoding="utf-8"))
+    error = jsonschema.exceptions.best_match(jsonschema.Draft202012Validator(schema).iter_errors(doc))
+    if error is None:
+        return
+    path = ".".join(str(p) for p in error.absolute_path)
+    where = f"field '{path}'" if path else "top level"
+    if error.validator == "type":
+        expected = error.validator_value if isinstance(error.validator_value, str) else error.validator_value[0]
+        message = f"must be {_TYPE_WORDS.get(expected, expected)}, got {error.instance!r}"
+    else:
+        message = error.message
+    raise BundleError(f"{exp_path}: {where}: {message} (schema: {SCHEMA_PATH.name}; see motiontwin diagnose --help)")
+
 
 
 class BundleError(ValueError):
@@ -51,6 +75,7 @@ class PlantInfo:
     position_state: str          # state the measured output is affine in (the position)
     velocity_state: str          # state equal to the position state's derivative
     roles: PlantRoles            # the above, the held inputs and how they were found
+    parameters: dict[str, float] = dataclass_field(default_factory=dict)   # plant.parameters: user start values
 
 
 @dataclass
@@ -61,6 +86,12 @@ class Bundle:
     controller: Controller
     train: Recording
     validation: Recording
+    start: dict[str, float] = dataclass_field(default_factory=dict)   # nominal start values (set by the pipeline)
+    cache: Any = None            # the compiled loops of the diagnosis running on this bundle (set by the pipeline)
+
+    def recording_path(self, part: str) -> Path:
+        """Path of the ``train`` or ``validation`` recording."""
+        return self.directory / self.experiment["recordings"][part]
 
 
 def _field(doc: dict, key: str, where: str, kind: type | tuple[type, ...]) -> Any:
@@ -77,13 +108,54 @@ def read_controller(doc: dict, where: str) -> Controller:
 
 def read_plant(doc: dict, bundle_dir: Path, where: str) -> PlantInfo:
     """Load the nominal plant with the project's front end and check it has input u and output q."""
-    file_name = _field(doc, "modelica", where, str)
     class_name = _field(doc, "class", where, str)
     input_name = doc.get("input", "u")
     output_name = doc.get("output", "q")
-    path = bundle_dir / file_name
+    if "modelica" not in doc:
+        return library_plant(class_name, input_name, output_name, doc.get("parameters", {}), where,
+                             doc.get("position"), doc.get("velocity"))
+    file_name = _field(doc, "modelica", where, str)
+    path = bundle_dir / Path(file_name).expanduser()
     if not path.is_file():
         raise BundleError(f"{where}: field 'modelica' names {file_name!r}, but {path} does not exist")
+    return load_plant(path, class_name, input_name, output_name, doc.get("parameters", {}), where,
+                      doc.get("position"), doc.get("velocity"))
+
+
+def library_plant(class_name: str, input_name: str = "u", output_name: str = "q", parameters: Any = None,
+                  where: str = "plant", position: str | None = None, velocity: str | None = None) -> PlantInfo:
+    """A plant class of the MotionTwin library by its full name (e.g. ``MotionTwin.Plants.LinearMotorJoint``).
+    Its source (without the ``within`` clause) becomes the plant text of the augmented model, so it must be
+    self-contained: a class that uses other library classes is refused with a message saying so."""
+    import tempfile
+
+    from motiontwin.fmus.build import MODELICA_DIR
+
+    path = MODELICA_DIR.joinpath(*class_name.split(".")).with_suffix(".mo")
+    if not class_name.startswith("MotionTwin.") or not path.is_file():
+        raise BundleError(f"{where}: field 'class' names {class_name!r}, which is not a class of the MotionTwin "
+                          f"library (without field 'modelica', 'class' must be one, e.g. "
+                          f"MotionTwin.Plants.LinearMotorJoint)")
+    lines = path.read_text(encoding="utf-8").splitlines()
+    text = "\n".join(line for line in lines if not line.lstrip().startswith("within ")) + "\n"
+    if "MotionTwin." in text:
+        raise BundleError(f"{where}: library class {class_name} uses other library classes; give it as a flat "
+                          f"Modelica file (field 'modelica')")
+    short = class_name.rsplit(".", 1)[-1]
+    with tempfile.TemporaryDirectory(prefix="motiontwin-plant-") as tmp:
+        flat = Path(tmp) / "plant.mo"
+        flat.write_text(text, encoding="utf-8")
+        info = load_plant(flat, short, input_name, output_name, parameters, where, position, velocity)
+    info.source = path
+    return info
+
+
+def load_plant(path: Path, class_name: str, input_name: str = "u", output_name: str = "q",
+               parameters: Any = None, where: str = "plant", position: str | None = None,
+               velocity: str | None = None) -> PlantInfo:
+    """The plant class ``class_name`` of the Modelica file ``path`` with its input, output and start values
+    ``parameters`` checked, and its roles (position and velocity states: ``position``/``velocity`` when given,
+    else found from the output's derivative chain); errors name ``where`` and the field."""
     try:
         model = symbolic.build(frontend.load(path, class_name))
     except frontend.ModelicaError as exc:
@@ -96,12 +168,21 @@ def read_plant(doc: dict, bundle_dir: Path, where: str) -> PlantInfo:
         raise BundleError(f"{path}: class {class_name} is a sampled model; the plant must be continuous")
     if not model.parameters:
         raise BundleError(f"{path}: class {class_name} has no parameters to refit")
+    parameters = {} if parameters is None else parameters
+    if not isinstance(parameters, dict):
+        raise BundleError(f"{where}: field 'parameters' must be an object {{NAME: VALUE}}, got {parameters!r}")
+    try:
+        parameters = startvalues.check_numbers(parameters, where)
+        startvalues.check_parameters(model, parameters, f"{where}.parameters")
+    except startvalues.StartValueError as exc:
+        raise BundleError(str(exc).replace("field 'parameters.", "field 'plant.parameters.")) from None
     text = path.read_text(encoding="utf-8")
     try:
-        roles = find_roles(model, text, path, input_name, output_name, doc.get("position"), doc.get("velocity"))
+        roles = find_roles(model, text, path, input_name, output_name, position, velocity)
     except PlantFormError as exc:
         raise BundleError(str(exc)) from None
-    return PlantInfo(path, class_name, text, model, input_name, output_name, roles.position, roles.velocity, roles)
+    return PlantInfo(path, class_name, text, model, input_name, output_name, roles.position, roles.velocity, roles,
+                     parameters)
 
 
 def _to_si(rec: Recording, source: str) -> None:
@@ -130,6 +211,20 @@ def _recording(doc: dict, key: str, bundle_dir: Path, where: str, ts: float) -> 
         _to_si(rec, str(path))
     except RecordingError as exc:
         raise BundleError(str(exc)) from None
+    return check_recording(rec, path, ts)
+
+
+def check_recording(rec: Recording, path: Path | str, ts: float) -> Recording:
+    """A recording fit for the diagnosis: columns time, r, u, q (u_ext added as zeros when absent), at least
+    20 samples, finite values, time steps of the controller's ``ts``; errors name ``path``, row and column."""
+    missing = [c for c in REQUIRED_COLUMNS[1:] if c not in rec.columns]
+    if missing:
+        raise BundleError(f"{path}: required column {missing[0]!r} missing (columns: {', '.join(rec.columns)})")
+    for name in ("time",) + REQUIRED_COLUMNS[1:]:
+        values = rec.time if name == "time" else rec[name]
+        bad = np.flatnonzero(~np.isfinite(values))
+        if bad.size:
+            raise BundleError(f"{path}, row {int(bad[0]) + 2}, column {name!r}: NaN or infinite value")
     if rec.time.size < 20:
         raise BundleError(f"{path}: only {rec.time.size} samples; a diagnosis needs at least 20")
     steps = np.diff(rec.time)
@@ -155,6 +250,7 @@ def read_bundle(bundle_dir: str | Path) -> Bundle:
         raise BundleError(f"{exp_path}, line {exc.lineno}, column {exc.colno}: invalid JSON ({exc.msg})") from None
     if not isinstance(experiment, dict):
         raise BundleError(f"{exp_path}: must hold a JSON object")
+    validate_experiment(experiment, exp_path)
     controller = read_controller(_field(experiment, "controller", str(exp_path), dict), f"{exp_path}: controller")
     plant = read_plant(_field(experiment, "plant", str(exp_path), dict), bundle_dir, f"{exp_path}: plant")
     recs = _field(experiment, "recordings", str(exp_path), dict)
@@ -162,3 +258,50 @@ def read_bundle(bundle_dir: str | Path) -> Bundle:
     train = _recording(recs, "train", bundle_dir, where, controller.Ts)
     validation = _recording(recs, "validation", bundle_dir, where, controller.Ts)
     return Bundle(bundle_dir, experiment, plant, controller, train, validation)
+
+
+IN_MEMORY = Path("(in memory)")
+
+
+def make_bundle(plant: str | Path, controller: Controller | dict, train: Recording, validation: Recording,
+                plant_class: str | None = None, parameters: dict[str, float] | None = None,
+                input_name: str = "u", output_name: str = "q") -> Bundle:
+    """A bundle from in-memory objects, checked as :func:`read_bundle` checks a folder.
+
+    Parameters
+    ----------
+    plant : a Modelica file (path) or Modelica source text holding the plant class.
+    controller : a :class:`ident.controller.Controller`, or its experiment.json object.
+    train, validation : closed-loop recordings (columns time, r, u, q[, u_ext]) at the controller's samples.
+    plant_class : the plant class (default: the first ``model`` of the text/file).
+    parameters : start values of plant parameters (as ``plant.parameters`` of experiment.json).
+    input_name, output_name : the plant's force input and position output.
+
+    Returns
+    -------
+    Bundle
+        With ``directory`` = ``IN_MEMORY`` (messages name the recordings "train" and "validation").
+    """
+    import re
+    import tempfile
+
+    if not isinstance(controller, Controller):
+        controller = read_controller(dict(controller), "controller")
+    text = str(plant)
+    is_text = isinstance(plant, str) and ("\n" in text or ";" in text) and not Path(text).is_file()
+    if not is_text and not Path(plant).is_file():
+        raise BundleError(f"plant: {plant!r} is neither a Modelica file nor Modelica source text")
+    source = text if is_text else Path(plant).read_text(encoding="utf-8")
+    if plant_class is None:
+        found = re.search(r"^\s*model\s+(\w+)", source, re.MULTILINE)
+        if not found:
+            raise BundleError("plant: no 'model NAME' in the Modelica source; give plant_class")
+        plant_class = found.group(1)
+    with tempfile.TemporaryDirectory(prefix="motiontwin-plant-") as tmp:
+        path = Path(tmp) / "plant.mo" if is_text else Path(plant)
+        if is_text:
+            path.write_text(source, encoding="utf-8")
+        info = load_plant(path, plant_class, input_name, output_name, parameters, "plant")
+    checked = [check_recording(rec, name, controller.Ts) for rec, name in ((train, "train"), (validation, "validation"))]
+    experiment = {"recordings": {"train": "train", "validation": "validation"}}
+    return Bundle(IN_MEMORY, experiment, info, controller, *checked)

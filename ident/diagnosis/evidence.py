@@ -19,7 +19,7 @@ from scipy import stats
 
 from motiontwin.fmus import symbolic
 from motiontwin.harness.recording import Recording
-from motiontwin.ident.signals import lowpass_differentiate
+from motiontwin.ident.startvalues import mirror_derivatives
 
 NULL_QUANTILE = 0.999
 
@@ -45,15 +45,6 @@ class InverseDynamics:
     cutoff: float
 
 
-def _mirror_derivatives(signal: np.ndarray, fs: float, fc: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Zero-phase low-pass and derivatives of a non-periodic record: the even extension is periodic and
-    continuous, so the DFT filter/differentiator of Abdellatif sec. 3.3 applies to it."""
-    n = signal.size
-    ext = np.concatenate([signal, signal[::-1]])
-    d = lowpass_differentiate(ext, fs, fc)
-    return d.position[:n], d.velocity[:n], d.acceleration[:n]
-
-
 def inverse_dynamics(rec: Recording, model: symbolic.SymbolicModel, values: dict[str, float],
                      position_state: str, velocity_state: str, ts: float,
                      input_index: int = 0) -> InverseDynamics | None:
@@ -63,8 +54,8 @@ def inverse_dynamics(rec: Recording, model: symbolic.SymbolicModel, values: dict
         return None
     fs = 1 / ts
     fc = min(0.1 * fs, 150.0)
-    x, v, a = _mirror_derivatives(rec["q"], fs, fc)
-    u_f, udot, _ = _mirror_derivatives(rec["u"], fs, fc)
+    x, v, a = mirror_derivatives(rec["q"], fs, fc)
+    u_f, udot, _ = mirror_derivatives(rec["u"], fs, fc)
     names = [s.name for s in model.states]
     i_x, i_v = names.index(position_state), names.index(velocity_state)
     p = np.array([values[s.name] for s in model.parameters])

@@ -4,23 +4,29 @@ Modelica model, its FMU and the report. Units: SI (s, m, N)."""
 from __future__ import annotations
 
 import concurrent.futures
+import itertools
 import math
 import multiprocessing
 import os
 import shutil
 import tempfile
+import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Callable
 
 import casadi as ca
 import numpy as np
+from scipy import stats
 
 from motiontwin.ident.diagnosis import effects as fx
 from motiontwin.ident.diagnosis import evidence as ev
 from motiontwin.ident import outputerror as sim
+from motiontwin.ident import startvalues
 from motiontwin.harness.recording import Recording
-from motiontwin.ident.diagnosis.bundle import Bundle, BundleError, read_bundle
+from motiontwin.ident.controller import Controller
+from motiontwin.ident.diagnosis.bundle import Bundle, BundleError, make_bundle, read_bundle
 from motiontwin.ident.diagnosis.plant_roles import PlantFormError, output_map
 
 AUGMENTED_CLASS = "Augmented"
@@ -32,6 +38,7 @@ MAX_NFEV = 15               # full fit of the best-ranked candidates
 FULL_FITS = 3
 FLOOR_REPLICATES = 5         # noise re-simulations for the validation noise floor
 MULTI_START = ("position_ripple", "resonance")   # nonlinear in a period/frequency: screen every start
+_TOKENS = itertools.count()  # screening-job tokens (itertools.count is thread-safe in CPython)
 
 
 @dataclass
@@ -55,7 +62,7 @@ class ModelFit:
 def _nominal_bounds(bundle: Bundle, prefix: str = "") -> tuple[list[str], dict[str, tuple[float, float]]]:
     free, bounds = [], {}
     for var in bundle.plant.model.parameters:
-        value = float(var.start)
+        value = float(bundle.start.get(var.name, var.start))
         if value == 0:
             continue
         lo, hi = sorted((value / 5, value * 5))
@@ -70,13 +77,48 @@ def _log(progress, message: str) -> None:
         progress(message)
 
 
+def nominal_start(bundle: Bundle, progress=None) -> dict[str, float]:
+    """Start values of the nominal refit: the Modelica defaults, over them ``plant.parameters`` of the bundle,
+    and for every other non-zero parameter that enters the plant's force linearly (mass, viscous
+    friction, ...) the inverse-dynamics least-squares estimate on the training recording (kept when it has
+    the default's sign), so that a 2 kg default never meets a 95 kg axis in a closed-loop free run."""
+    model, plant = bundle.plant.model, bundle.plant
+    values = {v.name: float(v.start) for v in model.parameters} | plant.parameters
+    guess = [n for n, v in values.items() if n not in plant.parameters and v != 0]
+    if startvalues.output_state(model, plant.output_name) != plant.position_state:
+        _log(progress, "start values: the Modelica defaults and plant.parameters (the inverse-dynamics start "
+                       "needs the output to be the position state itself)")
+        return values
+    estimate = startvalues.inverse_dynamics_start(model, bundle.train["q"], bundle.train["u"], bundle.controller.Ts,
+                                                  plant.position_state, guess, values, input_name=plant.input_name)
+    kept = {n: v for n, v in estimate.items() if v * values[n] > 0}
+    if kept:
+        _log(progress, f"start values from inverse dynamics: {_fmt(kept)} (defaults: "
+                       f"{_fmt({n: values[n] for n in kept})})")
+    return values | kept
+
+
+def _moving_start(bundle: Bundle, prefix: str = "") -> dict[str, str]:
+    """The velocity state starts at the slope of the first samples (a loop may be moving at t = 0)."""
+    return {prefix + bundle.plant.velocity_state: "dq"}
+
+
+def _divergence_hint(bundle: Bundle) -> str:
+    return (f"Set start values in {bundle.directory / 'experiment.json'}, field \"plant.parameters\", e.g. "
+            f"\"parameters\": {{\"m\": 95.0}}, or check the controller and the recorded signals' units.")
+
+
 def fit_nominal(bundle: Bundle, progress=None) -> tuple[ModelFit, sim.Weights]:
     model = bundle.plant.model
     free, bounds = _nominal_bounds(bundle)
-    values = {v.name: float(v.start) for v in model.parameters}
+    values = dict(bundle.start)
     loop = sim.build_loop(model, bundle.controller, bundle.plant.output_name, free, values, bundle.train.time.size,
-                          input_name=bundle.plant.input_name)
+                          input_name=bundle.plant.input_name, tracking=_moving_start(bundle))
     q0, u0 = sim.simulate(loop, bundle.train)
+    startvalues.check_free_run(q0, bundle.train["q"], bundle.train.time,
+                               f"the nominal closed loop ({bundle.plant.class_name} with the bundle's controller) on "
+                               f"{bundle.recording_path('train')}", {n: values[n] for n in free},
+                               _divergence_hint(bundle))
     ts = bundle.controller.Ts
     weights = sim.Weights(ev.noise_level(bundle.train["q"] - q0, ts), ev.noise_level(bundle.train["u"] - u0, ts))
     result = sim.fit(loop, bundle.train, weights, bounds, max_nfev=40)
@@ -137,7 +179,12 @@ class LoopCache:
     models: dict[tuple[str, ...], object] = field(default_factory=dict)
 
 
-_CACHE = LoopCache()
+
+def write_structure(bundle: Bundle, effects: list[fx.Effect], values: dict[str, float], folder: Path) -> Path:
+    """Write the self-contained Modelica folder of the nominal plant + ``effects`` at ``values``."""
+    plant_values = {k[len("plant."):]: v for k, v in values.items() if k.startswith("plant.")}
+    return fx.write_model(folder, bundle.plant.text, bundle.plant.class_name, effects, values, plant_values,
+                          AUGMENTED_CLASS, bundle.plant.roles)
 
 
 def build_structure(bundle: Bundle, effects: list[fx.Effect], values: dict[str, float], folder: Path,
@@ -145,14 +192,14 @@ def build_structure(bundle: Bundle, effects: list[fx.Effect], values: dict[str, 
                     substeps: int | None = None) -> tuple[sim.Loop, dict[str, tuple[float, float]]]:
     """Write and load the augmented model with ``effects`` and compile its loop (at least ``min_substeps``
     RK4 steps per sample, so that structures compared with each other share the integration accuracy).
-    A structure already compiled with the same samples/substeps is reused from :data:`_CACHE`."""
+    A structure already compiled with the same samples/substeps is reused from ``bundle.cache`` (one
+    :class:`LoopCache` per diagnosis, so concurrent or repeated diagnoses share nothing)."""
+    cache: LoopCache = bundle.cache
     names = tuple(e.name for e in effects)
-    model = _CACHE.models.get(names)
+    model = cache.models.get(names)
     if model is None:
-        plant_values = {k[len("plant."):]: v for k, v in values.items() if k.startswith("plant.")}
-        fx.write_model(folder, bundle.plant.text, bundle.plant.class_name, effects, values, plant_values,
-                       AUGMENTED_CLASS, bundle.plant.roles)
-        model = _CACHE.models[names] = fx.load_augmented(folder, AUGMENTED_CLASS)
+        write_structure(bundle, effects, values, folder)
+        model = cache.models[names] = fx.load_augmented(folder, AUGMENTED_CLASS)
     free, bounds = _nominal_bounds(bundle, "plant.")
     for effect in effects:
         for p in effect.params:
@@ -161,15 +208,15 @@ def build_structure(bundle: Bundle, effects: list[fx.Effect], values: dict[str, 
                 bounds[p.name] = p.bounds
     all_values = {v.name: float(v.start) for v in model.parameters}
     all_values.update({k: v for k, v in values.items() if k in all_values})
-    tracking = {s: "q" for e in effects for s in e.tracks_position}
+    tracking = {s: "q" for e in effects for s in e.tracks_position} | _moving_start(bundle, "plant.")
     tracking.update({s: "u" for e in effects for s in e.tracks_force})
     substeps = substeps or max(min_substeps, sim.stable_substeps(model, all_values, bundle.controller.Ts))
     key = (names, n_samples, substeps, with_jacobian)
-    if key not in _CACHE.loops:
-        _CACHE.loops[key] = sim.build_loop(model, bundle.controller, "q",
+    if key not in cache.loops:
+        cache.loops[key] = sim.build_loop(model, bundle.controller, "q",
                                            free, all_values, n_samples, substeps=substeps, tracking=tracking,
                                            with_jacobian=with_jacobian)
-    return _CACHE.loops[key].with_values(all_values), bounds
+    return cache.loops[key].with_values(all_values), bounds
 
 
 def fit_structure(bundle: Bundle, current: ModelFit, candidate: fx.Effect, ctx: fx.Context,
@@ -212,7 +259,8 @@ def validate(bundle: Bundle, structure: ModelFit, folder: Path) -> None:
         model = bundle.plant.model
         loop = sim.build_loop(model, bundle.controller, bundle.plant.output_name, structure.loop.free,
                               structure.fit.values, rec.time.size, with_jacobian=False,
-                              min_substeps=structure.loop.substeps, input_name=bundle.plant.input_name)
+                              min_substeps=structure.loop.substeps, input_name=bundle.plant.input_name,
+                              tracking=_moving_start(bundle))
     q, _ = sim.simulate(loop, rec, structure.fit.values)
     structure.val_q = q
     structure.val_rms = float(np.sqrt(np.mean((rec["q"] - q) ** 2))) if np.all(np.isfinite(q)) else math.inf
@@ -289,20 +337,24 @@ def select(bundle: Bundle, nominal: ModelFit, weights: sim.Weights, ctx: fx.Cont
         if chosen is None:
             break
         gain, threshold = trials[chosen.effects[-1].name][1:3]
+        equivalents, rule = equivalent_explanations(bundle, chosen, trials, work / f"e{rounds}", progress)
         chosen.evidence = {**current.evidence, chosen.effects[-1].name: {
             "cost_reduction": gain, "null_threshold": threshold, "validation_rms_before": current.val_rms,
-            "validation_rms_after": chosen.val_rms, "previous": current}}
+            "validation_rms_after": chosen.val_rms, "previous": current, "equivalents": equivalents,
+            "rule": rule}}
         used_families.add(chosen.effects[-1].family)
         current = chosen
     return current, log
 
 
-_SCREEN_JOB: tuple | None = None   # (bundle, current, ctx, weights, folder) inherited by forked workers
+#: screening jobs by token, (bundle, current, ctx, weights, folder): forked workers inherit the table and are
+#: sent only (token, name); every call adds its own token and removes it, so concurrent diagnoses do not collide
+_SCREEN_JOBS: dict[int, tuple] = {}
 
 
-def _screen_one(name: str) -> tuple[str, sim.Fit | None, int, float, str]:
+def _screen_one(token: int, name: str) -> tuple[str, sim.Fit | None, int, float, str]:
     """Cheap fit of the current structure plus the effect ``name`` (run in a worker or in-process)."""
-    bundle, current, ctx, weights, folder = _SCREEN_JOB
+    bundle, current, ctx, weights, folder = _SCREEN_JOBS[token]
     t0 = time.perf_counter()
     try:
         trial = fit_structure(bundle, current, fx.VOCABULARY[name](ctx), ctx, weights, folder / name,
@@ -314,7 +366,10 @@ def _screen_one(name: str) -> tuple[str, sim.Fit | None, int, float, str]:
 
 def screen_workers() -> int:
     """Processes for the candidate screening: ``MOTIONTWIN_DIAGNOSIS_WORKERS`` or the machine's cores
-    (at most 4); 1 runs in-process. The results do not depend on it (each fit is deterministic)."""
+    (at most 4); 1 runs in-process, as does every diagnosis outside the main thread (forking a threaded
+    process can deadlock). The results do not depend on it (each fit is deterministic)."""
+    if threading.current_thread() is not threading.main_thread():
+        return 1
     value = os.environ.get("MOTIONTWIN_DIAGNOSIS_WORKERS")
     count = int(value) if value and value.isdigit() else min(4, os.cpu_count() or 1)
     return max(1, count) if "fork" in multiprocessing.get_all_start_methods() else 1
@@ -324,18 +379,18 @@ def screen(bundle: Bundle, current: ModelFit, names: list[str], ctx: fx.Context,
            folder: Path, progress=None) -> dict[str, tuple[sim.Fit, int]]:
     """Screen every candidate effect with a few Gauss-Newton steps, in parallel processes (forked, so
     they share the bundle and the current fit): name -> (fit, RK4 substeps of its loop)."""
-    global _SCREEN_JOB
-    _SCREEN_JOB = (bundle, current, ctx, weights, folder)
+    token = next(_TOKENS)
+    _SCREEN_JOBS[token] = (bundle, current, ctx, weights, folder)
     workers = min(screen_workers(), len(names))
     try:
         if workers > 1:
             with concurrent.futures.ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("fork")) \
                     as pool:
-                results = list(pool.map(_screen_one, names))
+                results = list(pool.map(_screen_one, [token] * len(names), names))
         else:
-            results = [_screen_one(name) for name in names]
+            results = [_screen_one(token, name) for name in names]
     finally:
-        _SCREEN_JOB = None
+        del _SCREEN_JOBS[token]
     out: dict[str, tuple[sim.Fit, int]] = {}
     for name, result, substeps, seconds, error in results:
         if result is None:
@@ -364,6 +419,55 @@ def _simplest(name: str, trials: dict, null: np.ndarray, bundle: Bundle, work: P
     _log(progress, f"  {name} vs {simple}: extra -{extra:.4g}, null {threshold:.4g}, validation "
                    f"{rich[0].val_rms:.4g} vs {small[0].val_rms:.4g}")
     return name if rich[0].val_rms < VALIDATION_GAIN * small[0].val_rms else simple
+
+
+def _fitted_count(structure: ModelFit) -> int:
+    return len(structure.loop.free)
+
+
+def equivalent_explanations(bundle: Bundle, chosen: ModelFit, trials: dict, work: Path,
+                            progress=None) -> tuple[list[dict], str]:
+    """Other structures of the same round that explain the data as well as ``chosen``: significant, a
+    training cost within the 99.9 % chi-square band of noise for the parameter-count difference (the cost is
+    noise-weighted, so a correct model's differences are chi-square distributed), and a validation RMS within
+    the validation rule's 10 %. Returns them (name, parameters, costs, AIC = cost + 2 k) and the rule that
+    picked ``chosen``: parsimony (fewer fitted parameters; nested simpler effect) or, at equal counts, the
+    information criterion."""
+    name = chosen.effects[-1].name
+    k_chosen = _fitted_count(chosen)
+    aic_chosen = chosen.fit.cost + 2 * k_chosen
+    found = []
+    for other, (trial, gain, threshold, _) in trials.items():
+        if other == name or gain <= threshold:
+            continue
+        k = _fitted_count(trial)
+        band = stats.chi2.ppf(ev.NULL_QUANTILE, max(abs(k - k_chosen), 1))
+        if abs(trial.fit.cost - chosen.fit.cost) > band:
+            continue
+        if not math.isfinite(trial.val_rms):
+            validate(bundle, trial, work / other)
+        if not abs(trial.val_rms - chosen.val_rms) <= (1 - VALIDATION_GAIN) * chosen.val_rms:
+            continue
+        effect = trial.effects[-1]
+        found.append({"name": other, "parameters": _effect_values(trial, effect),
+                      "units": {p.name: p.unit for p in effect.params},
+                      "train_cost": trial.fit.cost, "chosen_train_cost": chosen.fit.cost,
+                      "validation_rms": trial.val_rms, "chosen_validation_rms": chosen.val_rms,
+                      "fitted_parameters": k, "chosen_fitted_parameters": k_chosen,
+                      "aic": trial.fit.cost + 2 * k, "chosen_aic": aic_chosen})
+        _log(progress, f"  {other} explains the data as well as {name} (train cost {trial.fit.cost:.4g} vs "
+                       f"{chosen.fit.cost:.4g}, validation {trial.val_rms:.4g} vs {chosen.val_rms:.4g} m)")
+    if not found:
+        return [], ""
+    fewer = all(e["fitted_parameters"] > k_chosen for e in found)
+    if fewer:
+        rule = (f"parsimony: {name} has the fewest fitted parameters ({k_chosen}) of the structures that fit "
+                f"within noise on training and validation data")
+    else:
+        rule = (f"information criterion: {name} has AIC = cost + 2k = {aic_chosen:.4g}, the others "
+                + ", ".join(f"{e['name']} {e['aic']:.4g}" for e in found)
+                + " (the cost reduction decides among structures of equal size)")
+    return found, rule
 
 
 def _effect_values(structure: ModelFit, effect: fx.Effect) -> dict[str, float]:
@@ -406,47 +510,115 @@ def check_plant_form(bundle: Bundle, folder: Path) -> None:
 def run(bundle: Bundle, work: Path, progress=None) -> dict:
     """The whole diagnosis in ``work``; returns what the report needs."""
     t0 = time.perf_counter()
-    _CACHE.loops.clear()
-    _CACHE.models.clear()
+    bundle.cache = LoopCache()
     _log(progress, bundle.plant.roles.describe())
     check_plant_form(bundle, work / "check")
     _log(progress, f"every candidate effect's augmented model builds ({time.perf_counter() - t0:.1f} s)")
+    bundle.start = nominal_start(bundle, progress)
     nominal, weights = fit_nominal(bundle, progress)
     validate(bundle, nominal, work / "v_nominal")
+    startvalues.check_free_run(nominal.val_q, bundle.validation["q"], bundle.validation.time,
+                               f"the refitted nominal closed loop on {bundle.recording_path('validation')}",
+                               {k: v for k, v in nominal.fit.values.items() if k in nominal.loop.free},
+                               _divergence_hint(bundle))
     ctx = context(bundle, nominal)
     final, log = select(bundle, nominal, weights, ctx, work / "trials", progress)
-    model_dir = work / "out" / "augmented_model"
+    model_dir = work / "final_model"
     values = dict(final.fit.values)
     if not final.effects:
         values = {"plant." + k: v for k, v in values.items()}
     names = tuple(e.name for e in final.effects)
-    _CACHE.models.pop(names, None)     # write model_dir with the fitted values and build the FMU from it
+    bundle.cache.models.pop(names, None)   # the final model at the fitted values (Diagnosis.write writes it again)
     loop, _ = build_structure(bundle, final.effects, values, model_dir, bundle.validation.time.size,
                               with_jacobian=False, min_substeps=final.loop.substeps)
-    written = _CACHE.models[names]
+    written = bundle.cache.models[names]
     q_aug, _ = sim.simulate(loop, bundle.validation, values)
     floor = validation_floor(loop, bundle, values, weights.sigma_q)
     _log(progress, f"diagnosis done in {time.perf_counter() - t0:.1f} s")
     return {"bundle": bundle, "nominal": nominal, "final": final, "weights": weights, "context": ctx,
-            "log": log, "model_dir": model_dir, "augmented_values": values, "q_augmented": q_aug,
+            "log": log, "augmented_values": values, "q_augmented": q_aug,
             "augmented_model": written, "validation_floor": floor, "seconds": time.perf_counter() - t0}
 
 
-def diagnose(bundle_dir: str | os.PathLike, out_dir: str | os.PathLike, progress=None) -> dict:
-    """Diagnose a bundle and write diagnosis.json, validation_prediction.csv, report.md (+ PNGs), the
-    augmented Modelica model and its FMU into ``out_dir``. Nothing is written when the input is bad."""
-    from motiontwin.ident.diagnosis import report
+@dataclass
+class Diagnosis:
+    """The outcome of a diagnosis: the effects found, the refitted parameters and the validation fit.
 
-    bundle = read_bundle(bundle_dir)
-    out = Path(out_dir)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    with tempfile.TemporaryDirectory(dir=out.parent, prefix=f".{out.name}.work-") as tmp:
-        work = Path(tmp)
-        result = run(bundle, work, progress)
-        staging = work / "out"
-        document = report.write_all(result, staging, out)
-        _publish(staging, out)
-    return document
+    ``effects``: names of the effects added to the nominal model (empty: only its parameters were off);
+    ``parameters``: every parameter of the augmented model (plant ones without the ``plant.`` prefix) [SI];
+    ``nominal_parameters``: the refitted nominal plant; ``validation``: validation RMS of both [m] and the
+    noise floor [m]; ``result``: everything the report uses. :meth:`write` writes the report and the FMU."""
+
+    effects: list[str]
+    parameters: dict[str, float]
+    nominal_parameters: dict[str, float]
+    validation: dict[str, float]
+    result: dict = field(repr=False)
+
+    @classmethod
+    def from_result(cls, result: dict) -> "Diagnosis":
+        strip = {k[len("plant."):] if k.startswith("plant.") else k: float(v)
+                 for k, v in result["augmented_values"].items()}
+        val_q = result["bundle"].validation["q"]
+        augmented = float(np.sqrt(np.mean((val_q - result["q_augmented"]) ** 2)))
+        return cls([e.name for e in result["final"].effects], strip,
+                   {k: float(v) for k, v in result["nominal"].fit.values.items()},
+                   {"nominal_rms": float(result["nominal"].val_rms), "augmented_rms": augmented,
+                    "noise_floor_rms": float(result["validation_floor"])}, result)
+
+    def write(self, folder: str | os.PathLike) -> dict:
+        """Write diagnosis.json, validation_prediction.csv, report.md (+ PNGs), the augmented Modelica model
+        and its FMU into ``folder`` (staged beside it, then moved in); returns the diagnosis.json document."""
+        from motiontwin.ident.diagnosis import report
+
+        out = Path(folder)
+        out.parent.mkdir(parents=True, exist_ok=True)
+        result = self.result
+        with tempfile.TemporaryDirectory(dir=out.parent, prefix=f".{out.name}.work-") as tmp:
+            staging = Path(tmp) / "out"
+            write_structure(result["bundle"], result["final"].effects, result["augmented_values"],
+                            staging / "augmented_model")
+            document = report.write_all(result, staging, out)
+            _publish(staging, out)
+        return document
+
+
+def diagnose(plant: str | Path, controller: Controller | dict, train: Recording, validation: Recording, *,
+             plant_class: str | None = None, parameters: dict[str, float] | None = None,
+             progress: Callable[[str], None] | None = None) -> Diagnosis:
+    """Diagnose the mismatch between a nominal plant and two closed-loop recordings (in memory).
+
+    Parameters
+    ----------
+    plant : Modelica file or Modelica source text of the nominal plant (input u [N], output q [m]).
+    controller : the sampled controller (:class:`ident.controller.Controller` or its experiment.json object).
+    train, validation : :class:`harness.recording.Recording` with time [s], r [m], u [N], q [m][, u_ext [N]].
+    plant_class : the plant class (default: the first ``model`` in the source).
+    parameters : start values of plant parameters (default: Modelica values and inverse dynamics).
+    progress : called with one line per step.
+
+    Returns
+    -------
+    Diagnosis
+        Effects, parameters and validation; ``.write(folder)`` writes the report and the FMU.
+
+    Re-entrant: every call compiles its own loops (no module-level cache), so repeated calls and calls from
+    several threads give the same result as one call.
+    """
+    bundle = make_bundle(plant, controller, train, validation, plant_class, parameters)
+    return diagnose_bundle_object(bundle, progress)
+
+
+def diagnose_bundle_object(bundle: Bundle, progress: Callable[[str], None] | None = None) -> Diagnosis:
+    """:func:`diagnose` of an already read :class:`Bundle` (working files in a temporary folder)."""
+    with tempfile.TemporaryDirectory(prefix="motiontwin-diagnosis-") as tmp:
+        return Diagnosis.from_result(run(bundle, Path(tmp), progress))
+
+
+def diagnose_bundle(bundle_dir: str | os.PathLike, out_dir: str | os.PathLike, progress=None) -> dict:
+    """Diagnose a bundle folder and write diagnosis.json, validation_prediction.csv, report.md (+ PNGs), the
+    augmented Modelica model and its FMU into ``out_dir``. Nothing is written when the input is bad."""
+    return diagnose_bundle_object(read_bundle(bundle_dir), progress).write(out_dir)
 
 
 def _publish(staging: Path, out: Path) -> None:

@@ -17,6 +17,72 @@ from motiontwin.ident.diagnosis import evidence as ev  # noqa: E402
 from motiontwin.ident.diagnosis.pipeline import AUGMENTED_CLASS  # noqa: E402
 
 
+#: units of the effects' parameters as the report states them (the contract's names)
+CONTRACT_UNITS = {"F0": "N", "Fc": "N", "Fs": "N", "vs": "m/s", "Fc_pos": "N", "Fc_neg": "N", "amplitude": "N",
+                  "period": "m", "delay": "s", "frequency": "Hz", "damping": "1", "mass_min": "kg", "mass_max": "kg",
+                  "Fc_equivalent": "N", "offset_while_moving": "N"}
+CLIP_WIDEN = 0.5     # residual plots: the 1-99 % range widened by this share of its width; beyond: clipped, counted
+
+
+def _unit(name: str, units: dict[str, str]) -> str:
+    return units.get(name, CONTRACT_UNITS.get(name, ""))
+
+
+def _with_unit(value: float, unit: str) -> str:
+    return f"{value:.4g} {unit}".rstrip() if unit not in ("", "1") else f"{value:.4g}"
+
+
+def plant_units(result: dict) -> dict[str, str]:
+    """Units of the plant parameters (their Modelica ``unit``) and of the effect parameters."""
+    units = {v.name: v.unit or "" for v in result["bundle"].plant.model.parameters}
+    for effect in result["final"].effects:
+        units.update({p.name: p.unit for p in effect.params})
+    return units
+
+
+def location_text(loc: dict) -> str:
+    """The location of an effect in words and physical units (mm, mm/s, s, Hz)."""
+    parts = []
+    v_lo, v_hi = loc["velocity_range"]
+    if v_lo >= 0:
+        parts.append(f"while moving in +x at {v_lo * 1e3:.3g} to {v_hi * 1e3:.3g} mm/s")
+    elif v_hi <= 0:
+        parts.append(f"while moving in -x at {-v_hi * 1e3:.3g} to {-v_lo * 1e3:.3g} mm/s")
+    else:
+        parts.append(f"around standstill ({v_lo * 1e3:.3g} to {v_hi * 1e3:.3g} mm/s)")
+    x_lo, x_hi = loc["position_range"]
+    parts.append(f"between {x_lo * 1e3:.4g} and {x_hi * 1e3:.4g} mm")
+    text = "Strongest " + " ".join(parts) + f"; residual power peaks at {loc['frequency_peak_hz']:.3g} Hz"
+    windows = loc.get("time_windows") or []
+    if windows:
+        shown = ", ".join(f"{a:.3g}-{b:.3g} s" for a, b in windows[:5])
+        text += f"; the nominal model's error exceeds 3 noise levels in {len(windows)} window(s): {shown}"
+    return text + "."
+
+
+def equivalent_forms(name: str, params: dict[str, float]) -> dict[str, float]:
+    """Other parametrisations that predict the same forces while moving: asymmetric Coulomb friction
+    Fc_pos (v > 0), Fc_neg (v < 0) equals Coulomb Fc = (Fc_pos + Fc_neg)/2 plus a constant force
+    (Fc_pos - Fc_neg)/2 (they differ only at rest, where the asymmetric law gives zero)."""
+    if name == "asymmetric_friction":
+        return {"Fc_equivalent": 0.5 * (params["Fc_pos"] + params["Fc_neg"]),
+                "offset_while_moving": 0.5 * (params["Fc_pos"] - params["Fc_neg"])}
+    return {}
+
+
+def robust_limits(values: np.ndarray) -> tuple[float, float, int]:
+    """Plot limits: the 1-99 % percentile range widened by half its width on each side, and how many points
+    lie outside (clipped to the edge): a few filter end effects of +-1600 N no longer squash a +-20 N
+    friction step, which stays whole however many samples it has."""
+    finite = values[np.isfinite(values)]
+    if not finite.size:
+        return -1.0, 1.0, 0
+    q_lo, q_hi = (float(v) for v in np.percentile(finite, [1, 99]))
+    span = (q_hi - q_lo) or float(np.max(np.abs(finite))) or 1.0
+    lo, hi = q_lo - CLIP_WIDEN * span, q_hi + CLIP_WIDEN * span
+    return lo, hi, int(np.sum((finite < lo) | (finite > hi)))
+
+
 def _strip(values: dict[str, float]) -> dict[str, float]:
     return {k[len("plant."):] if k.startswith("plant.") else k: float(v) for k, v in values.items()}
 
@@ -51,8 +117,13 @@ def diagnosis_document(result: dict, out: Path, fmu_path: Path | None) -> dict:
                 f"{info['cost_reduction']:.4g}, {ratio:.1f} times the 99.9 % level that a correct model leaves "
                 f"on the same excitation (parametric bootstrap), and the validation RMS falls from "
                 f"{info['validation_rms_before']:.3g} m to {info['validation_rms_after']:.3g} m.")
+        location = _location(result, effect.name)
+        equivalents = [{**e, "parameters": effect_contract(e, ctx, final)} for e in info.get("equivalents", [])]
         effects.append({"name": effect.name, "parameters": {k: float(v) for k, v in params.items()},
-                        "location": _location(result, effect.name), "explanation": text,
+                        "units": {k: CONTRACT_UNITS.get(k, "") for k in params},
+                        "equivalent_forms": equivalent_forms(effect.name, params),
+                        "equivalent_explanations": equivalents, "selection_rule": info.get("rule", ""),
+                        "location": location, "location_text": location_text(location), "explanation": text,
                         "evidence": {"cost_reduction": info["cost_reduction"],
                                      "null_threshold": info["null_threshold"],
                                      "validation_rms_before": info["validation_rms_before"],
@@ -74,6 +145,15 @@ def diagnosis_document(result: dict, out: Path, fmu_path: Path | None) -> dict:
     }
 
 
+def effect_contract(entry: dict, ctx, final) -> dict[str, float]:
+    """An equivalent structure's effect parameters in the contract's terms (as for the chosen effect)."""
+    from motiontwin.ident.diagnosis import effects as fx
+
+    effect = fx.VOCABULARY[entry["name"]](ctx)
+    values = {**final.fit.values, **entry["parameters"]}
+    return {k: float(v) for k, v in effect.contract(values, ctx).items()}
+
+
 def _above_floor(nominal_rms: float, augmented_rms: float, floor: float) -> dict[str, float]:
     """The validation RMS split into the noise floor and the model error above it [m]: the error of a
     model is sqrt(rms^2 - floor^2) (independent noise adds in power), and ``excess_ratio`` compares the
@@ -85,7 +165,8 @@ def _above_floor(nominal_rms: float, augmented_rms: float, floor: float) -> dict
             "augmented_excess_rms": augmented_excess, "excess_ratio": ratio}
 
 
-def _plots(result: dict, staging: Path) -> list[str]:
+def _plots(result: dict, staging: Path) -> tuple[list[str], dict[str, int]]:
+    """The PNG plots and, per plot, how many residual points were clipped to its robust limits."""
     bundle, nominal, final = result["bundle"], result["nominal"], result["final"]
     train, val = bundle.train, bundle.validation
     ts = bundle.controller.Ts
@@ -93,6 +174,7 @@ def _plots(result: dict, staging: Path) -> list[str]:
     res_nom = train["q"] - nominal.fit.q_sim
     res_aug = train["q"] - final.fit.q_sim
     names = []
+    clipped: dict[str, int] = {}
 
     fig, ax = plt.subplots(figsize=(9, 3.5))
     ax.plot(train.time, res_nom * 1e6, lw=0.6, label="nominal (refitted)")
@@ -106,17 +188,19 @@ def _plots(result: dict, staging: Path) -> list[str]:
     ctx = result["context"]
     fig, axes = plt.subplots(1, 2, figsize=(10, 3.5))
     if ctx.force is not None:
-        axes[0].plot(ctx.v, ctx.force, ".", ms=1)
-        axes[1].plot(ctx.x * 1e3, ctx.force, ".", ms=1)
-        axes[0].set_ylabel("force residual of the nominal model [N]")
+        shown, v, x, label = ctx.force, ctx.v, ctx.x, "force residual of the nominal model [N]"
     else:
-        axes[0].plot(np.gradient(train["q"], ts), res_nom * 1e6, ".", ms=1)
-        axes[1].plot(train["q"] * 1e3, res_nom * 1e6, ".", ms=1)
-        axes[0].set_ylabel("q residual [um]")
-    axes[0].set_xlabel("velocity [m/s]"), axes[1].set_xlabel("position [mm]")
-    for a in axes:
+        shown, v, x, label = res_nom * 1e6, np.gradient(train["q"], ts), train["q"], "q residual [um]"
+    lo, hi, count = robust_limits(shown)
+    for a, axis in zip(axes, (v * 1e3, x * 1e3)):
+        a.plot(axis, np.clip(shown, lo, hi), ".", ms=1)
+        a.set_ylim(lo - 0.05 * (hi - lo), hi + 0.05 * (hi - lo))
         a.grid(alpha=0.3)
-    fig.suptitle("Inverse-dynamics residual against velocity and position")
+    axes[0].set_ylabel(label)
+    axes[0].set_xlabel("velocity [mm/s]"), axes[1].set_xlabel("position [mm]")
+    fig.suptitle(f"Inverse-dynamics residual against velocity and position; {count} of {shown.size} outliers "
+                 f"clipped", fontsize=10)
+    clipped["residual_velocity_position.png"] = count
     names.append(_save(fig, staging, "residual_velocity_position.png"))
 
     fig, ax = plt.subplots(figsize=(9, 3.5))
@@ -138,7 +222,7 @@ def _plots(result: dict, staging: Path) -> list[str]:
         a.grid(alpha=0.3)
     fig.suptitle("Validation: fit before and after")
     names.append(_save(fig, staging, "validation_fit.png"))
-    return names
+    return names, clipped
 
 
 def _save(fig, staging: Path, name: str) -> str:
@@ -148,15 +232,34 @@ def _save(fig, staging: Path, name: str) -> str:
     return name
 
 
-def _markdown(doc: dict, plots: list[str], result: dict) -> str:
+def _markdown(doc: dict, plots: list[str], result: dict, clipped: dict[str, int]) -> str:
     val = doc["validation"]
+    units = plant_units(result)
     lines = ["# Mismatch diagnosis", "", f"Bundle: `{result['bundle'].directory}`", ""]
     if doc["effects"]:
         lines += ["## Missing physics found", ""]
         for e in doc["effects"]:
-            params = ", ".join(f"{k} = {v:.4g}" for k, v in e["parameters"].items())
-            lines += [f"### {e['name']} ({params})", "", e["explanation"], "",
-                      f"Location: {json.dumps(e['location'])}", ""]
+            params = ", ".join(f"{k} = {_with_unit(v, e['units'].get(k, ''))}" for k, v in e["parameters"].items())
+            lines += [f"### {e['name']} ({params})", "", e["explanation"], "", f"Location: {e['location_text']}", ""]
+            if e["equivalent_forms"]:
+                f = e["equivalent_forms"]
+                lines += [f"Equivalent while moving: Coulomb friction Fc = {_with_unit(f['Fc_equivalent'], 'N')} plus "
+                          f"a constant force {_with_unit(f['offset_while_moving'], 'N')} (the two differ only at "
+                          f"rest, where asymmetric friction vanishes and a constant force does not).", ""]
+            if e["equivalent_explanations"]:
+                lines += ["#### Equivalent explanations", "",
+                          "These structures fit within noise on the training and the validation recording:", "",
+                          "| structure | parameters | training cost [-] | validation RMS [m] | fitted parameters | "
+                          "AIC = cost + 2k [-] |", "|---|---|---|---|---|---|"]
+                first = e["equivalent_explanations"][0]
+                lines.append(f"| **{e['name']}** (chosen) | {params} | {first['chosen_train_cost']:.6g} | "
+                             f"{first['chosen_validation_rms']:.4g} | {first['chosen_fitted_parameters']} | "
+                             f"{first['chosen_aic']:.6g} |")
+                for q in e["equivalent_explanations"]:
+                    text = ", ".join(f"{k} = {_with_unit(v, CONTRACT_UNITS.get(k, ''))}" for k, v in q["parameters"].items())
+                    lines.append(f"| {q['name']} | {text} | {q['train_cost']:.6g} | {q['validation_rms']:.4g} | "
+                                 f"{q['fitted_parameters']} | {q['aic']:.6g} |")
+                lines += ["", f"Rule that picked {e['name']}: {e['selection_rule']}.", ""]
     else:
         lines += ["## No missing physics", "", "After refitting the nominal parameters, no candidate effect "
                   "improved the fit beyond what a correct model leaves on the same excitation, or none improved "
@@ -166,16 +269,69 @@ def _markdown(doc: dict, plots: list[str], result: dict) -> str:
               f"Noise floor (RMS that the fitted model leaves when re-simulated with the estimated encoder noise "
               f"fed back): {val['noise_floor_rms']:.4g} m. Model error above it: {val['nominal_excess_rms']:.4g} m "
               f"(nominal) -> {val['augmented_excess_rms']:.4g} m (augmented).", "",
-              "Nominal parameters (refitted): " + ", ".join(f"{k} = {v:.5g}" for k, v in
-                                                          doc["nominal_parameters"].items()), "",
-              "## Candidates tested", "", "| round | effect | cost reduction | null 99.9 % | ratio | seconds |",
+              "## Parameters", "", "| parameter | unit | start | nominal, refitted | augmented, refitted |",
+              "|---|---|---|---|---|"]
+    start = result["bundle"].start
+    for name, value in doc["augmented_parameters"].items():
+        nominal = doc["nominal_parameters"].get(name)
+        lines.append(f"| {name} | {_unit(name, units) or '-'} | "
+                     f"{'' if name not in start else f'{start[name]:.6g}'} | "
+                     f"{'' if nominal is None else f'{nominal:.6g}'} | {value:.6g} |")
+    lines += ["", "## Candidates tested", "",
+              "| round | effect | cost reduction [-] | null 99.9 % [-] | ratio [-] | seconds [s] |",
               "|---|---|---|---|---|---|"]
     for c in doc["candidates"]:
         lines.append(f"| {c['round']} | {c['effect']} | {c['cost_reduction']:.4g} | {c['null_threshold']:.4g} | "
                      f"{c['evidence_ratio']:.2f} | {c['seconds']} |")
-    lines += ["", "## Plots", ""] + [f"![{p}]({p})" for p in plots] + [""]
+    lines += ["", "Costs are noise-weighted sums of squares (dimensionless); an effect is kept when its cost "
+              "reduction exceeds the 99.9 % null level and it lowers the validation RMS by at least 10 %.", "",
+              "## Plots", ""]
+    for p in plots:
+        note = (f" ({clipped[p]} outliers beyond the 1-99 % range widened by {CLIP_WIDEN:g} of its width on each "
+                f"side, drawn at the edge)" if p in clipped else "")
+        lines += [f"![{p}]({p})", f"{p}{note}", ""]
     lines += [f"Augmented model: `{doc['augmented_model']}`; FMU: `{doc['augmented_fmu']}`.", ""]
     return "\n".join(lines)
+
+
+def html_from_markdown(text: str, title: str = "Mismatch diagnosis") -> str:
+    """The report's Markdown (headings, paragraphs, pipe tables, images, `code`, **bold**) as one HTML page."""
+    import html
+    import re
+
+    def inline(s: str) -> str:
+        s = html.escape(s)
+        s = re.sub(r"!\[([^\]]*)\]\(([^)]+)\)", r'<img src="\2" alt="\1">', s)
+        s = re.sub(r"`([^`]+)`", r"<code>\1</code>", s)
+        return re.sub(r"\*\*([^*]+)\*\*", r"<b>\1</b>", s)
+
+    out = [f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>{html.escape(title)}</title>",
+           "<style>body{font-family:sans-serif;max-width:70em;margin:auto}table{border-collapse:collapse}"
+           "td,th{border:1px solid #bbb;padding:2px 6px;text-align:right}img{max-width:100%}</style></head><body>"]
+    rows: list[list[str]] = []
+
+    def flush() -> None:
+        if rows:
+            head, body = rows[0], [r for r in rows[1:] if not all(set(c) <= set("-: ") for c in r)]
+            out.append("<table><tr>" + "".join(f"<th>{inline(c)}</th>" for c in head) + "</tr>"
+                       + "".join("<tr>" + "".join(f"<td>{inline(c)}</td>" for c in r) + "</tr>" for r in body)
+                       + "</table>")
+            rows.clear()
+
+    for line in text.splitlines():
+        if line.startswith("|"):
+            rows.append([c.strip() for c in line.strip().strip("|").split("|")])
+            continue
+        flush()
+        heading = re.match(r"^(#{1,6}) (.*)", line)
+        if heading:
+            level = len(heading.group(1))
+            out.append(f"<h{level}>{inline(heading.group(2))}</h{level}>")
+        elif line.strip():
+            out.append(f"<p>{inline(line)}</p>")
+    flush()
+    out.append("</body></html>")
+    return "\n".join(out) + "\n"
 
 
 def write_all(result: dict, staging: Path, out: Path) -> dict:
@@ -191,9 +347,12 @@ def write_all(result: dict, staging: Path, out: Path) -> dict:
     table = np.column_stack([val.time, val["q"], result["nominal"].val_q, result["q_augmented"]])
     np.savetxt(staging / "validation_prediction.csv", table, delimiter=",", fmt="%.17g",
                header="time,q_measured,q_nominal,q_augmented", comments="")
+    plots, clipped = _plots(result, staging)
+    doc["plots_clipped_points"] = clipped
     (staging / "diagnosis.json").write_text(json.dumps(_jsonable(doc), indent=2), encoding="utf-8")
-    plots = _plots(result, staging)
-    (staging / "report.md").write_text(_markdown(doc, plots, result), encoding="utf-8")
+    markdown = _markdown(doc, plots, result, clipped)
+    (staging / "report.md").write_text(markdown, encoding="utf-8")
+    (staging / "report.html").write_text(html_from_markdown(markdown), encoding="utf-8")
     return _jsonable(doc)
 
 

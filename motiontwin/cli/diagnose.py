@@ -13,8 +13,12 @@ def _diagnose(args: argparse.Namespace) -> int:
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Add this module's subcommands to the ``motiontwin`` parser."""
+    from motiontwin.ident.bundleformat import BUNDLE_FORMAT
+
     p = sub.add_parser("diagnose", help="locate and name the physics a recording shows and the model lacks; "
-                                        "refit, rebuild the FMU, validate")
+                                        "refit, rebuild the FMU, validate",
+                       description="Diagnose the mismatch between a nominal model and closed-loop recordings.",
+                       epilog=BUNDLE_FORMAT, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("bundle", type=Path, help="bundle folder with experiment.json, plant .mo, train/validation CSV")
     p.add_argument("--out", type=Path, required=True, help="output folder (diagnosis.json, report.md, FMU, ...)")
     p.add_argument("--quiet", action="store_true", help="do not print progress")

@@ -156,6 +156,7 @@ def _identify_oe(args: argparse.Namespace) -> int:
 
     from motiontwin.fmus import build
     from motiontwin.harness.recording import atomic_write_texts, read_recording
+    from motiontwin.ident import startvalues
     from motiontwin.ident.controller import load_controller
     from motiontwin.ident.outputerror import Signals, identify
 
@@ -165,8 +166,19 @@ def _identify_oe(args: argparse.Namespace) -> int:
     rec = read_recording(args.recording, required)
     model = build.load_model(args.class_name, args.modelica)
     free = [n.strip() for n in args.free.split(",") if n.strip()]
+    start = {**(startvalues.read_values_file(args.values) if args.values else {}),
+             **startvalues.parse_assignments(args.set)}
+    startvalues.check_parameters(model, start, "--set/--values")
+    position = startvalues.output_state(model, signals.output)
+    velocity = startvalues.velocity_state(model, position) if position else None
+    tracking = {position: "q"} if position and position != signals.output else {}   # starts at q_0
+    estimate = None
+    if args.initial == "samples" and velocity is not None:
+        tracking[velocity] = "dq"          # first guess from the first samples, then estimated with the position
+        estimate = [position, velocity]
     result = identify(model, rec, free, controller, signals, max_nfev=args.max_nfev, shooting=args.shooting,
-                      segments=args.segments)
+                      segments=args.segments, start=start, auto_start=args.auto_start,
+                      tracking=tracking or None, estimate_initial=estimate)
     stats = result.statistics
     print(stats.summary())
     multiple = args.shooting == "multiple"
@@ -381,6 +393,15 @@ def register(sub: argparse._SubParsersAction) -> None:
     q.add_argument("--shooting", choices=("single", "multiple"), default="single",
                    help="single shooting (Gauss-Newton, default) or multiple shooting (IPOPT, continuity constraints)")
     q.add_argument("--segments", type=int, default=4, help="segments of the recording for --shooting multiple")
+    q.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
+                   help="start value of a plant parameter (repeatable; over --values and the Modelica default)")
+    q.add_argument("--values", type=Path, default=None, metavar="FILE",
+                   help="start values as JSON, {\"parameters\": {NAME: VALUE}} (as identify --out writes) or flat")
+    q.add_argument("--no-auto-start", dest="auto_start", action="store_false",
+                   help="do not start the free parameters from inverse-dynamics least squares (default: those "
+                        "entering the plant's force linearly, e.g. m, d, Fc, without --set/--values, do)")
+    q.add_argument("--initial", choices=("samples", "rest"), default="samples",
+                   help="initial velocity: from the first samples (default; a loop moving at t = 0) or at rest")
     q.add_argument("--out", type=Path, default=None, help="JSON for writeback --values")
     q.set_defaults(func=_identify_oe, output_files=("out",))
 

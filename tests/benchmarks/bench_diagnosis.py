@@ -18,7 +18,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from motiontwin.ident.diagnosis import diagnose
+from motiontwin.ident.diagnosis import diagnose_bundle
 from motiontwin.ident.diagnosis import effects as fx
 
 TARGET_S = 120.0
@@ -80,7 +80,7 @@ def main() -> int:
         truth = json.loads((folder / f"{case}.truth.json").read_text())
         wall0, cpu0 = time.perf_counter(), cpu_seconds()
         with tempfile.TemporaryDirectory() as tmp:
-            doc = diagnose(folder / case, Path(tmp) / "out")
+            doc = diagnose_bundle(folder / case, Path(tmp) / "out")
         wall, cpu = time.perf_counter() - wall0, cpu_seconds() - cpu0
         worst = max(worst, wall)
         val = doc["validation"]

@@ -1,0 +1,246 @@
+"""Start values and initial state for output-error refits and the diagnosis (issue 13, item 1).
+
+* user values: ``NAME=VALUE`` assignments and a values file (the JSON ``identify`` writes,
+  ``{"parameters": {...}}``, or a flat ``{"m": 95.0}``), checked against the plant's parameters;
+* an automatic starting point from inverse-dynamics least squares: the force the plant needs for the
+  measured (low-pass filtered, differentiated) motion, ``u = g(x, v, a, p)``, is regressed on the recorded
+  force for the parameters that enter it linearly (mass, viscous friction, Coulomb level, offset, ...), so a
+  free run from the Modelica defaults (m = 2 kg against a 95 kg axis) is never the first thing tried;
+* the initial velocity from the first samples (a quadratic fit), so a recording that is already moving
+  at t = 0 does not start the free run at rest;
+* :class:`DivergenceError`: a free run that diverges, named with what diverged and what to set.
+
+Units: SI (s, m, N), those of the Modelica model.
+"""
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import casadi as ca
+import numpy as np
+
+from motiontwin.fmus import symbolic
+from motiontwin.ident.signals import lowpass_differentiate
+
+#: samples of the quadratic fit that gives the initial position and velocity (at least 8)
+FIRST_SAMPLES_SECONDS = 0.01
+
+
+class StartValueError(ValueError):
+    """A start value is unusable; the message names the option, file or field at fault."""
+
+
+class DivergenceError(ValueError):
+    """A free run of the plant (or closed loop) diverges from the start values."""
+
+
+def parse_assignments(items: list[str], option: str = "--set") -> dict[str, float]:
+    """``["m=95", "d=3.5"]`` -> ``{"m": 95.0, "d": 3.5}``; a malformed item raises naming it."""
+    values: dict[str, float] = {}
+    for item in items:
+        name, sep, text = item.partition("=")
+        try:
+            value = float(text)
+        except ValueError:
+            value = math.nan
+        if not sep or not name.strip() or not math.isfinite(value):
+            raise StartValueError(f"{option} {item!r}: expected NAME=VALUE with a finite number")
+        values[name.strip()] = value
+    return values
+
+
+def read_values_file(path: Path) -> dict[str, float]:
+    """Parameter values from JSON: ``{"parameters": {NAME: VALUE}}`` (as ``identify --out`` writes) or a flat
+    ``{NAME: VALUE}``. Errors name the file, line/column or the field."""
+    path = Path(path)
+    try:
+        doc = json.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise StartValueError(f"{path}: values file not found") from None
+    except json.JSONDecodeError as exc:
+        raise StartValueError(f"{path}, line {exc.lineno}, column {exc.colno}: invalid JSON ({exc.msg})") from None
+    values = doc.get("parameters", doc) if isinstance(doc, dict) else None
+    if not isinstance(values, dict):
+        raise StartValueError(f"{path}: expected a JSON object {{\"parameters\": {{NAME: VALUE}}}}")
+    return check_numbers(values, str(path))
+
+
+def check_numbers(values: dict, where: str) -> dict[str, float]:
+    """``values`` as floats; a non-numeric or non-finite entry raises naming ``where`` and the field."""
+    out: dict[str, float] = {}
+    for name, value in values.items():
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+            raise StartValueError(f"{where}: field 'parameters.{name}' must be a finite number, got {value!r}")
+        out[str(name)] = float(value)
+    return out
+
+
+def check_parameters(model: symbolic.SymbolicModel, values: dict[str, float], where: str) -> None:
+    """Every name in ``values`` must be a parameter of ``model`` within its Modelica min/max."""
+    by_name = {v.name: v for v in model.parameters}
+    for name, value in values.items():
+        if name not in by_name:
+            raise StartValueError(f"{where}: {model.name} has no parameter {name!r}; its parameters are "
+                                  f"{', '.join(by_name)}")
+        var = by_name[name]
+        if not var.min <= value <= var.max:
+            raise StartValueError(f"{where}: {name} = {value!r} is outside its Modelica range "
+                                  f"[{var.min}, {var.max}]")
+
+
+def velocity_state(model: symbolic.SymbolicModel, position_state: str) -> str | None:
+    """The state v with der(position_state) = v, or None."""
+    names = [v.name for v in model.states]
+    if position_state not in names:
+        return None
+    dpos = model.dx[names.index(position_state)]
+    found = [names[i] for i in range(len(names)) if ca.is_equal(dpos, model.x[i], 2)]
+    return found[0] if found else None
+
+
+def first_samples(q: np.ndarray, ts: float) -> tuple[float, float]:
+    """Position [m] and velocity [m/s] at t = 0 from a quadratic least-squares fit to the first
+    ``FIRST_SAMPLES_SECONDS`` of ``q`` (at least 8 samples): the noise of one sample and the motion at t = 0
+    are both accounted for."""
+    n = int(min(q.size, max(8, round(FIRST_SAMPLES_SECONDS / ts))))
+    t = np.arange(n) * ts
+    coef = np.polyfit(t, np.asarray(q[:n], float), 2 if n >= 4 else 1)
+    return float(np.polyval(coef, 0.0)), float(np.polyval(np.polyder(coef), 0.0))
+
+
+def mirror_derivatives(signal: np.ndarray, fs: float, fc: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Zero-phase low-pass and derivatives of a non-periodic record: the even extension is periodic and
+    continuous, so the DFT filter/differentiator of Abdellatif sec. 3.3 applies to it."""
+    n = signal.size
+    ext = np.concatenate([signal, signal[::-1]])
+    d = lowpass_differentiate(ext, fs, fc)
+    return d.position[:n], d.velocity[:n], d.acceleration[:n]
+
+
+def inverse_dynamics_start(model: symbolic.SymbolicModel, q: np.ndarray, u: np.ndarray, ts: float,
+                           position_state: str, free: list[str], values: dict[str, float],
+                           bounds: dict[str, tuple[float, float]] | None = None,
+                           input_name: str | None = None) -> dict[str, float]:
+    """Least-squares starting values of the free parameters that enter the inverse dynamics linearly.
+
+    Parameters
+    ----------
+    model : the plant (two states: position and velocity, one driven input).
+    q, u : recorded position [m] and plant input force [N], uniformly sampled at ``ts`` [s].
+    position_state : the state equal to ``q``.
+    free : parameters to estimate; those entering the needed force nonlinearly keep ``values``.
+    values : every parameter's current value (the fixed ones and the nonlinear free ones).
+    bounds : the estimates are clipped into these (default: the Modelica min/max).
+    input_name : the driven input (default: the only one).
+
+    Returns
+    -------
+    dict
+        Estimated values of the linear free parameters (empty when none can be estimated: another plant
+        structure, an input that does not enter linearly, or a rank-deficient regressor).
+    """
+    vel = velocity_state(model, position_state)
+    names = [s.name for s in model.states]
+    inputs = [v.name for v in model.inputs]
+    if vel is None or model.x.numel() != 2 or not free or (input_name is None and len(inputs) != 1):
+        return {}
+    k_in = inputs.index(input_name or inputs[0])
+    i_x, i_v = names.index(position_state), names.index(vel)
+    acc = model.dx[i_v]
+    gain = ca.jacobian(acc, model.u)[k_in]
+    if ca.depends_on(gain, model.u):
+        return {}
+    a_sym = ca.SX.sym("a")
+    u_zero = ca.substitute(acc, model.u, ca.DM.zeros(model.u.numel()))
+    force = (a_sym - u_zero) / gain
+    pnames = [v.name for v in model.parameters]
+    fn = ca.Function("force", [model.x, a_sym, model.p], [force, ca.jacobian(force, model.p)])
+    fs = 1 / ts
+    fc = min(0.1 * fs, 150.0)
+    x, v, a = mirror_derivatives(np.asarray(q, float), fs, fc)
+    u = np.asarray(u, float)
+    held = np.concatenate([u[:1], 0.5 * (u[1:] + u[:-1])])   # the force held over the half samples around t_k
+    u_f, _, _ = mirror_derivatives(held, fs, fc)
+    n = x.size
+    keep = slice(n // 20, n - n // 20)          # the filter's end effects
+    states = np.zeros((2, n))
+    states[i_x], states[i_v] = x, v
+    p0 = np.array([values[name] for name in pnames], float)
+    mapped = fn.map(n)
+
+    def evaluate(p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        f, j = mapped(states, a[None, :], p)
+        return np.array(f).ravel(), np.array(j).reshape(n, len(pnames))   # per sample: one row of dF/dp
+
+    f0, j0 = evaluate(p0)
+    p1 = p0 * 1.37 + 0.11
+    _, j1 = evaluate(p1)
+    idx = [pnames.index(name) for name in free]
+    linear = [i for i in idx if np.any(j0[:, i] != 0)
+              and np.allclose(j0[:, i], j1[:, i], rtol=1e-9, atol=1e-12 * np.max(np.abs(j0[:, i])))]
+    if not linear or not np.all(np.isfinite(f0)) or not np.all(np.isfinite(j0[:, linear])):
+        return {}
+    mat = j0[keep][:, linear]
+    target = (u_f - f0)[keep] + mat @ p0[linear]
+    scale = np.linalg.norm(mat, axis=0)
+    sol, _, rank, _ = np.linalg.lstsq(mat / scale, target, rcond=None)
+    if rank < len(linear):
+        return {}
+    estimate = sol / scale
+    by_name = {v.name: v for v in model.parameters}
+    out = {}
+    for i, value in zip(linear, estimate):
+        name = pnames[i]
+        lo, hi = (bounds or {}).get(name, (by_name[name].min, by_name[name].max))
+        out[name] = float(np.clip(value, lo, hi))
+    return out
+
+
+def check_free_run(q_sim: np.ndarray, q_meas: np.ndarray, time: np.ndarray, what: str, values: dict[str, float],
+                   hint: str) -> None:
+    """Raise :class:`DivergenceError` when the free run ``q_sim`` leaves the measured range by far (1000 x its
+    span) or is not finite: names ``what``, the time, the parameter values used and ``hint`` (what to set)."""
+    span = float(np.ptp(q_meas)) or float(np.max(np.abs(q_meas))) or 1.0
+    centre = float(np.mean(q_meas))
+    bad = ~np.isfinite(q_sim) | (np.abs(q_sim - centre) > 1e3 * span)
+    if not np.any(bad):
+        return
+    k = int(np.argmax(bad))
+    shown = ", ".join(f"{k_}={v:.4g}" for k_, v in values.items())
+    reached = "not finite" if not np.isfinite(q_sim[k]) else f"{q_sim[k]:.3g}"
+    raise DivergenceError(f"{what} diverges: the simulated position is {reached} at t = {time[k]:.4g} s (the "
+                          f"recording spans {span:.3g}) with {shown}. {hint}")
+
+
+def controller_state(A: np.ndarray, B: np.ndarray, C: np.ndarray, D: np.ndarray, y: np.ndarray,
+                     u: np.ndarray) -> np.ndarray:
+    """Initial state z_0 of a sampled controller z+ = A z + B y, u = C z + D y from its recorded inputs
+    ``y`` (samples x inputs) and outputs ``u`` over the first samples: least squares of
+    u_k = C A^k z_0 + (response to y_0..y_k from z = 0), minimum norm in directions the samples do not see.
+    A loop that is already moving at t = 0 has integrator and filter states that the first output alone
+    (u_0 = C z_0 + D y_0) does not determine."""
+    nz = A.shape[0]
+    rows, rhs = [], []
+    z_known, power = np.zeros(nz), np.eye(nz)
+    for k in range(y.shape[0]):
+        rows.append((C @ power)[0])
+        rhs.append(u[k] - float((C @ z_known + D @ y[k])[0]))
+        z_known = A @ z_known + B @ y[k]
+        power = A @ power
+    return np.linalg.lstsq(np.array(rows), np.array(rhs), rcond=1e-10)[0]
+
+
+def output_state(model: symbolic.SymbolicModel, output: str) -> str | None:
+    """The state equal to ``output`` (the output itself when it is a state, or a state it is defined as,
+    ``q = x``), or None."""
+    names = [v.name for v in model.states]
+    if output in names:
+        return output
+    found = [c.expr for c in model.computed if c.var.name == output]
+    if found:
+        for i, name in enumerate(names):
+            if ca.is_equal(found[0], model.x[i], 2):
+                return name
+    return None
