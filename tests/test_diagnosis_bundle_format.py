@@ -77,7 +77,7 @@ def test_plant_by_library_class_name(bundle, tmp_path):
     # the augmented model the diagnosis writes around it loads through the front end
     ctx = fx.Context(bench.TS, 0.0, 0.1, 0.2, 2.0)
     fx.write_model(tmp_path / "aug", b.plant.text, b.plant.class_name, [fx.gravity_offset(ctx)],
-                   {"gravity_F0": 1.0}, {"m": 2.5}, "Augmented")
+                   {"gravity_F0": 1.0}, {"m": 2.5}, "Augmented", b.plant.roles)
     model = fx.load_augmented(tmp_path / "aug", "Augmented")
     assert {"plant.m", "plant.d", "gravity_F0"} <= {p.name for p in model.parameters}
     for name, needle in (("MotionTwin.Plants.NoSuchJoint", "not a class of the MotionTwin library"),

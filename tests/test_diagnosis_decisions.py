@@ -27,6 +27,7 @@ from motiontwin.fmus import build
 from motiontwin.harness.recording import make_recording
 from motiontwin.ident import outputerror as sim
 from motiontwin.ident.diagnosis import benchmark as bench
+from motiontwin.ident.diagnosis.plant_roles import PlantRoles
 from motiontwin.ident.diagnosis import effects as fx
 from motiontwin.ident.diagnosis import pipeline
 from motiontwin.ident.diagnosis.bundle import read_bundle
@@ -182,7 +183,7 @@ def test_augmented_model_uses_the_library_laws(tmp_path):
               "ripple_quarter": math.pi / 2}
     m, d = 2.0, 15.0
     fx.write_model(tmp_path, bench.PLANT_TEXT.format(m=m, d=d), bench.PLANT_CLASS, effects, values,
-                   {"m": m, "d": d}, "Augmented")
+                   {"m": m, "d": d}, "Augmented", PlantRoles("u", "q", "x", "v"))
     model = fx.load_augmented(tmp_path, "Augmented")
     names = [s.name for s in model.states]
     assert names == ["plant.x", "plant.v"]

@@ -363,7 +363,7 @@ def casadi_truth(plant: TruthPlant, r: np.ndarray, u_ext: np.ndarray, noise: np.
         values.update({k: v for k, v in true["parameters"].items() if k in {p.name for p in effect.params}})
     with tempfile.TemporaryDirectory(prefix="mt-truth-") as folder:
         fx.write_model(Path(folder), PLANT_TEXT.format(m=m, d=d), PLANT_CLASS, effects, values,
-                       {"m": m, "d": d}, "Truth")
+                       {"m": m, "d": d}, "Truth", PlantRoles("u", "q", "x", "v"))
         model = fx.load_augmented(Path(folder), "Truth")
     n = r.size
     t = np.arange(n) * TS
