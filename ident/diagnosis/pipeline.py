@@ -347,6 +347,9 @@ def select(bundle: Bundle, nominal: ModelFit, weights: sim.Weights, ctx: fx.Cont
     return current, log
 
 
+#: one diagnosis at a time per process: CasADi's symbolic layer is not thread-safe (see :func:`diagnose`)
+_CASADI_LOCK = threading.Lock()
+
 #: screening jobs by token, (bundle, current, ctx, weights, folder): forked workers inherit the table and are
 #: sent only (token, name); every call adds its own token and removes it, so concurrent diagnoses do not collide
 _SCREEN_JOBS: dict[int, tuple] = {}
@@ -603,7 +606,9 @@ def diagnose(plant: str | Path, controller: Controller | dict, train: Recording,
         Effects, parameters and validation; ``.write(folder)`` writes the report and the FMU.
 
     Re-entrant: every call compiles its own loops (no module-level cache), so repeated calls and calls from
-    several threads give the same result as one call.
+    several threads give the same result as one call. Calls from several threads run one at a time: CasADi's
+    symbolic layer shares reference-counted constants between expressions and is not thread-safe (parallel
+    diagnoses belong in separate processes).
     """
     bundle = make_bundle(plant, controller, train, validation, plant_class, parameters)
     return diagnose_bundle_object(bundle, progress)
@@ -611,7 +616,7 @@ def diagnose(plant: str | Path, controller: Controller | dict, train: Recording,
 
 def diagnose_bundle_object(bundle: Bundle, progress: Callable[[str], None] | None = None) -> Diagnosis:
     """:func:`diagnose` of an already read :class:`Bundle` (working files in a temporary folder)."""
-    with tempfile.TemporaryDirectory(prefix="motiontwin-diagnosis-") as tmp:
+    with _CASADI_LOCK, tempfile.TemporaryDirectory(prefix="motiontwin-diagnosis-") as tmp:
         return Diagnosis.from_result(run(bundle, Path(tmp), progress))
 
 
