@@ -30,6 +30,7 @@ import functools
 import multiprocessing
 import os
 import signal
+import threading
 from pathlib import Path
 from typing import Any, Callable, Iterable, Iterator, Mapping, Protocol, Sequence
 
@@ -108,8 +109,20 @@ class ProcessPoolExecutor(_Closing):
         self._pool = self._new_pool()
 
     def _new_pool(self) -> concurrent.futures.ProcessPoolExecutor:
-        return concurrent.futures.ProcessPoolExecutor(max_workers=self.workers, initializer=_ignore_interrupt,
+        """A pool whose workers are all started now, with SIGINT ignored: a spawned interpreter inherits the
+        ignored disposition across exec, so a Ctrl-C while a worker is still importing cannot end it with a
+        traceback (its initializer would come too late); the parent's handler is back once they are forked."""
+        pool = concurrent.futures.ProcessPoolExecutor(max_workers=self.workers, initializer=_ignore_interrupt,
                                                       mp_context=multiprocessing.get_context("spawn"))
+        if threading.current_thread() is not threading.main_thread():
+            return pool
+        previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+        try:
+            for _ in range(self.workers):   # each submit without an idle worker spawns one
+                pool.submit(int)
+        finally:
+            signal.signal(signal.SIGINT, previous)
+        return pool
 
     def imap(self, fn: Callable[[Any], Any], items: Sequence[Any], retries: int = 2) -> Iterator[tuple[int, Any]]:
         """Each run as it finishes. At most ``workers`` runs are in the pool at a time, so when a worker

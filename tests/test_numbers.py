@@ -20,7 +20,7 @@ def test_number_classes(value: object, number: bool, integer: bool, finite: bool
 
 def test_readers_refuse_booleans_and_infinities_naming_the_field() -> None:
     """A TOML ``true`` is no sample time and ``inf`` no tolerance: each reader names where."""
-    with pytest.raises(ExperimentError, match="e.toml: field 'sample_time' must be a number, got True"):
+    with pytest.raises(ExperimentError, match="e.toml: field 'sample_time' must be a finite number, got True"):
         parse_experiment({"sample_time": True, "duration": 1.0, "excitation": {"kind": "step", "t_step": 0.1,
                                                                                "amplitude": 1.0}}, "e.toml")
     with pytest.raises(SuiteError, match="tolerance abs must be a number >= 0, got inf"):
