@@ -27,7 +27,7 @@ demo: setup
 	$(BIN)/motiontwin demo --out build/demo
 
 test: setup
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -n auto --dist loadfile
 
 bench: setup
 	for b in tests/benchmarks/bench_*.py; do $(BIN)/python $$b || exit 1; done
