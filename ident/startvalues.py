@@ -36,21 +36,6 @@ class DivergenceError(ValueError):
     """A free run of the plant (or closed loop) diverges from the start values."""
 
 
-def parse_assignments(items: list[str], option: str = "--set") -> dict[str, float]:
-    """``["m=95", "d=3.5"]`` -> ``{"m": 95.0, "d": 3.5}``; a malformed item raises naming it."""
-    values: dict[str, float] = {}
-    for item in items:
-        name, sep, text = item.partition("=")
-        try:
-            value = float(text)
-        except ValueError:
-            value = math.nan
-        if not sep or not name.strip() or not math.isfinite(value):
-            raise StartValueError(f"{option} {item!r}: expected NAME=VALUE with a finite number")
-        values[name.strip()] = value
-    return values
-
-
 def read_values_file(path: Path) -> dict[str, float]:
     """Parameter values from JSON: ``{"parameters": {NAME: VALUE}}`` (as ``identify --out`` writes) or a flat
     ``{NAME: VALUE}``. Errors name the file, line/column or the field."""

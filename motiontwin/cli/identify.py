@@ -6,6 +6,8 @@ from pathlib import Path
 
 import numpy as np
 
+from motiontwin.cli.arguments import name_values
+
 
 def _report_fit(fit: object, args: argparse.Namespace, method: str) -> int:
     """Print a least-squares fit and, with ``--out``, write estimates, std and covariance as JSON."""
@@ -167,7 +169,7 @@ def _identify_oe(args: argparse.Namespace) -> int:
     model = build.load_model(args.class_name, args.modelica)
     free = [n.strip() for n in args.free.split(",") if n.strip()]
     start = {**(startvalues.read_values_file(args.values) if args.values else {}),
-             **startvalues.parse_assignments(args.set)}
+             **{name: value for item in args.set for name, value in name_values(item, "--set").items()}}
     startvalues.check_parameters(model, start, "--set/--values")
     position = startvalues.output_state(model, signals.output)
     velocity = startvalues.velocity_state(model, position) if position else None
