@@ -13,7 +13,7 @@ import scipy.signal as sps
 from motiontwin.harness.recording import make_recording
 from motiontwin.ident.diagnosis import BundleError, main, read_bundle
 from motiontwin.ident.diagnosis import benchmark as bench
-from motiontwin.ident import outputerror as sim
+from motiontwin.ident import outputerror
 
 
 @pytest.fixture(scope="module")
@@ -105,8 +105,8 @@ def test_closed_loop_simulation_matches_exact_discretisation(small_bundle):
     r = 1e-3 * np.sin(2 * np.pi * 3 * t)
     u_ext = 0.5 * np.sin(2 * np.pi * 70 * t)
     rec = make_recording(t, {"r": r, "u": np.zeros(n), "q": np.zeros(n), "u_ext": u_ext})
-    loop = sim.build_loop(b.plant.model, b.controller, "x", [], {}, n, substeps=8, with_jacobian=False)
-    q, u = sim.simulate(loop, rec)
+    loop = outputerror.build_loop(b.plant.model, b.controller, "x", [], {}, n, substeps=8, with_jacobian=False)
+    q, u = outputerror.simulate(loop, rec)
     ad, bd, *_ = sps.cont2discrete((np.array([[0, 1], [0, -d / m]]), np.array([[0], [1 / m]]),
                                     np.eye(2), np.zeros((2, 1))), b.controller.Ts, method="zoh")
     c = b.controller
@@ -158,21 +158,21 @@ def test_augmented_fmu_reproduces_casadi_model(diagnosed):
     """The written FMU (fmpy, its own solver) and the CasADi model of the written Modelica agree open loop."""
     import fmpy
 
-    from motiontwin.ident.diagnosis import effects as fx
+    from motiontwin.ident.diagnosis import effects as effect_models
     from motiontwin.ident.controller import Controller
 
     out, exit_code = diagnosed
     assert exit_code == 0
     doc = json.loads((out / "diagnosis.json").read_text())
-    model = fx.load_augmented(Path(doc["augmented_model"]).parent, "Augmented")
+    model = effect_models.load_augmented(Path(doc["augmented_model"]).parent, "Augmented")
     n, ts = 400, 5e-4
     t = np.arange(n) * ts
     k_step = 200
     force = np.where(np.arange(n) < k_step, 2.0, -1.0)
     open_loop = Controller(ts, np.zeros((0, 0)), np.zeros((0, 2)), np.zeros((1, 0)), np.zeros((1, 2)))
     rec = make_recording(t, {"r": np.zeros(n), "u": force, "q": np.zeros(n), "u_ext": force})
-    loop = sim.build_loop(model, open_loop, "plant.x", [], {}, n, substeps=4, with_jacobian=False)
-    q_casadi, _ = sim.simulate(loop, rec)
+    loop = outputerror.build_loop(model, open_loop, "plant.x", [], {}, n, substeps=4, with_jacobian=False)
+    q_casadi, _ = outputerror.simulate(loop, rec)
     signals = np.array([(0.0, 2.0), (t[k_step], 2.0), (t[k_step], -1.0), (t[-1], -1.0)],
                        dtype=[("time", float), ("u", float)])  # the held force, step at sample k_step
     res = fmpy.simulate_fmu(doc["augmented_fmu"], stop_time=t[-1], output_interval=ts, input=signals,
@@ -227,9 +227,9 @@ def test_named_controller_equals_its_discrete_state_space(small_bundle, tmp_path
         assert np.max(np.abs(got - ref)) <= 1e-12 * max(1.0, np.max(np.abs(ref))), name
     # the same diagnosis inputs: the closed loop driven by the training recording is the same
     for bundle in (named, explicit):
-        loop = sim.build_loop(bundle.plant.model, bundle.controller, "x", [], {}, 2000, with_jacobian=False)
+        loop = outputerror.build_loop(bundle.plant.model, bundle.controller, "x", [], {}, 2000, with_jacobian=False)
         rec = make_recording(bundle.train.time[:2000], {k: bundle.train[k][:2000] for k in ("r", "u", "q", "u_ext")})
-        bundle.q_free_run = sim.simulate(loop, rec)[0]
+        bundle.q_free_run = outputerror.simulate(loop, rec)[0]
     assert np.max(np.abs(named.q_free_run - explicit.q_free_run)) <= 1e-12
 
 

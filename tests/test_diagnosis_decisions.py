@@ -25,10 +25,10 @@ import scipy.signal as sps
 
 from motiontwin.fmus import build
 from motiontwin.harness.recording import make_recording
-from motiontwin.ident import outputerror as sim
+from motiontwin.ident import outputerror
 from motiontwin.ident.diagnosis import benchmark as bench
 from motiontwin.ident.diagnosis.plant_roles import PlantRoles
-from motiontwin.ident.diagnosis import effects as fx
+from motiontwin.ident.diagnosis import effects as effect_models
 from motiontwin.ident.diagnosis import pipeline
 from motiontwin.ident.diagnosis.bundle import read_bundle
 
@@ -176,15 +176,15 @@ def test_variable_inertia_law():
 def test_augmented_model_uses_the_library_laws(tmp_path):
     """The model the diagnosis writes and refits (nominal plant + Effects functions copied beside it) has the
     closed-form Stribeck and ripple forces: plant.u = u - F_stribeck - F_ripple."""
-    ctx = fx.Context(bench.TS, 0.0, 0.1, 0.2, bench.TRUE_M)
-    effects = [fx.stribeck_friction(ctx), fx.position_ripple(ctx)]
+    ctx = effect_models.Context(bench.TS, 0.0, 0.1, 0.2, bench.TRUE_M)
+    effects = [effect_models.stribeck_friction(ctx), effect_models.position_ripple(ctx)]
     values = {"stribeck_Fc": 0.08, "stribeck_Fs": 0.25, "stribeck_vs": 0.004, "stribeck_v_eps": 5e-4,
               "ripple_a": 0.3, "ripple_b": -0.2, "ripple_period": 0.016, "ripple_zero": 0.0,
               "ripple_quarter": math.pi / 2}
     m, d = 2.0, 15.0
-    fx.write_model(tmp_path, bench.PLANT_TEXT.format(m=m, d=d), bench.PLANT_CLASS, effects, values,
-                   {"m": m, "d": d}, "Augmented", PlantRoles("u", "q", "x", "v"))
-    model = fx.load_augmented(tmp_path, "Augmented")
+    effect_models.write_model(tmp_path, bench.PLANT_TEXT.format(m=m, d=d), bench.PLANT_CLASS, effects, values,
+                              {"m": m, "d": d}, "Augmented", PlantRoles("u", "q", "x", "v"))
+    model = effect_models.load_augmented(tmp_path, "Augmented")
     names = [s.name for s in model.states]
     assert names == ["plant.x", "plant.v"]
     p = np.array([values.get(v.name, v.start) for v in model.parameters], float)
@@ -220,8 +220,8 @@ def test_output_error_integrator_is_fourth_order():
         x = ad @ x + bd[:, 0] * u[k]
     errors = []
     for substeps in (1, 2, 4):
-        loop = sim.build_loop(model, None, "x", [], {}, n, substeps=substeps, ts=ts, with_jacobian=False)
-        q, _ = sim.simulate(loop, rec)
+        loop = outputerror.build_loop(model, None, "x", [], {}, n, substeps=substeps, ts=ts, with_jacobian=False)
+        q, _ = outputerror.simulate(loop, rec)
         errors.append(float(np.max(np.abs(q - q_ref))))
     ratios = [errors[0] / errors[1], errors[1] / errors[2]]
     assert errors[2] > 1e-13, errors                    # still above round-off

@@ -24,10 +24,10 @@ import scipy.signal as sps
 
 from motiontwin.fmus import frontend, symbolic
 from motiontwin.harness.recording import make_recording, write_recording
-from motiontwin.ident import outputerror as sim
+from motiontwin.ident import outputerror
 from motiontwin.ident.diagnosis import BundleError, main, read_bundle
 from motiontwin.ident.diagnosis import benchmark as bench
-from motiontwin.ident.diagnosis import effects as fx
+from motiontwin.ident.diagnosis import effects as effect_models
 from motiontwin.ident.diagnosis import plant_roles as pr
 
 FORMS_DIR = Path(__file__).parent / "models" / "plant_forms"
@@ -140,9 +140,9 @@ def _closed_loop_q(form: Form, folder: Path) -> np.ndarray:
     """Closed-loop free run (benchmark PID, 0.4 s of moves from q0 = 12 mm) of the form's plant with all
     eight effects, at the true mass and damping: the model is the one the diagnosis' first pass builds."""
     roles = _roles(form)
-    ctx = fx.Context(bench.TS, 0.0, 0.1 / form.gain, 0.2 / form.gain, TRUE_M * form.gain)
-    augmented = fx.check_buildable(folder, form.path.read_text(), form.path, form.class_name, roles, ctx,
-                                   "Augmented")
+    ctx = effect_models.Context(bench.TS, 0.0, 0.1 / form.gain, 0.2 / form.gain, TRUE_M * form.gain)
+    augmented = effect_models.check_buildable(folder, form.path.read_text(), form.path, form.class_name, roles, ctx,
+                                              "Augmented")
     text = (folder / "all" / "Augmented.mo").read_text()
     assert "$" not in text and f"plant.{roles.position}" in text and f"plant.{roles.velocity}" in text
     assert {f"plant.{form.position}", f"plant.{form.velocity}", "resonance_x2", "delay_a"} <= \
@@ -153,9 +153,9 @@ def _closed_loop_q(form: Form, folder: Path) -> np.ndarray:
     r = 0.012 + 0.03 * (1 - np.cos(np.pi * np.clip(t / 0.3, 0, 1))) / 2
     u_ext = 0.5 * np.sin(2 * np.pi * 40 * t)
     rec = make_recording(t, {"r": r, "u": np.zeros(n), "q": np.full(n, 0.012), "u_ext": u_ext})
-    loop = sim.build_loop(augmented, bench.pid_controller(), "q", [], values, n, substeps=8,
-                          tracking={"resonance_x2": "q", "delay_p1": "u"}, with_jacobian=False)
-    q, _ = sim.simulate(loop, rec)
+    loop = outputerror.build_loop(augmented, bench.pid_controller(), "q", [], values, n, substeps=8,
+                                  tracking={"resonance_x2": "q", "delay_p1": "u"}, with_jacobian=False)
+    q, _ = outputerror.simulate(loop, rec)
     return q
 
 
@@ -187,8 +187,8 @@ def test_unsupported_form_named_before_fitting(tmp_path):
     form = FORMS[0]
     text = form.path.read_text().replace("RigidJoint", "Augmented")
     with pytest.raises(pr.PlantFormError, match=r"line 1: the plant's top-level class name 'Augmented'"):
-        fx.check_buildable(tmp_path, text, form.path, "Augmented", _roles(form),
-                           fx.Context(bench.TS, 0.0, 0.1, 0.2, 2.0), "Augmented")
+        effect_models.check_buildable(tmp_path, text, form.path, "Augmented", _roles(form),
+                           effect_models.Context(bench.TS, 0.0, 0.1, 0.2, 2.0), "Augmented")
 
 
 # -- identify oe on every form ------------------------------------------------------------------------

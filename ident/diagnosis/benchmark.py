@@ -347,30 +347,30 @@ def casadi_truth(plant: TruthPlant, r: np.ndarray, u_ext: np.ndarray, noise: np.
     RK4 with ``substeps`` steps per sample, the controller reading q + noise, no quantisation. Much faster
     to generate (no FMU build, no co-simulation); used by the fast decision tests. Returns r, u, q
     (measured = true + noise), u_ext and q_true on the controller grid, starting at rest at x = 0."""
-    from motiontwin.ident import outputerror as sim
-    from motiontwin.ident.diagnosis import effects as fx
+    from motiontwin.ident import outputerror
+    from motiontwin.ident.diagnosis import effects as effect_models
 
     if plant.class_name.endswith("VariableInertiaJoint"):
         raise ValueError("position_dependent_inertia: the truth (cosine mass) has no exact CasADi counterpart")
-    ctx = fx.Context(TS, 0.0, 0.1, 0.2, TRUE_M)
+    ctx = effect_models.Context(TS, 0.0, 0.1, 0.2, TRUE_M)
     m = plant.parameters.get("m", plant.parameters.get("m1", TRUE_M))
     d = plant.parameters["d"] if plant.parameters.get("d") else TRUE_D
     effects, values = [], {"plant.m": m, "plant.d": d}
     for true in plant.effects:
-        effect = fx.VOCABULARY[true["name"]](ctx)
+        effect = effect_models.VOCABULARY[true["name"]](ctx)
         effects.append(effect)
         values.update({p.name: float(np.mean(p.bounds)) for p in effect.params})
         values.update({k: v for k, v in true["parameters"].items() if k in {p.name for p in effect.params}})
     with tempfile.TemporaryDirectory(prefix="mt-truth-") as folder:
-        fx.write_model(Path(folder), PLANT_TEXT.format(m=m, d=d), PLANT_CLASS, effects, values,
+        effect_models.write_model(Path(folder), PLANT_TEXT.format(m=m, d=d), PLANT_CLASS, effects, values,
                        {"m": m, "d": d}, "Truth", PlantRoles("u", "q", "x", "v"))
-        model = fx.load_augmented(Path(folder), "Truth")
+        model = effect_models.load_augmented(Path(folder), "Truth")
     n = r.size
     t = np.arange(n) * TS
-    loop = sim.build_loop(model, ctrl or pid_controller(), "plant.x", [], values, n, substeps=substeps,
-                          with_jacobian=False)
+    loop = outputerror.build_loop(model, ctrl or pid_controller(), "plant.x", [], values, n, substeps=substeps,
+                                  with_jacobian=False)
     rec = make_recording(t, {"r": r, "u": np.zeros(n), "q": np.zeros(n), "u_ext": u_ext})
-    q_true, u = sim.simulate(loop, rec, values, noise=noise)
+    q_true, u = outputerror.simulate(loop, rec, values, noise=noise)
     return {"time": t, "r": r, "u": u, "q": q_true + noise, "u_ext": u_ext, "q_true": q_true}
 
 
@@ -516,11 +516,8 @@ def verify(case: str = "coulomb_friction", seed: int = 10, duration: float = 12.
     """Noise-free comparison of the co-simulated FMU truth with the CasADi closed-loop simulation of the
     same physics written as the diagnosis' augmented model (RK4, 32 substeps per sample), on the same
     drive including the pre-roll; returns max and RMS |q_fmu - q_casadi| [m] and the max |q| [m]."""
-    try:
-        from motiontwin.ident import outputerror as sim
-    except ImportError:
-        from motiontwin.ident.diagnosis import simulate as sim
-    from motiontwin.ident.diagnosis import effects as fx
+    from motiontwin.ident import outputerror
+    from motiontwin.ident.diagnosis import effects as effect_models
 
     plant = truth_plant(case)
     if plant.class_name.endswith("VariableInertiaJoint"):
@@ -530,21 +527,21 @@ def verify(case: str = "coulomb_friction", seed: int = 10, duration: float = 12.
     rr, ue, _ = with_preroll(r, u_ext)
     fmu = cosimulate(plant, rr, ue, np.zeros(rr.size), resolution=1e-15, fmu_dir=fmu_dir)
 
-    ctx = fx.Context(TS, 0.0, 0.1, 0.2, TRUE_M)
+    ctx = effect_models.Context(TS, 0.0, 0.1, 0.2, TRUE_M)
     effects, values = [], {"plant.m": TRUE_M, "plant.d": TRUE_D}
     for true in plant.effects:
-        effect = fx.VOCABULARY[true["name"]](ctx)
+        effect = effect_models.VOCABULARY[true["name"]](ctx)
         effects.append(effect)
         values.update({p.name: float(np.mean(p.bounds)) for p in effect.params})
         values.update({k: v for k, v in true["parameters"].items() if k in {p.name for p in effect.params}})
     folder = Path(tempfile.mkdtemp(prefix="mt-verify-"))
-    fx.write_model(folder, PLANT_TEXT.format(m=TRUE_M, d=TRUE_D), PLANT_CLASS, effects, values,
+    effect_models.write_model(folder, PLANT_TEXT.format(m=TRUE_M, d=TRUE_D), PLANT_CLASS, effects, values,
                    {"m": TRUE_M, "d": TRUE_D}, "Truth", PlantRoles("u", "q", "x", "v"))
-    model = fx.load_augmented(folder, "Truth")
+    model = effect_models.load_augmented(folder, "Truth")
     n = rr.size
-    loop = sim.build_loop(model, pid_controller(), "plant.x", [], values, n, substeps=32, with_jacobian=False)
+    loop = outputerror.build_loop(model, pid_controller(), "plant.x", [], values, n, substeps=32, with_jacobian=False)
     rec = make_recording(np.arange(n) * TS, {"r": rr, "u": np.zeros(n), "q": np.zeros(n), "u_ext": ue})
-    q_casadi, _ = sim.simulate(loop, rec, values)
+    q_casadi, _ = outputerror.simulate(loop, rec, values)
     diff = fmu["q_true"] - q_casadi
     return {"max_abs_m": float(np.max(np.abs(diff))), "rms_m": float(np.sqrt(np.mean(diff ** 2))),
             "max_q_m": float(np.max(np.abs(q_casadi)))}

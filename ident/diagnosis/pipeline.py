@@ -20,9 +20,9 @@ import casadi as ca
 import numpy as np
 from scipy import stats
 
-from motiontwin.ident.diagnosis import effects as fx
-from motiontwin.ident.diagnosis import evidence as ev
-from motiontwin.ident import outputerror as sim
+from motiontwin.ident.diagnosis import effects as effect_models
+from motiontwin.ident.diagnosis import evidence
+from motiontwin.ident import outputerror
 from motiontwin.ident import startvalues
 from motiontwin.harness.recording import Recording
 from motiontwin.ident.controller import Controller
@@ -45,9 +45,9 @@ _TOKENS = itertools.count()  # screening-job tokens (itertools.count is thread-s
 class ModelFit:
     """One model structure fitted on the training recording."""
 
-    effects: list[fx.Effect]
-    loop: sim.Loop
-    fit: sim.Fit
+    effects: list[effect_models.Effect]
+    loop: outputerror.Loop
+    fit: outputerror.Fit
     bounds: dict[str, tuple[float, float]]
     folder: Path | None = None
     val_rms: float = math.nan
@@ -108,23 +108,25 @@ def _divergence_hint(bundle: Bundle) -> str:
             f"\"parameters\": {{\"m\": 95.0}}, or check the controller and the recorded signals' units.")
 
 
-def fit_nominal(bundle: Bundle, progress=None) -> tuple[ModelFit, sim.Weights]:
+def fit_nominal(bundle: Bundle, progress=None) -> tuple[ModelFit, outputerror.Weights]:
     model = bundle.plant.model
     free, bounds = _nominal_bounds(bundle)
     values = dict(bundle.start)
-    loop = sim.build_loop(model, bundle.controller, bundle.plant.output_name, free, values, bundle.train.time.size,
-                          input_name=bundle.plant.input_name, tracking=_moving_start(bundle))
-    q0, u0 = sim.simulate(loop, bundle.train)
+    loop = outputerror.build_loop(model, bundle.controller, bundle.plant.output_name, free, values,
+                                  bundle.train.time.size, input_name=bundle.plant.input_name,
+                                  tracking=_moving_start(bundle))
+    q0, u0 = outputerror.simulate(loop, bundle.train)
     startvalues.check_free_run(q0, bundle.train["q"], bundle.train.time,
                                f"the nominal closed loop ({bundle.plant.class_name} with the bundle's controller) on "
                                f"{bundle.recording_path('train')}", {n: values[n] for n in free},
                                _divergence_hint(bundle))
     ts = bundle.controller.Ts
-    weights = sim.Weights(ev.noise_level(bundle.train["q"] - q0, ts), ev.noise_level(bundle.train["u"] - u0, ts))
-    result = sim.fit(loop, bundle.train, weights, bounds, max_nfev=40)
-    weights = sim.Weights(ev.noise_level(bundle.train["q"] - result.q_sim, ts),
-                          ev.noise_level(bundle.train["u"] - result.u_sim, ts))
-    result = sim.fit(loop.with_values(result.values), bundle.train, weights, bounds, max_nfev=15)
+    weights = outputerror.Weights(evidence.noise_level(bundle.train["q"] - q0, ts),
+                                  evidence.noise_level(bundle.train["u"] - u0, ts))
+    result = outputerror.fit(loop, bundle.train, weights, bounds, max_nfev=40)
+    weights = outputerror.Weights(evidence.noise_level(bundle.train["q"] - result.q_sim, ts),
+                                  evidence.noise_level(bundle.train["u"] - result.u_sim, ts))
+    result = outputerror.fit(loop.with_values(result.values), bundle.train, weights, bounds, max_nfev=15)
     _log(progress, f"nominal refit: {_fmt(result.values)}; rms q {result.rms_q:.3g} m")
     return ModelFit([], loop.with_values(result.values), result, bounds), weights
 
@@ -138,22 +140,22 @@ def _in_state_coordinates(rec: Recording, gain: float, offset: float) -> Recordi
     return Recording(rec.time, {**rec.columns, "q": (rec["q"] - offset) / gain}, rec.units, rec.meta)
 
 
-def context(bundle: Bundle, nominal: ModelFit) -> fx.Context:
+def context(bundle: Bundle, nominal: ModelFit) -> effect_models.Context:
     """Recorded ranges and inverse-dynamics signals in the plant's state coordinates."""
     ts = bundle.controller.Ts
     plant = bundle.plant
     gain, offset = output_map(plant.model, plant.roles, nominal.fit.values)
     rec = _in_state_coordinates(bundle.train, gain, offset)
-    inv = ev.inverse_dynamics(rec, plant.model, nominal.fit.values, plant.position_state, plant.velocity_state, ts,
-                              _input_index(bundle))
+    inv = evidence.inverse_dynamics(rec, plant.model, nominal.fit.values, plant.position_state, plant.velocity_state,
+                                    ts, _input_index(bundle))
     q = np.concatenate([rec["q"], _in_state_coordinates(bundle.validation, gain, offset)["q"]])
     v = inv.v if inv else np.gradient(rec["q"], ts)
     mass = _mass_equivalent(bundle, nominal.fit.values)
-    ctx = fx.Context(ts, float(q.min()), float(q.max()), float(np.max(np.abs(v))) or 1e-3, mass,
+    ctx = effect_models.Context(ts, float(q.min()), float(q.max()), float(np.max(np.abs(v))) or 1e-3, mass,
                      position_gain=gain)
     if inv is not None:
         ctx.x, ctx.v, ctx.a, ctx.force, ctx.udot = inv.x, inv.v, inv.a, inv.force, inv.udot
-    ctx.resonance_guess = ev.resonance_guesses(bundle.train["q"] - nominal.fit.q_sim, ts)
+    ctx.resonance_guess = evidence.resonance_guesses(bundle.train["q"] - nominal.fit.q_sim, ts)
     return ctx
 
 
@@ -175,21 +177,22 @@ class LoopCache:
     RK4 substeps and whether the Jacobian is compiled. Parameter values are inputs of a compiled loop, so
     a structure is compiled once however often it is refitted, validated or re-screened."""
 
-    loops: dict[tuple, sim.Loop] = field(default_factory=dict)
+    loops: dict[tuple, outputerror.Loop] = field(default_factory=dict)
     models: dict[tuple[str, ...], object] = field(default_factory=dict)
 
 
 
-def write_structure(bundle: Bundle, effects: list[fx.Effect], values: dict[str, float], folder: Path) -> Path:
+def write_structure(bundle: Bundle, effects: list[effect_models.Effect], values: dict[str, float],
+                    folder: Path) -> Path:
     """Write the self-contained Modelica folder of the nominal plant + ``effects`` at ``values``."""
     plant_values = {k[len("plant."):]: v for k, v in values.items() if k.startswith("plant.")}
-    return fx.write_model(folder, bundle.plant.text, bundle.plant.class_name, effects, values, plant_values,
+    return effect_models.write_model(folder, bundle.plant.text, bundle.plant.class_name, effects, values, plant_values,
                           AUGMENTED_CLASS, bundle.plant.roles)
 
 
-def build_structure(bundle: Bundle, effects: list[fx.Effect], values: dict[str, float], folder: Path,
+def build_structure(bundle: Bundle, effects: list[effect_models.Effect], values: dict[str, float], folder: Path,
                     n_samples: int, with_jacobian: bool = True, min_substeps: int = 1,
-                    substeps: int | None = None) -> tuple[sim.Loop, dict[str, tuple[float, float]]]:
+                    substeps: int | None = None) -> tuple[outputerror.Loop, dict[str, tuple[float, float]]]:
     """Write and load the augmented model with ``effects`` and compile its loop (at least ``min_substeps``
     RK4 steps per sample, so that structures compared with each other share the integration accuracy).
     A structure already compiled with the same samples/substeps is reused from ``bundle.cache`` (one
@@ -199,7 +202,7 @@ def build_structure(bundle: Bundle, effects: list[fx.Effect], values: dict[str, 
     model = cache.models.get(names)
     if model is None:
         write_structure(bundle, effects, values, folder)
-        model = cache.models[names] = fx.load_augmented(folder, AUGMENTED_CLASS)
+        model = cache.models[names] = effect_models.load_augmented(folder, AUGMENTED_CLASS)
     free, bounds = _nominal_bounds(bundle, "plant.")
     for effect in effects:
         for p in effect.params:
@@ -210,17 +213,17 @@ def build_structure(bundle: Bundle, effects: list[fx.Effect], values: dict[str, 
     all_values.update({k: v for k, v in values.items() if k in all_values})
     tracking = {s: "q" for e in effects for s in e.tracks_position} | _moving_start(bundle, "plant.")
     tracking.update({s: "u" for e in effects for s in e.tracks_force})
-    substeps = substeps or max(min_substeps, sim.stable_substeps(model, all_values, bundle.controller.Ts))
+    substeps = substeps or max(min_substeps, outputerror.stable_substeps(model, all_values, bundle.controller.Ts))
     key = (names, n_samples, substeps, with_jacobian)
     if key not in cache.loops:
-        cache.loops[key] = sim.build_loop(model, bundle.controller, "q",
-                                           free, all_values, n_samples, substeps=substeps, tracking=tracking,
-                                           with_jacobian=with_jacobian)
+        cache.loops[key] = outputerror.build_loop(model, bundle.controller, "q",
+                                                  free, all_values, n_samples, substeps=substeps, tracking=tracking,
+                                                  with_jacobian=with_jacobian)
     return cache.loops[key].with_values(all_values), bounds
 
 
-def fit_structure(bundle: Bundle, current: ModelFit, candidate: fx.Effect, ctx: fx.Context,
-                  weights: sim.Weights, folder: Path, max_nfev: int = MAX_NFEV) -> ModelFit:
+def fit_structure(bundle: Bundle, current: ModelFit, candidate: effect_models.Effect, ctx: effect_models.Context,
+                  weights: outputerror.Weights, folder: Path, max_nfev: int = MAX_NFEV) -> ModelFit:
     """Fit the current structure plus ``candidate`` from each of the candidate's starting points."""
     effects = current.effects + [candidate]
     base = dict(current.fit.values) if current.effects else {"plant." + k: v for k, v in current.fit.values.items()}
@@ -233,16 +236,16 @@ def fit_structure(bundle: Bundle, current: ModelFit, candidate: fx.Effect, ctx: 
     best = None
     for start in starts:
         clipped = {k: float(np.clip(v, *bounds[k])) for k, v in start.items() if k in bounds}
-        result = sim.fit(loop, bundle.train, weights, bounds, start={**base, **clipped}, max_nfev=max_nfev)
+        result = outputerror.fit(loop, bundle.train, weights, bounds, start={**base, **clipped}, max_nfev=max_nfev)
         if best is None or result.cost < best.cost:
             best = result
     return ModelFit(effects, loop.with_values(best.values), best, bounds, folder)
 
 
-def refine(bundle: Bundle, structure: ModelFit, weights: sim.Weights, max_nfev: int = MAX_NFEV) -> ModelFit:
+def refine(bundle: Bundle, structure: ModelFit, weights: outputerror.Weights, max_nfev: int = MAX_NFEV) -> ModelFit:
     """Continue the fit of an already compiled structure from its current values."""
-    result = sim.fit(structure.loop, bundle.train, weights, structure.bounds, start=structure.fit.values,
-                     max_nfev=max_nfev)
+    result = outputerror.fit(structure.loop, bundle.train, weights, structure.bounds, start=structure.fit.values,
+                             max_nfev=max_nfev)
     if result.cost >= structure.fit.cost:
         return structure
     return ModelFit(structure.effects, structure.loop.with_values(result.values), result, structure.bounds,
@@ -257,60 +260,61 @@ def validate(bundle: Bundle, structure: ModelFit, folder: Path) -> None:
                                   with_jacobian=False, min_substeps=structure.loop.substeps)
     else:
         model = bundle.plant.model
-        loop = sim.build_loop(model, bundle.controller, bundle.plant.output_name, structure.loop.free,
-                              structure.fit.values, rec.time.size, with_jacobian=False,
-                              min_substeps=structure.loop.substeps, input_name=bundle.plant.input_name,
-                              tracking=_moving_start(bundle))
-    q, _ = sim.simulate(loop, rec, structure.fit.values)
+        loop = outputerror.build_loop(model, bundle.controller, bundle.plant.output_name, structure.loop.free,
+                                      structure.fit.values, rec.time.size, with_jacobian=False,
+                                      min_substeps=structure.loop.substeps, input_name=bundle.plant.input_name,
+                                      tracking=_moving_start(bundle))
+    q, _ = outputerror.simulate(loop, rec, structure.fit.values)
     structure.val_q = q
     structure.val_rms = float(np.sqrt(np.mean((rec["q"] - q) ** 2))) if np.all(np.isfinite(q)) else math.inf
 
 
-def select(bundle: Bundle, nominal: ModelFit, weights: sim.Weights, ctx: fx.Context, work: Path,
+def select(bundle: Bundle, nominal: ModelFit, weights: outputerror.Weights, ctx: effect_models.Context, work: Path,
            progress=None) -> tuple[ModelFit, list[dict]]:
     """Greedy forward selection of effects with the bootstrap null reference and the validation check."""
     current = nominal
     log: list[dict] = []
     used_families: set[str] = set()
     rounds = 0
-    shortlist = list(fx.VOCABULARY)
+    shortlist = list(effect_models.VOCABULARY)
     while len(current.effects) < MAX_EFFECTS:
         rounds += 1
         if rounds > 1:  # recompile at the fitted values (integration accuracy) and converge the accepted
             # structure, so that no candidate is credited with leftover fit slack or integration error
             loop, bounds = build_structure(bundle, current.effects, current.fit.values, work / f"c{rounds}",
                                            bundle.train.time.size, min_substeps=current.loop.substeps)
-            result = sim.fit(loop, bundle.train, weights, bounds, start=current.fit.values, max_nfev=4 * MAX_NFEV)
+            result = outputerror.fit(loop, bundle.train, weights, bounds, start=current.fit.values,
+                                     max_nfev=4 * MAX_NFEV)
             current = ModelFit(current.effects, loop.with_values(result.values), result, bounds,
                                work / f"c{rounds}", evidence=current.evidence)
             validate(bundle, current, work / f"v{rounds}_refined")
-        noisy = lambda n, c=current: sim.simulate(c.loop, bundle.train, c.fit.values, noise=n)  # noqa: E731
-        null = ev.bootstrap_residuals(noisy, current.fit.q_sim, current.fit.u_sim, weights.sigma_q,
-                                      weights.sigma_u, bundle.train.time.size, BOOTSTRAP_COUNT, seed=rounds)
-        base_gain = ev.projected_gain(current.fit.jacobian, null)
-        names = [n for n, factory in fx.VOCABULARY.items()
+        noisy = lambda n, c=current: outputerror.simulate(c.loop, bundle.train, c.fit.values, noise=n)  # noqa: E731
+        null = evidence.bootstrap_residuals(noisy, current.fit.q_sim, current.fit.u_sim, weights.sigma_q,
+                                            weights.sigma_u, bundle.train.time.size, BOOTSTRAP_COUNT, seed=rounds)
+        base_gain = evidence.projected_gain(current.fit.jacobian, null)
+        names = [n for n, factory in effect_models.VOCABULARY.items()
                  if n in shortlist and factory(ctx).family not in used_families]
         screened = screen(bundle, current, names, ctx, weights, work / f"r{rounds}", progress)
         order = sorted(screened, key=lambda n: screened[n][0].cost)
         shortlist = order[:FULL_FITS + 2]     # later rounds screen only the effects that ranked high here
         ranked = order[:FULL_FITS]
         for name in list(ranked):
-            if fx.NESTED.get(name) in screened and fx.NESTED[name] not in ranked:
-                ranked.append(fx.NESTED[name])
+            if effect_models.NESTED.get(name) in screened and effect_models.NESTED[name] not in ranked:
+                ranked.append(effect_models.NESTED[name])
         trials: dict[str, tuple[ModelFit, float, float, np.ndarray]] = {}
         for name in ranked:
             t0 = time.perf_counter()
             result, substeps = screened[name]
-            effects = current.effects + [fx.VOCABULARY[name](ctx)]
+            effects = current.effects + [effect_models.VOCABULARY[name](ctx)]
             loop, bounds = build_structure(bundle, effects, result.values, work / f"r{rounds}_{name}",
                                            bundle.train.time.size, substeps=substeps)
             trial = refine(bundle, ModelFit(effects, loop.with_values(result.values), result, bounds,
                                             work / f"r{rounds}_{name}"), weights)
             candidate = trial.effects[-1]
             gain = current.fit.cost - trial.fit.cost
-            null_gain = ev.projected_gain(trial.fit.jacobian, null) - base_gain
+            null_gain = evidence.projected_gain(trial.fit.jacobian, null) - base_gain
             dof = sum(p.fitted for p in candidate.params)
-            threshold = ev.null_threshold(null_gain, dof)
+            threshold = evidence.null_threshold(null_gain, dof)
             trials[name] = (trial, gain, threshold, null_gain)
             log.append({"round": rounds, "effect": name, "cost_reduction": gain, "null_threshold": threshold,
                         "evidence_ratio": gain / threshold, "parameters": _effect_values(trial, candidate),
@@ -355,12 +359,12 @@ _CASADI_LOCK = threading.Lock()
 _SCREEN_JOBS: dict[int, tuple] = {}
 
 
-def _screen_one(token: int, name: str) -> tuple[str, sim.Fit | None, int, float, str]:
+def _screen_one(token: int, name: str) -> tuple[str, outputerror.Fit | None, int, float, str]:
     """Cheap fit of the current structure plus the effect ``name`` (run in a worker or in-process)."""
     bundle, current, ctx, weights, folder = _SCREEN_JOBS[token]
     t0 = time.perf_counter()
     try:
-        trial = fit_structure(bundle, current, fx.VOCABULARY[name](ctx), ctx, weights, folder / name,
+        trial = fit_structure(bundle, current, effect_models.VOCABULARY[name](ctx), ctx, weights, folder / name,
                               SCREEN_NFEV)
     except (RuntimeError, ValueError, np.linalg.LinAlgError) as exc:
         return name, None, 0, time.perf_counter() - t0, str(exc)
@@ -378,8 +382,8 @@ def screen_workers() -> int:
     return max(1, count) if "fork" in multiprocessing.get_all_start_methods() else 1
 
 
-def screen(bundle: Bundle, current: ModelFit, names: list[str], ctx: fx.Context, weights: sim.Weights,
-           folder: Path, progress=None) -> dict[str, tuple[sim.Fit, int]]:
+def screen(bundle: Bundle, current: ModelFit, names: list[str], ctx: effect_models.Context,
+           weights: outputerror.Weights, folder: Path, progress=None) -> dict[str, tuple[outputerror.Fit, int]]:
     """Screen every candidate effect with a few Gauss-Newton steps, in parallel processes (forked, so
     they share the bundle and the current fit): name -> (fit, RK4 substeps of its loop)."""
     token = next(_TOKENS)
@@ -394,7 +398,7 @@ def screen(bundle: Bundle, current: ModelFit, names: list[str], ctx: fx.Context,
             results = [_screen_one(token, name) for name in names]
     finally:
         del _SCREEN_JOBS[token]
-    out: dict[str, tuple[sim.Fit, int]] = {}
+    out: dict[str, tuple[outputerror.Fit, int]] = {}
     for name, result, substeps, seconds, error in results:
         if result is None:
             _log(progress, f"  {name}: fit failed ({error})")
@@ -407,14 +411,15 @@ def screen(bundle: Bundle, current: ModelFit, names: list[str], ctx: fx.Context,
 def _simplest(name: str, trials: dict, null: np.ndarray, bundle: Bundle, work: Path, progress) -> str:
     """Prefer the nested simpler effect (coulomb in stribeck/asymmetric) unless the extra parameters beat
     their own null reference and improve the validation fit by the same margin as any effect."""
-    simple = fx.NESTED.get(name)
+    simple = effect_models.NESTED.get(name)
     if simple not in trials or trials[simple][1] <= trials[simple][2]:
         return name
     rich, small = trials[name], trials[simple]
     extra = rich[1] - small[1]
-    null_extra = ev.projected_gain(rich[0].fit.jacobian, null) - ev.projected_gain(small[0].fit.jacobian, null)
+    null_extra = (evidence.projected_gain(rich[0].fit.jacobian, null)
+                  - evidence.projected_gain(small[0].fit.jacobian, null))
     dof = sum(p.fitted for p in rich[0].effects[-1].params) - sum(p.fitted for p in small[0].effects[-1].params)
-    threshold = ev.null_threshold(null_extra, dof)
+    threshold = evidence.null_threshold(null_extra, dof)
     if extra <= threshold:
         return simple
     validate(bundle, rich[0], work / f"n_{name}")
@@ -444,7 +449,7 @@ def equivalent_explanations(bundle: Bundle, chosen: ModelFit, trials: dict, work
         if other == name or gain <= threshold:
             continue
         k = _fitted_count(trial)
-        band = stats.chi2.ppf(ev.NULL_QUANTILE, max(abs(k - k_chosen), 1))
+        band = stats.chi2.ppf(evidence.NULL_QUANTILE, max(abs(k - k_chosen), 1))
         if abs(trial.fit.cost - chosen.fit.cost) > band:
             continue
         if not math.isfinite(trial.val_rms):
@@ -473,23 +478,23 @@ def equivalent_explanations(bundle: Bundle, chosen: ModelFit, trials: dict, work
     return found, rule
 
 
-def _effect_values(structure: ModelFit, effect: fx.Effect) -> dict[str, float]:
+def _effect_values(structure: ModelFit, effect: effect_models.Effect) -> dict[str, float]:
     return {p.name: structure.fit.values[p.name] for p in effect.params}
 
 
-def validation_floor(loop: sim.Loop, bundle: Bundle, values: dict[str, float], sigma_q: float,
+def validation_floor(loop: outputerror.Loop, bundle: Bundle, values: dict[str, float], sigma_q: float,
                      count: int = FLOOR_REPLICATES) -> float:
     """RMS of measured minus free-run q that the fitted model itself leaves on the validation excitation
     [m]: the model is re-simulated with white encoder noise of the estimated level fed back through the
     controller (the noise and its closed-loop echo, which no free-run simulation can predict). No model
     can bring the validation RMS below this floor, so the improvement is also reported above it."""
     rec = bundle.validation
-    q_free, _ = sim.simulate(loop, rec, values)
+    q_free, _ = outputerror.simulate(loop, rec, values)
     rng = np.random.default_rng(0)
     power = []
     for _ in range(count):
         noise = rng.normal(0.0, sigma_q, rec.time.size)
-        q_noisy, _ = sim.simulate(loop, rec, values, noise=noise)
+        q_noisy, _ = outputerror.simulate(loop, rec, values, noise=noise)
         power.append(np.mean((q_noisy + noise - q_free) ** 2))
     return float(np.sqrt(np.mean(power)))
 
@@ -503,9 +508,10 @@ def check_plant_form(bundle: Bundle, folder: Path) -> None:
         gain, offset = output_map(plant.model, plant.roles, values)
         x = (np.concatenate([bundle.train["q"], bundle.validation["q"]]) - offset) / gain
         v_max = float(np.max(np.abs(np.gradient(x, ts)))) or 1e-3
-        ctx = fx.Context(ts, float(x.min()), float(x.max()), v_max, _mass_equivalent(bundle, values),
+        ctx = effect_models.Context(ts, float(x.min()), float(x.max()), v_max, _mass_equivalent(bundle, values),
                          position_gain=gain)
-        fx.check_buildable(folder, plant.text, plant.source, plant.class_name, plant.roles, ctx, AUGMENTED_CLASS)
+        effect_models.check_buildable(folder, plant.text, plant.source, plant.class_name, plant.roles, ctx,
+                                      AUGMENTED_CLASS)
     except PlantFormError as exc:
         raise BundleError(str(exc)) from None
 
@@ -535,7 +541,7 @@ def run(bundle: Bundle, work: Path, progress=None) -> dict:
     loop, _ = build_structure(bundle, final.effects, values, model_dir, bundle.validation.time.size,
                               with_jacobian=False, min_substeps=final.loop.substeps)
     written = bundle.cache.models[names]
-    q_aug, _ = sim.simulate(loop, bundle.validation, values)
+    q_aug, _ = outputerror.simulate(loop, bundle.validation, values)
     floor = validation_floor(loop, bundle, values, weights.sigma_q)
     _log(progress, f"diagnosis done in {time.perf_counter() - t0:.1f} s")
     return {"bundle": bundle, "nominal": nominal, "final": final, "weights": weights, "context": ctx,

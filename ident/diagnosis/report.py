@@ -13,7 +13,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from motiontwin.fmus.build import build_fmu  # noqa: E402
-from motiontwin.ident.diagnosis import evidence as ev  # noqa: E402
+from motiontwin.ident.diagnosis import evidence  # noqa: E402
 from motiontwin.ident.diagnosis.pipeline import AUGMENTED_CLASS  # noqa: E402
 
 
@@ -97,9 +97,9 @@ def _location(result: dict, name: str) -> dict:
     ctx = result["context"]
     ts = bundle.controller.Ts
     v = ctx.v if ctx.v is not None else np.gradient(bundle.train["q"], ts)
-    loc = ev.locate(contribution, v, bundle.train["q"], ts)
+    loc = evidence.locate(contribution, v, bundle.train["q"], ts)
     sigma = max(result["weights"].sigma_q, 1e-15)
-    windows = ev.flagged_windows(bundle.train["q"] - previous.fit.q_sim, bundle.train.time, sigma, ts)
+    windows = evidence.flagged_windows(bundle.train["q"] - previous.fit.q_sim, bundle.train.time, sigma, ts)
     loc["time_windows"] = windows[:10]
     return loc
 
@@ -147,9 +147,9 @@ def diagnosis_document(result: dict, out: Path, fmu_path: Path | None) -> dict:
 
 def effect_contract(entry: dict, ctx, final) -> dict[str, float]:
     """An equivalent structure's effect parameters in the contract's terms (as for the chosen effect)."""
-    from motiontwin.ident.diagnosis import effects as fx
+    from motiontwin.ident.diagnosis import effects as effect_models
 
-    effect = fx.VOCABULARY[entry["name"]](ctx)
+    effect = effect_models.VOCABULARY[entry["name"]](ctx)
     values = {**final.fit.values, **entry["parameters"]}
     return {k: float(v) for k, v in effect.contract(values, ctx).items()}
 
@@ -179,7 +179,7 @@ def _plots(result: dict, staging: Path) -> tuple[list[str], dict[str, int]]:
     fig, ax = plt.subplots(figsize=(9, 3.5))
     ax.plot(train.time, res_nom * 1e6, lw=0.6, label="nominal (refitted)")
     ax.plot(train.time, res_aug * 1e6, lw=0.6, label="augmented")
-    for a, b in ev.flagged_windows(res_nom, train.time, sigma, ts):
+    for a, b in evidence.flagged_windows(res_nom, train.time, sigma, ts):
         ax.axvspan(a, b, color="red", alpha=0.12)
     ax.set_xlabel("time [s]"), ax.set_ylabel("q residual [um]"), ax.legend(), ax.grid(alpha=0.3)
     ax.set_title("Training residual; red: windows above 3 noise levels")
@@ -205,7 +205,7 @@ def _plots(result: dict, staging: Path) -> tuple[list[str], dict[str, int]]:
 
     fig, ax = plt.subplots(figsize=(9, 3.5))
     for res, label in ((res_nom, "nominal"), (res_aug, "augmented")):
-        f, asd = ev.spectrum(res, ts)
+        f, asd = evidence.spectrum(res, ts)
         ax.loglog(f[1:], asd[1:], lw=0.8, label=label)
     ax.set_xlabel("frequency [Hz]"), ax.set_ylabel("residual ASD [m/sqrt(Hz)]"), ax.legend(), ax.grid(alpha=0.3)
     names.append(_save(fig, staging, "residual_spectrum.png"))

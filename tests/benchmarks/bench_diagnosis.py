@@ -19,7 +19,7 @@ import time
 from pathlib import Path
 
 from motiontwin.ident.diagnosis import diagnose_bundle
-from motiontwin.ident.diagnosis import effects as fx
+from motiontwin.ident.diagnosis import effects as effect_models
 
 TARGET_S = 120.0
 MAIN_PARAMETER = {"gravity_offset": "F0", "coulomb_friction": "Fc", "asymmetric_friction": "Fc_pos",
@@ -29,8 +29,8 @@ MAIN_PARAMETER = {"gravity_offset": "F0", "coulomb_friction": "Fc", "asymmetric_
 
 def truth_contract(effect: dict, mass: float) -> dict[str, float]:
     """A truth effect (Modelica parameter names) in the contract's parameters."""
-    ctx = fx.Context(5e-4, 0.0, 0.1, 0.2, mass)
-    candidate = fx.VOCABULARY[effect["name"]](ctx)
+    ctx = effect_models.Context(5e-4, 0.0, 0.1, 0.2, mass)
+    candidate = effect_models.VOCABULARY[effect["name"]](ctx)
     values = {p.name: sum(p.bounds) / 2 for p in candidate.params} | effect["parameters"] | {"plant.m": mass}
     return candidate.contract(values, ctx)
 
