@@ -46,10 +46,12 @@ from scipy.optimize import least_squares
 from motiontwin.fmus import symbolic
 from motiontwin.harness.recording import Recording
 from motiontwin.ident import chain as native_chain
+from motiontwin.ident import plant_states
 from motiontwin.ident import startvalues
 from motiontwin.ident.controller import Controller
 from motiontwin.ident.leastsquares import (LeastSquaresResult, UnidentifiableError, check_identifiability,
                                           hac_covariance)
+from motiontwin.ident.plant_states import output_state
 
 __all__ = ["Signals", "Loop", "Weights", "Fit", "OutputErrorResult", "build_loop", "default_bounds",
            "simulate", "residuals", "fit", "statistics", "identify", "bound_arrays",
@@ -147,30 +149,13 @@ def _check_names(model: symbolic.SymbolicModel, free: list[str]) -> None:
 
 
 def _output_expression(model: symbolic.SymbolicModel, name: str) -> ca.SX:
-    states = [v.name for v in model.states]
-    if name in states:
-        return model.x[states.index(name)]
-    found = [c.expr for c in model.computed if c.var.name == name and c.causality != "calculatedParameter"]
-    if not found:
+    expr = plant_states.output_expression(model, name)
+    if expr is None:
+        states = [v.name for v in model.states]
         outputs = model.state_outputs + [c.var.name for c in model.computed if c.causality == "output"]
         raise KeyError(f"{model.flat.source}: class {model.name} has no state or output {name!r}; "
                        f"outputs: {', '.join(outputs)}; states: {', '.join(states)}")
-    return found[0]
-
-
-def output_state(model: symbolic.SymbolicModel, name: str) -> int | None:
-    """Index of the state the output ``name`` is affine in when it depends on exactly one state and on no
-    input (a position state, an alias, a gear ratio or an offset of one), else None."""
-    try:
-        expr = _output_expression(model, name)
-    except KeyError:
-        return None
-    if ca.depends_on(expr, model.u):
-        return None
-    hits = [i for i in range(model.x.numel()) if ca.depends_on(expr, model.x[i])]
-    if len(hits) != 1 or ca.depends_on(ca.jacobian(expr, model.x[hits[0]]), model.x):
-        return None
-    return hits[0]
+    return expr
 
 
 def _output_gain(model: symbolic.SymbolicModel, name: str, x0: np.ndarray, p: np.ndarray) -> float:
@@ -209,10 +194,8 @@ def initial_motion_states(model: symbolic.SymbolicModel, output: str) -> list[st
     i_pos = output_state(model, output)
     if i_pos is None:
         return []
-    states = [v.name for v in model.states]
-    rate = model.dx[i_pos]
-    velocity = next((s for i, s in enumerate(states) if i != i_pos and ca.is_equal(rate, model.x[i], 2)), None)
-    return [states[i_pos]] + ([velocity] if velocity else [])
+    i_vel = plant_states.velocity_state(model, i_pos)
+    return [model.states[i].name for i in (i_pos, i_vel) if i is not None]
 
 
 def build_loop(model: symbolic.SymbolicModel, controller: Controller | None, position_state: str, free: list[str],
@@ -641,7 +624,8 @@ def identify(model: symbolic.SymbolicModel, rec: Recording, free: list[str], con
              start: dict[str, float] | None = None, substeps: int | None = None,
              tracking: dict[str, str] | None = None, max_nfev: int = 50,
              input_name: str | None = None, estimate_initial: list[str] | None = None,
-             shooting: str = "single", segments: int = 4, auto_start: bool = False) -> OutputErrorResult:
+             shooting: str = "single", segments: int = 4, auto_start: bool = False,
+             initial: str = "rest") -> OutputErrorResult:
     """Refit ``free`` parameters of ``model`` (values of the others: ``start`` or the Modelica start values)
     so that its free run reproduces ``rec``; closed loop when ``controller`` is given.
 
@@ -655,7 +639,11 @@ def identify(model: symbolic.SymbolicModel, rec: Recording, free: list[str], con
     (:func:`ident.multipleshooting.fit` over ``segments`` segments, IPOPT). ``auto_start``: free parameters
     not in ``start`` that enter the inverse dynamics linearly start from its least-squares estimate
     (:func:`ident.startvalues.inverse_dynamics_start`). A free run that diverges from the start values raises
-    :class:`ident.startvalues.DivergenceError` naming the values and what to set."""
+    :class:`ident.startvalues.DivergenceError` naming the values and what to set. ``initial``: "rest" (the
+    velocity state starts at its start value) or "samples" (at the slope of the first samples, for a loop
+    already moving at t = 0); both are then estimated with ``estimate_initial``."""
+    if initial not in ("rest", "samples"):
+        raise ValueError(f"initial must be 'rest' or 'samples', not {initial!r}")
     if not free:
         raise ValueError("name at least one free parameter")
     if shooting not in ("single", "multiple"):
@@ -679,10 +667,14 @@ def identify(model: symbolic.SymbolicModel, rec: Recording, free: list[str], con
         input_name = signals.input
     if auto_start:
         guess = [n for n in free if n not in (start or {})]
-        position = startvalues.output_state(model, signals.output)
+        position = plant_states.alias_state(model, signals.output)
         if position is not None:
             values.update(startvalues.inverse_dynamics_start(model, rec[signals.output], rec[signals.input], ts,
                                                              position, guess, values, bounds, input_name))
+    i_pos = output_state(model, signals.output)
+    i_vel = None if i_pos is None else plant_states.velocity_state(model, i_pos)
+    if initial == "samples" and i_vel is not None:
+        tracking = {model.states[i_vel].name: "dq", **(tracking or {})}
     loop = build_loop(model, controller, signals.output, list(free), values, rec.time.size, substeps=substeps,
                       tracking=tracking, ts=ts, input_name=input_name, signals=signals)
     q0, u0 = simulate(loop, rec)

@@ -22,6 +22,7 @@ import casadi as ca
 import numpy as np
 
 from motiontwin.fmus import symbolic
+from motiontwin.ident.plant_states import velocity_state
 from motiontwin.ident.signals import lowpass_differentiate
 
 #: samples of the quadratic fit that gives the initial position and velocity (at least 8)
@@ -75,16 +76,6 @@ def check_parameters(model: symbolic.SymbolicModel, values: dict[str, float], wh
                                   f"[{var.min}, {var.max}]")
 
 
-def velocity_state(model: symbolic.SymbolicModel, position_state: str) -> str | None:
-    """The state v with der(position_state) = v, or None."""
-    names = [v.name for v in model.states]
-    if position_state not in names:
-        return None
-    dpos = model.dx[names.index(position_state)]
-    found = [names[i] for i in range(len(names)) if ca.is_equal(dpos, model.x[i], 2)]
-    return found[0] if found else None
-
-
 def first_samples(q: np.ndarray, ts: float) -> tuple[float, float]:
     """Position [m] and velocity [m/s] at t = 0 from a quadratic least-squares fit to the first
     ``FIRST_SAMPLES_SECONDS`` of ``q`` (at least 8 samples): the noise of one sample and the motion at t = 0
@@ -126,13 +117,13 @@ def inverse_dynamics_start(model: symbolic.SymbolicModel, q: np.ndarray, u: np.n
         Estimated values of the linear free parameters (empty when none can be estimated: another plant
         structure, an input that does not enter linearly, or a rank-deficient regressor).
     """
-    vel = velocity_state(model, position_state)
     names = [s.name for s in model.states]
     inputs = [v.name for v in model.inputs]
-    if vel is None or model.x.numel() != 2 or not free or (input_name is None and len(inputs) != 1):
+    i_x = names.index(position_state) if position_state in names else None
+    i_v = None if i_x is None else velocity_state(model, i_x)
+    if i_v is None or model.x.numel() != 2 or not free or (input_name is None and len(inputs) != 1):
         return {}
     k_in = inputs.index(input_name or inputs[0])
-    i_x, i_v = names.index(position_state), names.index(vel)
     acc = model.dx[i_v]
     gain = ca.jacobian(acc, model.u)[k_in]
     if ca.depends_on(gain, model.u):
@@ -215,17 +206,3 @@ def controller_state(A: np.ndarray, B: np.ndarray, C: np.ndarray, D: np.ndarray,
         z_known = A @ z_known + B @ y[k]
         power = A @ power
     return np.linalg.lstsq(np.array(rows), np.array(rhs), rcond=1e-10)[0]
-
-
-def output_state(model: symbolic.SymbolicModel, output: str) -> str | None:
-    """The state equal to ``output`` (the output itself when it is a state, or a state it is defined as,
-    ``q = x``), or None."""
-    names = [v.name for v in model.states]
-    if output in names:
-        return output
-    found = [c.expr for c in model.computed if c.var.name == output]
-    if found:
-        for i, name in enumerate(names):
-            if ca.is_equal(found[0], model.x[i], 2):
-                return name
-    return None

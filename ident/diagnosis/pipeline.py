@@ -24,6 +24,7 @@ from motiontwin.ident.diagnosis import effects as effect_models
 from motiontwin.ident.diagnosis import evidence
 from motiontwin.ident import outputerror
 from motiontwin.ident import startvalues
+from motiontwin.ident.plant_states import alias_state
 from motiontwin.harness.recording import Recording
 from motiontwin.ident.controller import Controller
 from motiontwin.ident.diagnosis.bundle import Bundle, BundleError, make_bundle, read_bundle
@@ -85,7 +86,7 @@ def nominal_start(bundle: Bundle, progress=None) -> dict[str, float]:
     model, plant = bundle.plant.model, bundle.plant
     values = {v.name: float(v.start) for v in model.parameters} | plant.parameters
     guess = [n for n, v in values.items() if n not in plant.parameters and v != 0]
-    if startvalues.output_state(model, plant.output_name) != plant.position_state:
+    if alias_state(model, plant.output_name) != plant.position_state:
         _log(progress, "start values: the Modelica defaults and plant.parameters (the inverse-dynamics start "
                        "needs the output to be the position state itself)")
         return values

@@ -18,7 +18,7 @@ from pathlib import Path
 import casadi as ca
 
 from motiontwin.fmus import symbolic
-from motiontwin.ident.outputerror import output_state
+from motiontwin.ident.plant_states import output_expression, output_state, velocity_state
 
 CHAIN = "derivative chain of the output"
 NAMED = "bundle fields plant.position/plant.velocity"
@@ -79,15 +79,6 @@ def _where(path: Path, line: int | None) -> str:
     return f"{path}, line {line}" if line else str(path)
 
 
-def output_expression(model: symbolic.SymbolicModel, output: str) -> ca.SX | None:
-    """The output as an expression of states, inputs and parameters (None when the plant has no such output)."""
-    names = [v.name for v in model.states]
-    if output in names:
-        return model.x[names.index(output)]
-    found = [c.expr for c in model.computed if c.var.name == output and c.causality != "calculatedParameter"]
-    return found[0] if found else None
-
-
 def find_roles(model: symbolic.SymbolicModel, text: str, path: Path, input_name: str, output_name: str,
                position: str | None = None, velocity: str | None = None) -> PlantRoles:
     """The roles of a plant (see the module docstring); raises :class:`PlantFormError` naming the construct
@@ -134,14 +125,13 @@ def find_roles(model: symbolic.SymbolicModel, text: str, path: Path, input_name:
     if velocity is not None:
         vel = names.index(velocity)
     else:
-        chain = [i for i in range(len(names)) if ca.is_equal(model.dx[pos], model.x[i], 2)]
-        if not chain:
+        vel = velocity_state(model, pos)
+        if vel is None:
             line = equation_line(text, names[pos], derivative=True)
             raise PlantFormError(f"{_where(path, line)}: der({names[pos]}) = {model.dx[pos]} is not "
                                  f"a state of class {model.name}, so the velocity is not defined; write "
                                  f"der({names[pos]}) = <velocity state>, or name plant.velocity in "
                                  f"experiment.json")
-        vel = chain[0]
     source = NAMED if position is not None or velocity is not None else CHAIN
     return PlantRoles(input_name, output_name, names[pos], names[vel], source, held)
 

@@ -171,16 +171,8 @@ def _identify_oe(args: argparse.Namespace) -> int:
     start = {**(startvalues.read_values_file(args.values) if args.values else {}),
              **{name: value for item in args.set for name, value in name_values(item, "--set").items()}}
     startvalues.check_parameters(model, start, "--set/--values")
-    position = startvalues.output_state(model, signals.output)
-    velocity = startvalues.velocity_state(model, position) if position else None
-    tracking = {position: "q"} if position and position != signals.output else {}   # starts at q_0
-    estimate = None
-    if args.initial == "samples" and velocity is not None:
-        tracking[velocity] = "dq"          # first guess from the first samples, then estimated with the position
-        estimate = [position, velocity]
     result = identify(model, rec, free, controller, signals, max_nfev=args.max_nfev, shooting=args.shooting,
-                      segments=args.segments, start=start, auto_start=args.auto_start,
-                      tracking=tracking or None, estimate_initial=estimate)
+                      segments=args.segments, start=start, auto_start=args.auto_start, initial=args.initial)
     stats = result.statistics
     print(stats.summary())
     multiple = args.shooting == "multiple"

@@ -1,0 +1,49 @@
+"""Which states of a plant model carry its measured position and its velocity, read from the equations.
+
+One place for the question the output-error refit, the start values and the diagnosis all ask: the output is
+a state, an alias of one (``q = x``) or an affine expression of one (a gear ratio, a sensor offset); the
+velocity is the state the position's derivative equals (``der(x) = v``).
+"""
+from __future__ import annotations
+
+import casadi as ca
+
+from motiontwin.fmus import symbolic
+
+__all__ = ["output_expression", "output_state", "alias_state", "velocity_state"]
+
+
+def output_expression(model: symbolic.SymbolicModel, name: str) -> ca.SX | None:
+    """Output or state ``name`` as an expression of states, inputs and parameters (None when there is none)."""
+    names = [v.name for v in model.states]
+    if name in names:
+        return model.x[names.index(name)]
+    found = [c.expr for c in model.computed if c.var.name == name and c.causality != "calculatedParameter"]
+    return found[0] if found else None
+
+
+def output_state(model: symbolic.SymbolicModel, name: str) -> int | None:
+    """Index of the state the output ``name`` is affine in when it depends on exactly one state and on no
+    input (a position state, an alias, a gear ratio or an offset of one), else None."""
+    expr = output_expression(model, name)
+    if expr is None or ca.depends_on(expr, model.u):
+        return None
+    hits = [i for i in range(model.x.numel()) if ca.depends_on(expr, model.x[i])]
+    if len(hits) != 1 or ca.depends_on(ca.jacobian(expr, model.x[hits[0]]), model.x):
+        return None
+    return hits[0]
+
+
+def alias_state(model: symbolic.SymbolicModel, name: str) -> str | None:
+    """Name of the state the output ``name`` equals (the output itself when it is a state, or ``q = x``),
+    or None (also for a scaled or offset output)."""
+    i = output_state(model, name)
+    if i is None or not ca.is_equal(output_expression(model, name), model.x[i], 2):
+        return None
+    return model.states[i].name
+
+
+def velocity_state(model: symbolic.SymbolicModel, position: int) -> int | None:
+    """Index of the state v with der(x[position]) = v, or None."""
+    rate = model.dx[position]
+    return next((i for i in range(model.x.numel()) if i != position and ca.is_equal(rate, model.x[i], 2)), None)
