@@ -345,8 +345,8 @@ def _csv_text(rec: Recording) -> str:
     return buffer.getvalue()
 
 
-def atomic_write_texts(files: dict[Path, str]) -> None:
-    """Write several text files so that either all new contents appear or none do.
+def atomic_write_texts(files: dict[Path, str | bytes]) -> None:
+    """Write several files (text, or bytes written as they are) so that either all new contents appear or none do.
 
     Each text goes to a temporary file in the target's directory (flushed and fsynced), then all are moved into
     place with os.replace. If a move fails, targets already replaced are restored from hard-link backups of
@@ -361,7 +361,8 @@ def atomic_write_texts(files: dict[Path, str]) -> None:
             temps[target] = tmp = str(target.parent / f".{target.name}.{uuid.uuid4().hex}.tmp")
             fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, FILE_MODE)
             os.fchmod(fd, FILE_MODE)
-            with os.fdopen(fd, "w", encoding="utf-8", newline="") as handle:
+            binary = isinstance(text, bytes)
+            with (os.fdopen(fd, "wb") if binary else os.fdopen(fd, "w", encoding="utf-8", newline="")) as handle:
                 handle.write(text)
                 handle.flush()
                 os.fsync(handle.fileno())
@@ -394,6 +395,16 @@ def atomic_write_texts(files: dict[Path, str]) -> None:
         for backup in backups.values():
             if backup is not None:
                 Path(backup).unlink(missing_ok=True)
+
+
+def write_figure(path: str | os.PathLike, fig: Any, dpi: int = 110) -> Path:
+    """Save a matplotlib figure as a PNG at ``path`` atomically (all or nothing, ordinary file mode)."""
+    buffer = io.BytesIO()
+    fig.savefig(buffer, format="png", dpi=dpi)
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    atomic_write_texts({path: buffer.getvalue()})
+    return path
 
 
 def recording_texts(path: str | os.PathLike, rec: Recording) -> dict[Path, str]:

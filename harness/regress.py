@@ -37,9 +37,7 @@ rebaselining).
 
 from __future__ import annotations
 
-import os
 import re
-import tempfile
 import time as _time
 import tomllib
 import xml.etree.ElementTree as ET
@@ -50,6 +48,7 @@ from typing import Any, Iterable, Sequence
 import numpy as np
 
 from motiontwin.harness.numbers import is_finite_number
+from motiontwin.harness.recording import atomic_write_texts, write_figure
 
 
 @dataclass(frozen=True)
@@ -180,18 +179,6 @@ def _columns(data: Any) -> tuple[np.ndarray, dict[str, np.ndarray]]:
 # outputs
 
 
-def _atomic_bytes(path: Path, write) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=path.suffix)
-    try:
-        with os.fdopen(fd, "wb") as handle:
-            write(handle)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-
-
 def write_junit(path: str | Path, results: Sequence[SignalResult], suite: str = "motiontwin-regress",
                 errors: dict[str, str] | None = None) -> Path:
     """JUnit XML: one testcase per (case, signal); a case that could not run is one errored testcase."""
@@ -213,7 +200,8 @@ def write_junit(path: str | Path, results: Sequence[SignalResult], suite: str = 
         error.text = message
     ET.indent(root)
     path = Path(path)
-    _atomic_bytes(path, lambda h: ET.ElementTree(root).write(h, encoding="utf-8", xml_declaration=True))
+    path.parent.mkdir(parents=True, exist_ok=True)
+    atomic_write_texts({path: ET.tostring(root, encoding="utf-8", xml_declaration=True)})
     return path
 
 
@@ -246,7 +234,7 @@ def plot_failure(result: SignalResult, folder: str | Path) -> Path | None:
         ax.grid(True, alpha=0.3)
         fig.tight_layout()
         path = Path(folder) / f"{_safe(result.case)}__{_safe(result.signal)}.png"
-        _atomic_bytes(path, lambda h: fig.savefig(h, format="png", dpi=100))
+        write_figure(path, fig, dpi=100)
     finally:
         plt.close(fig)
     return path

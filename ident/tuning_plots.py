@@ -14,17 +14,15 @@ Units: frequency in Hz, magnitudes in dB, phase in degrees.
 """
 from __future__ import annotations
 
-import io
 import math
 import os
-import tempfile
 from pathlib import Path
 from typing import Sequence
 
 import control
 import numpy as np
 
-from motiontwin.fmus.package import ordinary_file_mode
+from motiontwin.harness.recording import write_figure
 from motiontwin.ident.frf import JointModel
 from motiontwin.ident.tuning import LoopMargins, TuningSpec, frequency_grid, loop_margins, loop_system
 
@@ -127,24 +125,10 @@ def write_loop_figure(path: str | os.PathLike, parameters: dict[str, float],
     import matplotlib.pyplot as plt
 
     fig = loop_figure(parameters, plants, delay_samples, labels, title, spec, margins)
-    buffer = io.BytesIO()
     try:
-        fig.savefig(buffer, format="png", dpi=110)
+        return write_figure(path, fig, dpi=110)
     finally:
         plt.close(fig)
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as handle:
-            handle.write(buffer.getvalue())
-        os.chmod(tmp, ordinary_file_mode())  # mkstemp creates 0600; a figure is an ordinary file
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-    return path
 
 
 def plants_from_document(entries: list, where: str) -> list[JointModel | control.LTI]:

@@ -33,7 +33,7 @@ import numpy as np
 from scipy.stats import chi2
 
 from motiontwin.fmus import symbolic
-from motiontwin.harness.recording import Recording
+from motiontwin.harness.recording import Recording, write_figure
 from motiontwin.ident import outputerror as oe
 from motiontwin.ident.controller import Controller
 
@@ -283,9 +283,6 @@ def validation_document(result: Validation, recording_path: str) -> dict[str, An
 def plot_validation(result: Validation, path: Path) -> Path:
     """Four panels: measured vs simulated output (compare), the residual over time, residual autocorrelation
     and input-residual cross-correlation with their 99 % bands (resid). Written atomically (temporary file, then rename)."""
-    import os
-    import tempfile
-
     import matplotlib
 
     matplotlib.use("Agg")
@@ -314,13 +311,7 @@ def plot_validation(result: Validation, path: Path) -> Path:
         ax.set_xlabel("lag [samples]")
         ax.legend(loc="upper right")
     fig.tight_layout()
-    path = Path(path)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=path.suffix)
-    os.close(fd)
     try:
-        fig.savefig(tmp, dpi=110)
-        os.replace(tmp, path)
+        return write_figure(path, fig, dpi=110)
     finally:
         plt.close(fig)
-        Path(tmp).unlink(missing_ok=True)
-    return path

@@ -44,7 +44,6 @@ from __future__ import annotations
 import ctypes
 import json
 import math
-import os
 import tempfile
 import time as _time
 from dataclasses import dataclass, field
@@ -56,7 +55,7 @@ import numpy as np
 from motiontwin.harness import kinematics, metrics
 from motiontwin.harness.excitation import end_effector_point_to_point
 from motiontwin.harness.master import Master
-from motiontwin.harness.recording import Recording, atomic_write_texts, make_recording, write_recording
+from motiontwin.harness.recording import Recording, atomic_write_texts, make_recording, write_figure, write_recording
 from motiontwin.fmus.archive import read_description
 from motiontwin.harness.system import System, system_from_dict
 
@@ -545,18 +544,6 @@ def recording_of(run: ControllerRun, source: str) -> Recording:
                           metadata={"controller": run.controller, "gains": source})
 
 
-def _save_figure(fig: Any, path: Path) -> None:
-    fd, tmp = tempfile.mkstemp(suffix=".png", prefix=f".{path.stem}.", dir=path.parent)
-    os.close(fd)
-    try:
-        fig.savefig(tmp, dpi=120)
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-
-
 def plot(result: ComparisonResult, out: Path) -> list[Path]:
     """Figs. 4-7 (joint position error, both controllers) and the end-effector error, as PNGs in ``out``."""
     import matplotlib
@@ -580,7 +567,7 @@ def plot(result: ComparisonResult, out: Path) -> list[Path]:
     axes[0, 0].legend(fontsize=8)
     fig.tight_layout()
     paths.append(out / "comparison_joint_errors.png")
-    _save_figure(fig, paths[-1])
+    write_figure(paths[-1], fig, dpi=120)
     plt.close(fig)
 
     fig, axes = plt.subplots(2, 2, figsize=(10, 6.5), sharex=True)
@@ -600,7 +587,7 @@ def plot(result: ComparisonResult, out: Path) -> list[Path]:
     axes[0, 0].legend(fontsize=8)
     fig.tight_layout()
     paths.append(out / "comparison_end_effector.png")
-    _save_figure(fig, paths[-1])
+    write_figure(paths[-1], fig, dpi=120)
     plt.close(fig)
     return paths
 

@@ -28,7 +28,7 @@ def _run(args: argparse.Namespace) -> int:
         logs = master.run(inputs=inputs, stop_time=args.stop_time)
         meta = master.metadata()
     rec = recording_from_log(logs, args.log, meta, excited={"inputs": args.input},
-                         metadata={"system": str(args.system), "order": meta["order"]})
+                             metadata={"system": str(args.system), "order": meta["order"]})
     for path in recording.write_recording(args.out, rec):
         print(path)
     return 0
