@@ -50,6 +50,8 @@ EXPORTED = [
     "MotionTwin.Benchmarks.Encoder",
     "MotionTwin.Benchmarks.LoopController",
     "MotionTwin.Benchmarks.OffsetRippleJoint",
+    "MotionTwin.Benchmarks.PositionFrictionJoint",
+    "MotionTwin.Benchmarks.QuadraticDragJoint",
     "MotionTwin.Benchmarks.RigidJoint",
 ]
 SAMPLED = {n for n in EXPORTED if ".Controllers." in n or n.endswith("LoopController")}

@@ -25,7 +25,13 @@ def run(bundle: str, out: str, quiet: bool = False) -> int:
     except DivergenceError as exc:
         print(f"motiontwin diagnose: {exc}", file=sys.stderr)
         return 2
-    names = ", ".join(e["name"] for e in doc["effects"]) or "none (only parameters were off)"
+    from motiontwin.ident.diagnosis.report import unexplained_text
+
+    unexplained = doc.get("unexplained")
+    names = ", ".join(e["name"] for e in doc["effects"]) or ("none" if unexplained else
+                                                             "none (only parameters were off)")
+    if unexplained:
+        names += f"; {unexplained_text(unexplained)}"
     val = doc["validation"]
     print(f"effects: {names}; validation RMS {_metres(val['nominal_rms'])} -> {_metres(val['augmented_rms'])}; "
           f"report: {out}/report.md")

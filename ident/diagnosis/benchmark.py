@@ -141,9 +141,17 @@ ENCODER = "MotionTwin.Benchmarks.Encoder"
 CONTROLLER = "MotionTwin.Benchmarks.LoopController"
 RIGID = "MotionTwin.Benchmarks.RigidJoint"
 
+#: laws outside every catalogue (present and coming): truth class, the force written for the CasADi truth
+#: (``$x``, ``$v``: the plant's states; parameters prefixed by the law), and the diagnosis' answer "unexplained"
+OUTSIDE_LAWS = {
+    "quadratic_drag": ("MotionTwin.Benchmarks.QuadraticDragJoint", "drag_c*$v*abs($v)"),
+    "position_friction": ("MotionTwin.Benchmarks.PositionFrictionJoint",
+                          "(posfric_Fc0 + posfric_k*$x)*tanh($v/posfric_v_eps)"),
+}
+OUTSIDE_PREFIX = {"quadratic_drag": "drag_", "position_friction": "posfric_"}
 CASES = ["params_only_a", "params_only_b", "gravity_offset", "coulomb_friction", "asymmetric_friction",
          "stribeck_friction", "position_ripple", "position_dependent_inertia", "time_delay", "resonance",
-         "two_effects"]
+         "two_effects", *OUTSIDE_LAWS]
 
 
 @dataclass
@@ -213,7 +221,34 @@ def truth_plant(case: str, scale: float = 1.0, mass: float = TRUE_M, damping: fl
         return TruthPlant("MotionTwin.Effects.TwoMassJoint", {"m1": TRUE_M, "m2": m2, "k": k, "c": c, "d": TRUE_D},
                           [_effect(case, {"frequency": w_res / (2 * math.pi), "damping": c / (2 * mu * w_res)},
                                    {"resonance_m2": m2, "resonance_fa": fa, "resonance_zeta": zeta})])
+    if case == "quadratic_drag":
+        c = 8.0 * s
+        return TruthPlant(OUTSIDE_LAWS[case][0], {**rigid, "c": c}, [_outside(case, {"c": c}, {"v*|v|": c})])
+    if case == "position_friction":
+        k = 3.0 * s
+        law = {"Fc0": 0.0, "k": k, "v_eps": V_EPS}
+        return TruthPlant(OUTSIDE_LAWS[case][0], {**rigid, **law}, [_outside(case, law, {"x*sign(v)": k})])
     raise KeyError(f"unknown benchmark case {case!r}; cases: {', '.join(CASES)}")
+
+
+def _outside(name: str, law: dict[str, float], terms: dict[str, float]) -> dict:
+    """A true effect outside the catalogue: its law's parameters, and its terms in the empirical library's
+    names (``contract``, what the diagnosis' empirical term should find)."""
+    prefix = OUTSIDE_PREFIX[name]
+    return {"name": name, "outside_catalogue": True, "parameters": {prefix + k: v for k, v in law.items()},
+            "contract": terms}
+
+
+def outside_effect(true: dict):
+    """A true effect outside the catalogue (from :func:`_outside`) as an effect of the augmented model, its
+    force written in :data:`OUTSIDE_LAWS` (for the CasADi truth; parameters not fitted, at the true values)."""
+    from motiontwin.ident.diagnosis import effects as effect_models
+
+    force = OUTSIDE_LAWS[true["name"]][1]
+    params = [effect_models.Param(n, "", f"True law parameter {n}", (v, v), False)
+              for n, v in true["parameters"].items()]
+    return effect_models.Effect(true["name"], true["name"], params, "", force, [], [], lambda c: [{}],
+                                lambda v, c: {}, f"Truth outside the catalogue: F = {force}")
 
 
 def _ripple(name: str, class_name: str, base: dict[str, float], a: float, b: float, period: float,
@@ -357,7 +392,8 @@ def casadi_truth(plant: TruthPlant, r: np.ndarray, u_ext: np.ndarray, noise: np.
     d = plant.parameters["d"] if plant.parameters.get("d") else TRUE_D
     effects, values = [], {"plant.m": m, "plant.d": d}
     for true in plant.effects:
-        effect = effect_models.VOCABULARY[true["name"]](ctx)
+        effect = (outside_effect(true) if true.get("outside_catalogue")
+                  else effect_models.VOCABULARY[true["name"]](ctx))
         effects.append(effect)
         values.update({p.name: float(np.mean(p.bounds)) for p in effect.params})
         values.update({k: v for k, v in true["parameters"].items() if k in {p.name for p in effect.params}})

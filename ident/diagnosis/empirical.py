@@ -18,10 +18,20 @@ from typing import Callable
 
 import numpy as np
 
+from motiontwin.ident.diagnosis import effects as effect_models
+from motiontwin.ident.diagnosis import evidence
+
 THRESHOLDS = tuple(np.logspace(-3, 0, 13))   # fractions of the residual RMS
 FOLDS = 5
 MAX_SAMPLES = 3000                            # the residual is decimated to this many samples for the fit
 MIN_GAIN = 0.05                               # a term set must cut the cross-validated RMS by 5 %
+EMPIRICAL = "empirical_force"                 # name and family of the empirical effect in the augmented model
+PRUNE_SHARE = 0.05                            # after the output-error refit, a term must carry 5 % of the force
+POWER_SHARE = 0.9                             # the reported frequency band holds this share of the power
+#: unit of each library function's coefficient (the force is in N)
+TERM_UNITS = {"1": "N", "x": "N/m", "x^2": "N/m2", "v": "N.s/m", "v*|v|": "N.s2/m2", "v^3": "N.s3/m3", "a": "kg",
+              "u": "1", "sign(v)": "N", "sign(v)*exp(-|v|/v_eps)": "N", "x*sign(v)": "N/m", "|u|*sign(v)": "1",
+              "x*v": "N.s/m2"}
 
 
 @dataclass(frozen=True)
@@ -57,6 +67,20 @@ def default_library() -> list[Term]:
         Term("|u|*sign(v)", lambda s, e: np.abs(s["u"]) * np.tanh(s["v"] / e), f"abs({{u}})*{sign}"),
         Term("x*v", lambda s, e: s["x"] * s["v"], "{x}*{v}"),
     ]
+
+
+#: the force itself: the inverse-dynamics residual of a model is u - (the force the model needs), so a
+#: regression over u (with v and a) reproduces the residual's own definition; left out of the library
+INPUT_TERMS = ("u",)
+#: terms the nominal refit already owns (damping, mass): in the regression, so that a parameter the refit
+#: biased to absorb the missing force does not distort the other terms, but not added to the empirical effect
+PARAMETER_TERMS = ("v", "a")
+
+
+def residual_library() -> list[Term]:
+    """:func:`default_library` without :data:`INPUT_TERMS`: the functions a residual of a refitted model is
+    regressed on in the diagnosis."""
+    return [t for t in default_library() if t.name not in INPUT_TERMS]
 
 
 @dataclass
@@ -189,3 +213,90 @@ def fit_empirical_force(signals: dict[str, np.ndarray], residual: np.ndarray, v_
         return EmpiricalForce([], np.zeros(0), threshold, cv_zero, cv_zero, v_eps, report)
     coefficients = xi[keep] * y_scale / scale[usable][keep]
     return EmpiricalForce([terms[i] for i in keep], coefficients, threshold, cv_rms, cv_zero, v_eps, report)
+
+
+def without_parameter_terms(law: EmpiricalForce) -> EmpiricalForce:
+    """``law`` without the :data:`PARAMETER_TERMS` (what the refitted damping and mass explain)."""
+    keep = [i for i, t in enumerate(law.terms) if t.name not in PARAMETER_TERMS]
+    return EmpiricalForce([law.terms[i] for i in keep], law.coefficients[keep], law.threshold, law.cv_rms,
+                          law.cv_rms_zero, law.v_eps, law.path)
+
+
+def refitted(law: EmpiricalForce, values: dict[str, float], signals: dict[str, np.ndarray],
+             share: float = PRUNE_SHARE) -> EmpiricalForce:
+    """``law`` (as written by :func:`as_effect`) at its output-error refitted ``values``, without the terms
+    whose contribution (coefficient x RMS of the function over ``signals``) is below ``share`` of the RMS of
+    the whole empirical force: the sequential thresholding of STLSQ, repeated on the output-error fit."""
+    law = without_parameter_terms(law)
+    v_eps = float(values.get("empirical_v_eps", law.v_eps))
+    coefficients = np.array([values[f"empirical_c{k}"] for k in range(1, len(law.terms) + 1)], float)
+    columns = [t.evaluate(signals, v_eps) for t in law.terms]
+    total = float(np.sqrt(np.mean(sum(c * col for c, col in zip(coefficients, columns)) ** 2)))
+    keep = [i for i, (c, col) in enumerate(zip(coefficients, columns))
+            if abs(c) * np.sqrt(np.mean(col ** 2)) >= share * total]
+    return EmpiricalForce([law.terms[i] for i in keep], coefficients[keep], law.threshold, law.cv_rms,
+                          law.cv_rms_zero, v_eps, law.path)
+
+
+def as_effect(law: EmpiricalForce, ctx: effect_models.Context) -> effect_models.Effect:
+    """The sparse law as an effect of the augmented model, labelled empirical: one Modelica parameter
+    ``empirical_c<k>`` per selected term (started at the regression's coefficient, refitted by output error
+    with the rest), the sign functions' velocity scale ``empirical_v_eps`` (fitted too, when a sign term is
+    selected), and the force ``empirical_F`` in the plant's position ``$x``, velocity ``$v``, acceleration
+    ``der($v)`` and the commanded force ``u``. Not part of the catalogue (``effects.VOCABULARY``)."""
+    law = without_parameter_terms(law)
+    if not law.terms:
+        raise ValueError("the empirical law has no term beyond the nominal parameters' own")
+    params = []
+    for k, (term, c) in enumerate(zip(law.terms, law.coefficients), start=1):
+        span = max(20 * abs(float(c)), 1e-9)
+        params.append(effect_models.Param(f"empirical_c{k}", TERM_UNITS.get(term.name, ""),
+                                          f"empirical coefficient of {term.name} (sparse regression, not a "
+                                          f"physical law)", (-span, span)))
+    uses_sign = any("{v_eps}" in t.modelica for t in law.terms)
+    if uses_sign:
+        lo, hi = effect_models._eps_bounds(ctx)
+        params.append(effect_models.Param("empirical_v_eps", "m/s", "empirical velocity scale of the sign "
+                                          "functions tanh(v/v_eps)", (min(lo, law.v_eps), max(hi, law.v_eps))))
+    names = {"x": "$x", "v": "$v", "a": "der($v)", "u": "u", "v_eps": "empirical_v_eps"}
+    law_text = " + ".join(f"empirical_c{k}*({t.modelica.format(**names)})" for k, t in enumerate(law.terms, 1))
+    declaration = ('  Real empirical_F(unit = "N") "empirical force: sparse regression over position, velocity, '
+                   'acceleration and force, not a physical law; valid on the recorded range only";\n')
+    start = {f"empirical_c{k}": float(c) for k, c in enumerate(law.coefficients, 1)}
+    if uses_sign:
+        start["empirical_v_eps"] = float(law.v_eps)
+    term_names = law.names
+
+    def contract(values: dict[str, float], c: effect_models.Context) -> dict[str, float]:
+        return {name: float(values[f"empirical_c{k}"]) for k, name in enumerate(term_names, 1)}
+
+    return effect_models.Effect(EMPIRICAL, EMPIRICAL, params, declaration, "empirical_F",
+                                [f"empirical_F = {law_text}"], [], lambda c: [dict(start)], contract,
+                                "An empirical force term (sparse regression of the force residual no catalogue "
+                                "effect explains): it names the functions of position, velocity, acceleration "
+                                "and force the missing force is made of, not the physics behind them.")
+
+
+def frequency_band(signal: np.ndarray, ts: float, share: float = POWER_SHARE) -> list[float]:
+    """[f_lo, f_hi] Hz holding ``share`` of the power of ``signal`` (between the (1 - share)/2 and (1 + share)/2
+    quantiles of its cumulative Welch spectrum, DC excluded)."""
+    f, asd = evidence.spectrum(np.asarray(signal, float), ts)
+    power = np.cumsum(asd[1:] ** 2)
+    if power[-1] <= 0:
+        return [float(f[1]), float(f[-1])]
+    cumulative = power / power[-1]
+    lo = int(np.searchsorted(cumulative, (1 - share) / 2))
+    hi = int(np.searchsorted(cumulative, (1 + share) / 2))
+    return [float(f[1:][lo]), float(f[1:][min(hi, cumulative.size - 1)])]
+
+
+def locate_remainder(contribution: np.ndarray, residual_before: np.ndarray, time: np.ndarray, v: np.ndarray,
+                     x: np.ndarray, sigma: float, ts: float) -> dict[str, object]:
+    """Where the unexplained structure sits: time windows where the output residual ``residual_before`` [m]
+    exceeds 3 noise levels ``sigma`` [m], and the velocity [m/s] and position [m] bins and the frequency
+    band [Hz] of ``contribution``, the empirical term's part of the simulated output [m]."""
+    where = evidence.locate(contribution, v, x, ts)
+    windows = evidence.flagged_windows(residual_before, time, max(sigma, 1e-15), ts)
+    return {"time_windows": [list(w) for w in windows[:10]], "velocity_range": where["velocity_range"],
+            "position_range": where["position_range"], "frequency_peak_hz": where["frequency_peak_hz"],
+            "frequency_band_hz": frequency_band(contribution, ts)}

@@ -35,7 +35,8 @@ def noise_level(residual: np.ndarray, ts: float) -> float:
 
 @dataclass
 class InverseDynamics:
-    """Filtered x, v, a [m, m/s, m/s^2], du/dt [N/s] and the force the nominal model leaves unexplained [N]."""
+    """Filtered x, v, a [m, m/s, m/s^2], du/dt [N/s] and the force the nominal model leaves unexplained [N];
+    ``u``: the filtered applied force [N] the residual was computed with."""
 
     x: np.ndarray
     v: np.ndarray
@@ -43,6 +44,7 @@ class InverseDynamics:
     udot: np.ndarray
     force: np.ndarray
     cutoff: float
+    u: np.ndarray | None = None
 
 
 def inverse_dynamics(rec: Recording, model: symbolic.SymbolicModel, values: dict[str, float],
@@ -67,7 +69,7 @@ def inverse_dynamics(rec: Recording, model: symbolic.SymbolicModel, values: dict
     inputs[input_index] = u_f
     a_model, gain = (np.array(o).ravel() for o in fn.map(x.size)(states, inputs, p))
     force = (a_model - a) / gain
-    return InverseDynamics(x, v, a, udot, force, fc)
+    return InverseDynamics(x, v, a, udot, force, fc, u_f)
 
 
 def flagged_windows(residual: np.ndarray, time: np.ndarray, sigma: float, ts: float,

@@ -21,6 +21,7 @@ import numpy as np
 from scipy import stats
 
 from motiontwin.ident.diagnosis import effects as effect_models
+from motiontwin.ident.diagnosis import empirical
 from motiontwin.ident.diagnosis import evidence
 from motiontwin.ident import outputerror
 from motiontwin.ident import startvalues
@@ -39,6 +40,7 @@ MAX_NFEV = 15               # full fit of the best-ranked candidates
 FULL_FITS = 3
 FLOOR_REPLICATES = 5         # noise re-simulations for the validation noise floor
 MULTI_START = ("position_ripple", "resonance")   # nonlinear in a period/frequency: screen every start
+EMPIRICAL_EFFECT = empirical.EMPIRICAL   # the data-driven term added after the catalogue (not in VOCABULARY)
 _TOKENS = itertools.count()  # screening-job tokens (itertools.count is thread-safe in CPython)
 
 
@@ -352,6 +354,106 @@ def select(bundle: Bundle, nominal: ModelFit, weights: outputerror.Weights, ctx:
     return current, log
 
 
+def explain_remainder(bundle: Bundle, final: ModelFit, weights: outputerror.Weights, ctx: effect_models.Context,
+                      work: Path, progress=None) -> tuple[ModelFit, dict]:
+    """After the catalogue: is there structure left that no named effect explains? The force residual of the
+    final model (inverse dynamics of the augmented model itself, on the measured motion) is fitted by the
+    sparse law of :mod:`empirical`; its terms are added to the augmented model as the effect
+    ``empirical_force`` and refitted by output error with every other parameter. The structure is
+    significant when the cost reduction beats the parametric-bootstrap null (dof = the term's fitted
+    parameters), and the term is kept only when it also passes the validation rule, as a catalogue effect.
+
+    Returns the final structure (with the empirical effect when kept) and the check: ``status`` is "none"
+    (no term, or not significant), "unexplained" (a term validated: ``empirical_term``), "unexplained, no
+    term validated" (significant, but the validation fit does not improve) or "not tested" (the final
+    model has extra states, e.g. a delay or a resonance, so it has no two-state inverse dynamics), with
+    ``where`` the axis, time windows, velocity/position ranges (measured units) and frequency band."""
+    plant = bundle.plant
+    if final.effects:
+        model = bundle.cache.models[tuple(final.names)]
+        prefix = "plant."
+    else:
+        model, prefix = plant.model, ""
+    if model.x.numel() != 2:
+        reason = (f"not tested: the final model has {model.x.numel()} states (effects "
+                  f"{', '.join(final.names)}), and its force residual needs the two-state inverse dynamics")
+        _log(progress, f"remaining structure {reason}")
+        return final, {"status": "not tested", "reason": reason}
+    values = {v.name: float(v.start) for v in model.parameters} | final.fit.values
+    gain, offset = output_map(plant.model, plant.roles, {k[len(prefix):]: v for k, v in values.items()
+                                                          if k.startswith(prefix)})
+    rec = _in_state_coordinates(bundle.train, gain, offset)
+    inputs = [v.name for v in model.inputs]
+    inv = evidence.inverse_dynamics(rec, model, values, prefix + plant.position_state,
+                                    prefix + plant.velocity_state, bundle.controller.Ts,
+                                    inputs.index("u" if final.effects else plant.input_name))
+    law = empirical.fit_empirical_force({"x": inv.x, "v": inv.v, "a": inv.a, "u": inv.u}, inv.force,
+                                        library=empirical.residual_library())
+    _log(progress, f"remaining force residual: {law.describe()}")
+    law = empirical.without_parameter_terms(law)
+    if not law.terms:
+        return final, {"status": "none", "reason": "no library function beyond the nominal parameters' own "
+                                                   "explains the remaining force residual (cross-validated)"}
+    signals = {"x": inv.x, "v": inv.v, "a": inv.a, "u": inv.u}
+    regression = law
+    for attempt in range(2):     # fit the regression's terms, drop those the output-error fit leaves small, refit
+        if attempt:
+            pruned = empirical.refitted(law, trial.fit.values, signals)
+            if len(pruned.terms) in (0, len(law.terms)):
+                break
+            law = pruned
+            _log(progress, f"  empirical term pruned after the output-error fit: {', '.join(law.names)}")
+            for key in [k for k in bundle.cache.loops if EMPIRICAL_EFFECT in k[0]]:   # same name, new terms
+                del bundle.cache.loops[key]
+            bundle.cache.models = {k: m for k, m in bundle.cache.models.items() if EMPIRICAL_EFFECT not in k}
+        effect = empirical.as_effect(law, ctx)
+        try:
+            trial = refine(bundle, fit_structure(bundle, final, effect, ctx, weights, work / f"empirical{attempt}"),
+                           weights)
+        except (RuntimeError, ValueError, np.linalg.LinAlgError) as exc:
+            return final, {"status": "none", "reason": f"the empirical term ({', '.join(law.names)}) could not "
+                                                       f"be fitted by output error: {exc}"}
+    noisy = lambda n: outputerror.simulate(final.loop, bundle.train, final.fit.values, noise=n)  # noqa: E731
+    null = evidence.bootstrap_residuals(noisy, final.fit.q_sim, final.fit.u_sim, weights.sigma_q, weights.sigma_u,
+                                        bundle.train.time.size, BOOTSTRAP_COUNT, seed=MAX_EFFECTS + 1)
+    null_gain = evidence.projected_gain(trial.fit.jacobian, null) - evidence.projected_gain(final.fit.jacobian, null)
+    dof = sum(p.fitted for p in effect.params)
+    threshold = evidence.null_threshold(null_gain, dof)
+    reduction = final.fit.cost - trial.fit.cost
+    _log(progress, f"  empirical term: cost -{reduction:.4g}, null {threshold:.4g} (x{reduction / threshold:.2f})")
+    if reduction <= threshold:
+        return final, {"status": "none", "reason": f"the empirical term ({', '.join(law.names)}) is not "
+                                                   f"significant: cost reduction {reduction:.4g} <= null "
+                                                   f"threshold {threshold:.4g}"}
+    validate(bundle, trial, work / "v_empirical")
+    if not math.isfinite(final.val_rms):
+        validate(bundle, final, work / "v_before_empirical")
+    kept = trial.val_rms < VALIDATION_GAIN * final.val_rms
+    _log(progress, f"  empirical term: validation rms {final.val_rms:.4g} -> {trial.val_rms:.4g} "
+                   f"({'kept' if kept else 'rejected'})")
+    where = empirical.locate_remainder((trial.fit.q_sim - final.fit.q_sim), bundle.train["q"] - final.fit.q_sim,
+                                       bundle.train.time, inv.v * gain, bundle.train["q"], weights.sigma_q,
+                                       bundle.controller.Ts)
+    term = {"terms": law.names, "coefficients": effect.contract(trial.fit.values, ctx),
+            "units": {name: empirical.TERM_UNITS.get(name, "") for name in law.names},
+            "v_eps": trial.fit.values.get("empirical_v_eps"),
+            "regression": {"terms": regression.names, "coefficients": [float(c) for c in regression.coefficients],
+                           "threshold": regression.threshold, "cv_rms": regression.cv_rms,
+                           "cv_rms_without": regression.cv_rms_zero},
+            "modelica": f"empirical_F = {effect.equations[0][len('empirical_F = '):]}",
+            "validation_rms_before": final.val_rms, "validation_rms_after": trial.val_rms,
+            "validation_gain": trial.val_rms / final.val_rms, "cost_reduction": reduction,
+            "null_threshold": threshold, "fitted_parameters": dof}
+    check = {"status": "unexplained" if kept else "unexplained, no term validated",
+             "axis": plant.output_name, **where, "empirical_term" if kept else "rejected_term": term}
+    if not kept:
+        return final, check
+    trial.evidence = {**final.evidence, EMPIRICAL_EFFECT: {
+        "cost_reduction": reduction, "null_threshold": threshold, "validation_rms_before": final.val_rms,
+        "validation_rms_after": trial.val_rms, "previous": final}}
+    return trial, check
+
+
 #: one diagnosis at a time per process: CasADi's symbolic layer is not thread-safe (see :func:`diagnose`)
 _CASADI_LOCK = threading.Lock()
 
@@ -533,6 +635,7 @@ def run(bundle: Bundle, work: Path, progress=None) -> dict:
                                _divergence_hint(bundle))
     ctx = context(bundle, nominal)
     final, log = select(bundle, nominal, weights, ctx, work / "trials", progress)
+    final, remainder = explain_remainder(bundle, final, weights, ctx, work / "remainder", progress)
     model_dir = work / "final_model"
     values = dict(final.fit.values)
     if not final.effects:
@@ -542,11 +645,12 @@ def run(bundle: Bundle, work: Path, progress=None) -> dict:
     loop, _ = build_structure(bundle, final.effects, values, model_dir, bundle.validation.time.size,
                               with_jacobian=False, min_substeps=final.loop.substeps)
     written = bundle.cache.models[names]
-    q_aug, _ = outputerror.simulate(loop, bundle.validation, values)
+    q_aug, u_aug = outputerror.simulate(loop, bundle.validation, values)
     floor = validation_floor(loop, bundle, values, weights.sigma_q)
     _log(progress, f"diagnosis done in {time.perf_counter() - t0:.1f} s")
     return {"bundle": bundle, "nominal": nominal, "final": final, "weights": weights, "context": ctx,
-            "log": log, "augmented_values": values, "q_augmented": q_aug,
+            "log": log, "augmented_values": values, "q_augmented": q_aug, "u_augmented": u_aug,
+            "remainder": remainder,
             "augmented_model": written, "validation_floor": floor, "seconds": time.perf_counter() - t0}
 
 
@@ -554,16 +658,21 @@ def run(bundle: Bundle, work: Path, progress=None) -> dict:
 class Diagnosis:
     """The outcome of a diagnosis: the effects found, the refitted parameters and the validation fit.
 
-    ``effects``: names of the effects added to the nominal model (empty: only its parameters were off);
-    ``parameters``: every parameter of the augmented model (plant ones without the ``plant.`` prefix) [SI];
-    ``nominal_parameters``: the refitted nominal plant; ``validation``: validation RMS of both [m] and the
-    noise floor [m]; ``result``: everything the report uses. :meth:`write` writes the report and the FMU."""
+    ``effects``: names of the catalogue effects added to the nominal model (empty: only its parameters were
+    off, or what is missing is unexplained); ``parameters``: every parameter of the augmented model (plant
+    ones without the ``plant.`` prefix) [SI]; ``nominal_parameters``: the refitted nominal plant;
+    ``validation``: validation RMS of both [m] and the noise floor [m]; ``unexplained``: None, or where a
+    significant residual structure no catalogue effect explains sits and the empirical term that explains it
+    (``status`` "unexplained", ``empirical_term``) or the one that failed validation ("unexplained, no term
+    validated", ``rejected_term``), as in diagnosis.json; ``result``: everything the report uses.
+    :meth:`write` writes the report and the FMU."""
 
     effects: list[str]
     parameters: dict[str, float]
     nominal_parameters: dict[str, float]
     validation: dict[str, float]
     result: dict = field(repr=False)
+    unexplained: dict | None = None
 
     @classmethod
     def from_result(cls, result: dict) -> "Diagnosis":
@@ -571,10 +680,12 @@ class Diagnosis:
                  for k, v in result["augmented_values"].items()}
         val_q = result["bundle"].validation["q"]
         augmented = float(np.sqrt(np.mean((val_q - result["q_augmented"]) ** 2)))
-        return cls([e.name for e in result["final"].effects], strip,
+        remainder = result.get("remainder") or {}
+        unexplained = remainder if remainder.get("status", "").startswith("unexplained") else None
+        return cls([e.name for e in result["final"].effects if e.family != EMPIRICAL_EFFECT], strip,
                    {k: float(v) for k, v in result["nominal"].fit.values.items()},
                    {"nominal_rms": float(result["nominal"].val_rms), "augmented_rms": augmented,
-                    "noise_floor_rms": float(result["validation_floor"])}, result)
+                    "noise_floor_rms": float(result["validation_floor"])}, result, unexplained)
 
     def write(self, folder: str | os.PathLike) -> dict:
         """Write diagnosis.json, validation_prediction.csv, report.md (+ PNGs), the augmented Modelica model

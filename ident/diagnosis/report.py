@@ -14,7 +14,8 @@ import numpy as np  # noqa: E402
 
 from motiontwin.fmus.build import build_fmu  # noqa: E402
 from motiontwin.ident.diagnosis import evidence  # noqa: E402
-from motiontwin.ident.diagnosis.pipeline import AUGMENTED_CLASS  # noqa: E402
+from motiontwin.ident.diagnosis.empirical import POWER_SHARE  # noqa: E402
+from motiontwin.ident.diagnosis.pipeline import AUGMENTED_CLASS, EMPIRICAL_EFFECT, VALIDATION_GAIN  # noqa: E402
 
 
 #: units of the effects' parameters as the report states them (the contract's names)
@@ -108,7 +109,8 @@ def diagnosis_document(result: dict, out: Path, fmu_path: Path | None) -> dict:
     final, nominal = result["final"], result["nominal"]
     ctx = result["context"]
     effects = []
-    order = sorted(final.effects, key=lambda e: -final.evidence[e.name]["cost_reduction"])
+    named = [e for e in final.effects if e.family != EMPIRICAL_EFFECT]   # the empirical term: "unexplained"
+    order = sorted(named, key=lambda e: -final.evidence[e.name]["cost_reduction"])
     for effect in order:
         info = final.evidence[effect.name]
         params = effect.contract(final.fit.values, ctx)
@@ -130,8 +132,11 @@ def diagnosis_document(result: dict, out: Path, fmu_path: Path | None) -> dict:
                                      "validation_rms_after": info["validation_rms_after"]}})
     q_meas = result["bundle"].validation["q"]
     aug_rms = float(np.sqrt(np.mean((q_meas - result["q_augmented"]) ** 2)))
+    remainder = result.get("remainder") or {}
     return {
         "effects": effects,
+        "unexplained": unexplained_entry(remainder),
+        "residual_check": {k: remainder[k] for k in ("status", "reason") if k in remainder},
         "validation": {"nominal_rms": float(nominal.val_rms), "augmented_rms": aug_rms,
                        **_above_floor(float(nominal.val_rms), aug_rms, result["validation_floor"])},
         "nominal_parameters": _strip(nominal.fit.values),
@@ -143,6 +148,23 @@ def diagnosis_document(result: dict, out: Path, fmu_path: Path | None) -> dict:
         "runtime_s": round(result["seconds"], 2),
         "plant_roles": result["bundle"].plant.roles.as_dict(),
     }
+
+
+def unexplained_entry(remainder: dict) -> dict | None:
+    """diagnosis.json's ``unexplained``: where the structure no catalogue effect explains sits and the
+    empirical term (or the rejected one); None when nothing significant remains or it was not tested."""
+    if not remainder.get("status", "").startswith("unexplained"):
+        return None
+    return {k: v for k, v in remainder.items() if k != "reason"}
+
+
+def unexplained_text(entry: dict) -> str:
+    """The unexplained verdict in one line: status, axis, the empirical law and its validation gain."""
+    term = entry.get("empirical_term") or entry.get("rejected_term") or {}
+    law = " + ".join(f"{c:.4g}*{name}" for name, c in term.get("coefficients", {}).items())
+    label = "empirical term" if "empirical_term" in entry else "rejected term"
+    return (f"{entry['status']} ({label} F = {law} on axis {entry['axis']}, validation RMS x"
+            f"{term.get('validation_gain', math.nan):.3g})")
 
 
 def effect_contract(entry: dict, ctx, final) -> dict[str, float]:
@@ -264,6 +286,7 @@ def _markdown(doc: dict, plots: list[str], result: dict, clipped: dict[str, int]
         lines += ["## No missing physics", "", "After refitting the nominal parameters, no candidate effect "
                   "improved the fit beyond what a correct model leaves on the same excitation, or none improved "
                   "the validation fit: the nominal structure is kept, only its parameters were off.", ""]
+    lines += _unexplained_markdown(doc)
     lines += ["## Fit", "", "| model | validation RMS [m] |", "|---|---|",
               f"| nominal, refitted | {val['nominal_rms']:.4g} |", f"| augmented | {val['augmented_rms']:.4g} |", "",
               f"Noise floor (RMS that the fitted model leaves when re-simulated with the estimated encoder noise "
@@ -292,6 +315,43 @@ def _markdown(doc: dict, plots: list[str], result: dict, clipped: dict[str, int]
         lines += [f"![{p}]({p})", f"{p}{note}", ""]
     lines += [f"Augmented model: `{doc['augmented_model']}`; FMU: `{doc['augmented_fmu']}`.", ""]
     return "\n".join(lines)
+
+
+def _unexplained_markdown(doc: dict) -> list[str]:
+    """The report section of the unexplained verdict, clearly labelled empirical (no lines when absent)."""
+    entry = doc.get("unexplained")
+    if not entry:
+        check = doc.get("residual_check") or {}
+        return [f"Remaining structure after the catalogue: {check['status']} ({check.get('reason', '')}).", ""] \
+            if check else []
+    validated = "empirical_term" in entry
+    term = entry["empirical_term"] if validated else entry["rejected_term"]
+    lines = ["## Unexplained: structure no catalogue effect explains (EMPIRICAL term, not a physical law)", "",
+             f"Status: **{entry['status']}** on axis `{entry['axis']}`. After the catalogue effects, the force "
+             f"residual still holds significant structure: the sparse regression (PySINDy STLSQ over functions of "
+             f"position, velocity, acceleration and force) found the terms below; refitted by output error with "
+             f"every parameter, they lower the noise-weighted cost by {term['cost_reduction']:.4g}, "
+             f"{term['cost_reduction'] / term['null_threshold']:.1f} times the 99.9 % null level, and the "
+             f"validation RMS goes {term['validation_rms_before']:.3g} m -> {term['validation_rms_after']:.3g} m "
+             f"(x{term['validation_gain']:.3g}; kept below x{VALIDATION_GAIN:g}).", ""]
+    lines += ["| term | coefficient | unit |", "|---|---|---|"]
+    lines += [f"| {name} | {value:.6g} | {term['units'].get(name, '')} |"
+              for name, value in term["coefficients"].items()]
+    windows = ", ".join(f"{a:.3g}-{b:.3g} s" for a, b in entry["time_windows"][:5]) or "none above 3 noise levels"
+    v_lo, v_hi = entry["velocity_range"]
+    x_lo, x_hi = entry["position_range"]
+    f_lo, f_hi = entry["frequency_band_hz"]
+    lines += ["", f"Where: velocity {v_lo * 1e3:.3g} to {v_hi * 1e3:.3g} mm/s, position {x_lo * 1e3:.4g} to "
+              f"{x_hi * 1e3:.4g} mm (the bins where the term acts most), {f_lo:.3g}-{f_hi:.3g} Hz "
+              f"({100 * POWER_SHARE:.0f} % of its power), time windows {windows}.", ""]
+    if validated:
+        lines += [f"Written into the augmented model as `{term['modelica']}` (parameters `empirical_c<k>` in the "
+                  f"plant's state coordinates); it reproduces the residual on the recorded range and should not "
+                  f"be extrapolated.", ""]
+    else:
+        lines += ["The term is significant on the training recording but does not improve the validation fit by "
+                  "10 %: it is not added to the augmented model (unexplained, no term validated).", ""]
+    return lines
 
 
 def html_from_markdown(text: str, title: str = "Mismatch diagnosis") -> str:
