@@ -1,0 +1,109 @@
+"""The honest "unexplained" answer (issue 16, part B): a concealed law outside every catalogue gives
+"unexplained" with the law's own term and coefficient, written into the augmented model and its FMU as a
+labelled empirical effect; a parameters-only bundle gives no unexplained entry.
+
+References: the known truth of generated bundles (``benchmark.write_bundle(..., engine="casadi")``: the truth
+written as an augmented model with the law ``drag_c*v*abs(v)`` by hand, RK4, white encoder noise fed back),
+the validation noise floor (the fitted model re-simulated with the estimated noise), and fmpy running the
+written FMU with its own solver (CVode) against the in-memory CasADi prediction.
+"""
+from __future__ import annotations
+
+import json
+import tempfile
+from pathlib import Path
+
+import fmpy
+import numpy as np
+import pytest
+
+from motiontwin.ident import outputerror
+from motiontwin.ident.diagnosis import benchmark as bench
+from motiontwin.ident.diagnosis import pipeline, report
+from motiontwin.ident.diagnosis.bundle import read_bundle
+
+SEED = 21
+DURATIONS = (3.0, 1.5)          # train, validation [s] at 2 kHz
+DRAG_SCALE = 4.0                # c = 32 N.s2/m2: 0.3 N at the fastest moves, 0.6 um of closed-loop error
+COEFFICIENT_TOLERANCE = 0.03    # found coefficient within 3 % of the truth
+FLOOR_MARGIN = 1.1              # augmented validation RMS within 10 % of the noise floor
+
+
+@pytest.fixture(scope="module")
+def drag(tmp_path_factory) -> tuple[pipeline.Diagnosis, dict]:
+    """The concealed quadratic-drag bundle (outside every catalogue) diagnosed, and its truth."""
+    root = tmp_path_factory.mktemp("unexplained")
+    truth = bench.write_bundle(root / "drag", "quadratic_drag", seed=SEED, scale=DRAG_SCALE, durations=DURATIONS,
+                               engine="casadi")
+    with tempfile.TemporaryDirectory(dir=root) as work:
+        result = pipeline.run(read_bundle(root / "drag"), Path(work))
+    return pipeline.Diagnosis.from_result(result), truth
+
+
+def test_outside_law_is_unexplained_with_its_term(drag):
+    """No catalogue effect; "unexplained" with exactly the law's term v*|v|, its coefficient within 3 % of the
+    truth, past the null test and the validation rule, the validation RMS down to the noise floor."""
+    diagnosis, truth = drag
+    assert diagnosis.effects == []
+    entry = diagnosis.unexplained
+    assert entry is not None and entry["status"] == "unexplained", diagnosis.result["remainder"]
+    term = entry["empirical_term"]
+    true_terms = truth["effects"][0]["contract"]
+    assert term["terms"] == list(true_terms) == ["v*|v|"]
+    assert term["coefficients"]["v*|v|"] == pytest.approx(true_terms["v*|v|"], rel=COEFFICIENT_TOLERANCE)
+    assert term["cost_reduction"] > term["null_threshold"]
+    assert term["validation_gain"] < pipeline.VALIDATION_GAIN
+    val = diagnosis.validation
+    assert val["augmented_rms"] < FLOOR_MARGIN * val["noise_floor_rms"] < val["nominal_rms"]
+    assert entry["axis"] == "q"
+    q = diagnosis.result["bundle"].train["q"]
+    assert q.min() <= entry["position_range"][0] < entry["position_range"][1] <= q.max()
+    assert entry["velocity_range"][1] > 0 and 0 < entry["frequency_band_hz"][0] < entry["frequency_band_hz"][1]
+    assert entry["time_windows"]
+
+
+def test_written_model_and_fmu_carry_the_empirical_term(drag, tmp_path):
+    """diagnosis.json, report and Modelica label the term empirical; the FMU (fmpy, CVode) driven by the
+    in-memory augmented prediction's force from its initial state reproduces its validation position."""
+    diagnosis, _ = drag
+    doc = diagnosis.write(tmp_path / "out")
+    assert doc["effects"] == [] and doc["unexplained"]["empirical_term"]["terms"] == ["v*|v|"]
+    saved = json.loads((tmp_path / "out" / "diagnosis.json").read_text())
+    assert saved["unexplained"]["status"] == "unexplained" and saved["residual_check"]["status"] == "unexplained"
+    assert report.unexplained_text(saved["unexplained"]).startswith("unexplained (empirical term F = 32")
+    markdown = (tmp_path / "out" / "report.md").read_text()
+    assert "## Unexplained: structure no catalogue effect explains (EMPIRICAL term" in markdown
+    text = Path(doc["augmented_model"]).read_text()
+    assert "augmented by the diagnosis with: empirical_force" in text
+    assert '"empirical force: sparse regression' in text and "empirical_c1*(plant.v*abs(plant.v))" in text
+
+    result = diagnosis.result
+    bundle, values = result["bundle"], result["augmented_values"]
+    val = bundle.validation
+    names = tuple(e.name for e in result["final"].effects)
+    loop = next(loop for key, loop in bundle.cache.loops.items()
+                if key[0] == names and key[1] == val.time.size and not key[3])
+    x0 = outputerror.initial_state(loop, val, values)
+    states = {s.name: float(x) for s, x in zip(loop.model.states, x0)}
+    t, u = val.time, result["u_augmented"]
+    held = np.empty(2 * t.size, dtype=[("time", float), ("u", float)])
+    held["time"][0::2], held["time"][1::2] = t, np.append(t[1:], t[-1] + (t[1] - t[0]))
+    held["u"][0::2], held["u"][1::2] = u, u
+    res = fmpy.simulate_fmu(doc["augmented_fmu"], stop_time=t[-1], output_interval=t[1] - t[0], input=held,
+                            output=["q"], fmi_type="ModelExchange", solver="CVode", relative_tolerance=1e-10,
+                            start_values={"plant.x": states["plant.x"], "plant.v": states["plant.v"]})
+    q_fmu = np.interp(t, res["time"], res["q"])
+    q_mem = result["q_augmented"]
+    assert np.max(np.abs(q_fmu - q_mem)) < 1e-3 * np.max(np.abs(q_mem - q_mem[0])), np.max(np.abs(q_fmu - q_mem))
+
+
+def test_parameters_only_gives_no_unexplained_entry(tmp_path):
+    """Only the mass and damping are off: no effect, no unexplained entry, and the report says nothing
+    significant remains (cheap bundle of the decision tests)."""
+    bench.write_bundle(tmp_path / "params", "params_only_a", seed=SEED, durations=DURATIONS, engine="casadi")
+    with tempfile.TemporaryDirectory(dir=tmp_path) as work:
+        result = pipeline.run(read_bundle(tmp_path / "params"), Path(work))
+    diagnosis = pipeline.Diagnosis.from_result(result)
+    assert diagnosis.effects == [] and diagnosis.unexplained is None
+    assert result["remainder"]["status"] == "none", result["remainder"]
+    assert [e.name for e in result["final"].effects] == []
