@@ -24,7 +24,7 @@ from motiontwin.ident.diagnosis.bundle import read_bundle
 
 SEED = 21
 DURATIONS = (3.0, 1.5)          # train, validation [s] at 2 kHz
-DRAG_SCALE = 4.0                # c = 32 N.s2/m2: 0.3 N at the fastest moves, 0.6 um of closed-loop error
+DRAG_SCALE = 1.0                # c = 32 N.s2/m2: 0.3 N at the fastest moves, 0.6 um of closed-loop error
 COEFFICIENT_TOLERANCE = 0.03    # found coefficient within 3 % of the truth
 FLOOR_MARGIN = 1.1              # augmented validation RMS within 10 % of the noise floor
 

@@ -222,7 +222,7 @@ def truth_plant(case: str, scale: float = 1.0, mass: float = TRUE_M, damping: fl
                           [_effect(case, {"frequency": w_res / (2 * math.pi), "damping": c / (2 * mu * w_res)},
                                    {"resonance_m2": m2, "resonance_fa": fa, "resonance_zeta": zeta})])
     if case == "quadratic_drag":
-        c = 8.0 * s
+        c = 32.0 * s
         return TruthPlant(OUTSIDE_LAWS[case][0], {**rigid, "c": c}, [_outside(case, {"c": c}, {"v*|v|": c})])
     if case == "position_friction":
         k = 3.0 * s
@@ -531,9 +531,12 @@ def trajectory(which: str, seed: int) -> dict[str, float]:
     return {"stroke": float(rng.uniform(0.06, 0.14)), "sweep_fraction": float(rng.uniform(0.2, 0.35))}
 
 
-def generate(out: Path, which: str) -> None:
-    """Write every bundle of the set ``which`` into ``out/which/CASE`` (FMUs built into ``out/fmus``)."""
+def generate(out: Path, which: str, only: list[str] | None = None) -> None:
+    """Write every bundle of the set ``which`` (or the cases ``only``) into ``out/which/CASE`` (FMUs built
+    into ``out/fmus``)."""
     for case, seed, scale in case_list(which):
+        if only and case not in only:
+            continue
         t0 = time.perf_counter()
         shape = trajectory(which, seed)
         form = plant_form(which, seed)
@@ -589,13 +592,34 @@ _MAIN = {"gravity_offset": "F0", "coulomb_friction": "Fc", "asymmetric_friction"
          "stribeck_friction": "Fs", "position_ripple": "amplitude", "time_delay": "delay",
          "resonance": "frequency", "position_dependent_inertia": "mass_max"}
 VOCABULARY = list(_MAIN)
+UNEXPLAINED = "unexplained"    # the answer for a law outside the catalogue (row and column of the confusion table)
+
+
+def _answer_names(effects: list[dict], unexplained: dict | None = None) -> list[str]:
+    """Names in the confusion table: catalogue effects by name, laws outside the catalogue (truth) and an
+    unexplained verdict (found, with or without a validated term) as "unexplained"."""
+    names = [UNEXPLAINED if e.get("outside_catalogue") else e["name"] for e in effects]
+    return names + ([UNEXPLAINED] if unexplained else [])
+
+
+def _term_errors(truth_terms: dict[str, float], unexplained: dict | None) -> list[str]:
+    """found/true coefficient of each true term of a law outside the catalogue (missing: "not found")."""
+    found = ((unexplained or {}).get("empirical_term") or {}).get("coefficients", {})
+    out = []
+    for name, true_value in truth_terms.items():
+        if name in found:
+            out.append(f"{name} {found[name]:.4g}/{true_value:.4g} ({100 * (found[name] / true_value - 1):+.1f}%)")
+        else:
+            out.append(f"{name} not found")
+    extra = [n for n in found if n not in truth_terms]
+    return out + ([f"other terms {', '.join(extra)}"] if extra else [])
 
 
 def run(out: Path, which: str, only: list[str] | None = None) -> int:
     """Diagnose every bundle of the set and print one line per case and the confusion table."""
     from motiontwin.ident.diagnosis import diagnose_bundle
 
-    names = VOCABULARY
+    names = VOCABULARY + [UNEXPLAINED]
     confusion = {n: {m: 0 for m in names + ["(none)"]} for n in names + ["(none)"]}
     for case, _, _ in case_list(which):
         if only and case not in only:
@@ -605,8 +629,8 @@ def run(out: Path, which: str, only: list[str] | None = None) -> int:
         t0 = time.perf_counter()
         doc = diagnose_bundle(bundle, out / "results" / which / case)
         seconds = time.perf_counter() - t0
-        found = [e["name"] for e in doc["effects"]]
-        true_names = [e["name"] for e in truth["effects"]]
+        found = _answer_names(doc["effects"], doc.get("unexplained"))
+        true_names = _answer_names(truth["effects"])
         for tn in true_names:  # a true effect is found (diagonal) or missed (column "(none)")
             confusion[tn][tn if tn in found else "(none)"] += 1
         for fn in found:       # a found effect that is not in the truth is a false positive (row "(none)")
@@ -616,6 +640,9 @@ def run(out: Path, which: str, only: list[str] | None = None) -> int:
             confusion["(none)"]["(none)"] += 1
         errors = []
         for effect in truth["effects"]:
+            if effect.get("outside_catalogue"):
+                errors += _term_errors(effect["contract"], doc.get("unexplained"))
+                continue
             match = [e for e in doc["effects"] if e["name"] == effect["name"]]
             key = _MAIN[effect["name"]]
             true_value = effect["contract"].get(key)
@@ -627,6 +654,8 @@ def run(out: Path, which: str, only: list[str] | None = None) -> int:
         mass = doc["augmented_parameters"].get(truth.get("mass_parameter", "m"), math.nan)
         m_err = 100 * (mass / truth.get("mass_scale", 1.0) / TRUE_M - 1)
         truth_text, found_text = ",".join(true_names) or "-", ",".join(found) or "-"
+        if doc.get("unexplained"):
+            found_text += f" [{doc['unexplained']['status']}]"
         print(f"{case:28s} truth={truth_text:40s} found={found_text:40s} {'; '.join(errors)} m_err={m_err:+.1f}% "
               f"val {val['nominal_rms']:.3g}->{val['augmented_rms']:.3g} m (x{ratio:.2f}) {seconds:.0f} s",
               flush=True)
@@ -643,10 +672,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("command", choices=["generate", "run", "conceal", "verify"])
     parser.add_argument("out", type=Path)
     parser.add_argument("--set", default="tuning", choices=["tuning", "heldout"])
-    parser.add_argument("--case", default=None)
+    parser.add_argument("--case", default=None, help="one case, or several separated by commas (generate, run)")
     args = parser.parse_args(argv)
+    cases = args.case.split(",") if args.case else None
     if args.command == "generate":
-        generate(args.out, args.set)
+        generate(args.out, args.set, cases)
     elif args.command == "conceal":
         for case, seed, scale in case_list(args.set):
             if args.case in (None, case):
@@ -659,7 +689,7 @@ def main(argv: list[str] | None = None) -> int:
               f"RMS {res['rms_m']:.3g} m (max |q| {res['max_q_m']:.3g} m; encoder noise {NOISE:g} m, "
               f"quantum {RESOLUTION:g} m), {time.perf_counter() - t0:.1f} s")
     else:
-        return run(args.out, args.set, [args.case] if args.case else None)
+        return run(args.out, args.set, cases)
     return 0
 
 

@@ -49,15 +49,21 @@ class InverseDynamics:
 
 def inverse_dynamics(rec: Recording, model: symbolic.SymbolicModel, values: dict[str, float],
                      position_state: str, velocity_state: str, ts: float,
-                     input_index: int = 0) -> InverseDynamics | None:
+                     input_index: int = 0, held_input: bool = False) -> InverseDynamics | None:
     """Force residual u - (force the nominal model needs for the measured motion), for two-state plants
-    (``input_index``: the driven input; the others are held at 0)."""
+    (``input_index``: the driven input; the others are held at 0). ``held_input``: the recorded force was
+    held over each sample (zero-order hold), so the force acting around sample k is the mean of samples k-1
+    and k; without this the half-sample lag leaves a residual proportional to du/dt (large under a swept
+    sine) that hides small force laws."""
     if model.x.numel() != 2:
         return None
     fs = 1 / ts
     fc = min(0.1 * fs, 150.0)
     x, v, a = mirror_derivatives(rec["q"], fs, fc)
-    u_f, udot, _ = mirror_derivatives(rec["u"], fs, fc)
+    u = np.asarray(rec["u"], float)
+    if held_input:
+        u = 0.5 * (np.concatenate([u[:1], u[:-1]]) + u)
+    u_f, udot, _ = mirror_derivatives(u, fs, fc)
     names = [s.name for s in model.states]
     i_x, i_v = names.index(position_state), names.index(velocity_state)
     p = np.array([values[s.name] for s in model.parameters])

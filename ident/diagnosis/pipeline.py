@@ -386,7 +386,7 @@ def explain_remainder(bundle: Bundle, final: ModelFit, weights: outputerror.Weig
     inputs = [v.name for v in model.inputs]
     inv = evidence.inverse_dynamics(rec, model, values, prefix + plant.position_state,
                                     prefix + plant.velocity_state, bundle.controller.Ts,
-                                    inputs.index("u" if final.effects else plant.input_name))
+                                    inputs.index("u" if final.effects else plant.input_name), held_input=True)
     law = empirical.fit_empirical_force({"x": inv.x, "v": inv.v, "a": inv.a, "u": inv.u}, inv.force,
                                         library=empirical.residual_library())
     _log(progress, f"remaining force residual: {law.describe()}")
