@@ -10,6 +10,7 @@ written FMU with its own solver (CVode) against the in-memory CasADi prediction.
 from __future__ import annotations
 
 import json
+import shutil
 import tempfile
 from pathlib import Path
 
@@ -19,7 +20,7 @@ import pytest
 
 from motiontwin.ident import outputerror
 from motiontwin.ident.diagnosis import benchmark as bench
-from motiontwin.ident.diagnosis import pipeline, report
+from motiontwin.ident.diagnosis import empirical, pipeline, report
 from motiontwin.ident.diagnosis.bundle import read_bundle
 
 SEED = 21
@@ -76,6 +77,7 @@ def test_written_model_and_fmu_carry_the_empirical_term(drag, tmp_path):
     text = Path(doc["augmented_model"]).read_text()
     assert "augmented by the diagnosis with: empirical_force" in text
     assert '"empirical force: sparse regression' in text and "empirical_c1*(plant.v*abs(plant.v))" in text
+    assert doc["unexplained"]["empirical_term"]["modelica"] == "empirical_F = empirical_c1*(plant.v*abs(plant.v))"
 
     result = diagnosis.result
     bundle, values = result["bundle"], result["augmented_values"]
@@ -97,6 +99,28 @@ def test_written_model_and_fmu_carry_the_empirical_term(drag, tmp_path):
     assert np.max(np.abs(q_fmu - q_mem)) < 1e-3 * np.max(np.abs(q_mem - q_mem[0])), np.max(np.abs(q_fmu - q_mem))
 
 
+def test_term_that_does_not_validate_is_reported_not_kept(tmp_path):
+    """Drag in the training recording only (the validation recording is the same drive without it, the
+    parameters-only bundle of the same seed): the term is significant on training data but makes the
+    validation fit worse, so the answer is "unexplained, no term validated", with where, and the augmented
+    model stays without it."""
+    for case in ("quadratic_drag", "params_only_a"):
+        bench.write_bundle(tmp_path / case, case, seed=SEED, scale=DRAG_SCALE, durations=DURATIONS, engine="casadi")
+    assert (tmp_path / "quadratic_drag" / "plant.mo").read_text() == (tmp_path / "params_only_a" / "plant.mo").read_text()
+    shutil.copyfile(tmp_path / "params_only_a" / "validation.csv", tmp_path / "quadratic_drag" / "validation.csv")
+    with tempfile.TemporaryDirectory(dir=tmp_path) as work:
+        result = pipeline.run(read_bundle(tmp_path / "quadratic_drag"), Path(work))
+    diagnosis = pipeline.Diagnosis.from_result(result)
+    entry = diagnosis.unexplained
+    assert entry is not None and entry["status"] == "unexplained, no term validated", result["remainder"]
+    rejected = entry["rejected_term"]
+    assert rejected["terms"] == ["v*|v|"] and rejected["cost_reduction"] > rejected["null_threshold"]
+    assert rejected["validation_rms_after"] >= pipeline.VALIDATION_GAIN * rejected["validation_rms_before"]
+    assert "empirical_term" not in entry and entry["velocity_range"] and entry["frequency_band_hz"]
+    assert [e.name for e in result["final"].effects] == []
+    assert report.unexplained_text(entry).startswith("unexplained, no term validated (rejected term F = ")
+
+
 def test_parameters_only_gives_no_unexplained_entry(tmp_path):
     """Only the mass and damping are off: no effect, no unexplained entry, and the report says nothing
     significant remains (cheap bundle of the decision tests)."""
@@ -107,3 +131,16 @@ def test_parameters_only_gives_no_unexplained_entry(tmp_path):
     assert diagnosis.effects == [] and diagnosis.unexplained is None
     assert result["remainder"]["status"] == "none", result["remainder"]
     assert [e.name for e in result["final"].effects] == []
+
+
+def test_verdict_applies_the_null_test_then_the_validation_rule():
+    """The two rules of a catalogue effect, in order, at the numbers of the drag bundles: a cost reduction
+    at or under the bootstrap threshold is no answer whatever the validation; past it, the validation RMS
+    must fall below VALIDATION_GAIN of its previous value."""
+    gain = pipeline.VALIDATION_GAIN
+    assert empirical.verdict(7.99e5, 16.7, 0.136, gain) == "unexplained"
+    assert empirical.verdict(7.99e5, 16.7, 1.3, gain) == "unexplained, no term validated"
+    assert empirical.verdict(7.99e5, 16.7, None, gain) == "unexplained, no term validated"
+    assert empirical.verdict(16.7, 16.7, 0.136, gain) == "none"
+    assert empirical.verdict(15.0, 16.7, 0.136, gain) == "none"
+    assert empirical.verdict(7.99e5, 16.7, gain, gain) == "unexplained, no term validated"

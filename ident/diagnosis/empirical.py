@@ -215,6 +215,21 @@ def fit_empirical_force(signals: dict[str, np.ndarray], residual: np.ndarray, v_
     return EmpiricalForce([terms[i] for i in keep], coefficients, threshold, cv_rms, cv_zero, v_eps, report)
 
 
+NONE, UNEXPLAINED, NOT_VALIDATED = "none", "unexplained", "unexplained, no term validated"
+
+
+def verdict(cost_reduction: float, null_threshold: float, validation_ratio: float | None,
+            validation_gain: float) -> str:
+    """The answer for an empirical term, by the catalogue's two rules: "none" unless the cost reduction
+    beats the bootstrap null threshold; then "unexplained" when the validation RMS ratio (after/before; None:
+    not validated yet) is below ``validation_gain``, else "unexplained, no term validated"."""
+    if not cost_reduction > null_threshold:
+        return NONE
+    if validation_ratio is None or not validation_ratio < validation_gain:
+        return NOT_VALIDATED
+    return UNEXPLAINED
+
+
 def without_parameter_terms(law: EmpiricalForce) -> EmpiricalForce:
     """``law`` without the :data:`PARAMETER_TERMS` (what the refitted damping and mass explain)."""
     keep = [i for i, t in enumerate(law.terms) if t.name not in PARAMETER_TERMS]

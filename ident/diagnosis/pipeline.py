@@ -9,6 +9,7 @@ import math
 import multiprocessing
 import os
 import shutil
+import string
 import tempfile
 import threading
 import time
@@ -392,7 +393,7 @@ def explain_remainder(bundle: Bundle, final: ModelFit, weights: outputerror.Weig
     _log(progress, f"remaining force residual: {law.describe()}")
     law = empirical.without_parameter_terms(law)
     if not law.terms:
-        return final, {"status": "none", "reason": "no library function beyond the nominal parameters' own "
+        return final, {"status": empirical.NONE, "reason": "no library function beyond the nominal parameters' own "
                                                    "explains the remaining force residual (cross-validated)"}
     signals = {"x": inv.x, "v": inv.v, "a": inv.a, "u": inv.u}
     regression = law
@@ -411,7 +412,7 @@ def explain_remainder(bundle: Bundle, final: ModelFit, weights: outputerror.Weig
             trial = refine(bundle, fit_structure(bundle, final, effect, ctx, weights, work / f"empirical{attempt}"),
                            weights)
         except (RuntimeError, ValueError, np.linalg.LinAlgError) as exc:
-            return final, {"status": "none", "reason": f"the empirical term ({', '.join(law.names)}) could not "
+            return final, {"status": empirical.NONE, "reason": f"the empirical term ({', '.join(law.names)}) could not "
                                                        f"be fitted by output error: {exc}"}
     noisy = lambda n: outputerror.simulate(final.loop, bundle.train, final.fit.values, noise=n)  # noqa: E731
     null = evidence.bootstrap_residuals(noisy, final.fit.q_sim, final.fit.u_sim, weights.sigma_q, weights.sigma_u,
@@ -421,14 +422,15 @@ def explain_remainder(bundle: Bundle, final: ModelFit, weights: outputerror.Weig
     threshold = evidence.null_threshold(null_gain, dof)
     reduction = final.fit.cost - trial.fit.cost
     _log(progress, f"  empirical term: cost -{reduction:.4g}, null {threshold:.4g} (x{reduction / threshold:.2f})")
-    if reduction <= threshold:
-        return final, {"status": "none", "reason": f"the empirical term ({', '.join(law.names)}) is not "
-                                                   f"significant: cost reduction {reduction:.4g} <= null "
-                                                   f"threshold {threshold:.4g}"}
+    if empirical.verdict(reduction, threshold, None, VALIDATION_GAIN) == empirical.NONE:
+        return final, {"status": empirical.NONE, "reason": f"the empirical term ({', '.join(law.names)}) is not "
+                                                           f"significant: cost reduction {reduction:.4g} <= null "
+                                                           f"threshold {threshold:.4g}"}
     validate(bundle, trial, work / "v_empirical")
     if not math.isfinite(final.val_rms):
         validate(bundle, final, work / "v_before_empirical")
-    kept = trial.val_rms < VALIDATION_GAIN * final.val_rms
+    status = empirical.verdict(reduction, threshold, trial.val_rms / final.val_rms, VALIDATION_GAIN)
+    kept = status == empirical.UNEXPLAINED
     _log(progress, f"  empirical term: validation rms {final.val_rms:.4g} -> {trial.val_rms:.4g} "
                    f"({'kept' if kept else 'rejected'})")
     where = empirical.locate_remainder((trial.fit.q_sim - final.fit.q_sim), bundle.train["q"] - final.fit.q_sim,
@@ -440,11 +442,12 @@ def explain_remainder(bundle: Bundle, final: ModelFit, weights: outputerror.Weig
             "regression": {"terms": regression.names, "coefficients": [float(c) for c in regression.coefficients],
                            "threshold": regression.threshold, "cv_rms": regression.cv_rms,
                            "cv_rms_without": regression.cv_rms_zero},
-            "modelica": f"empirical_F = {effect.equations[0][len('empirical_F = '):]}",
+            "modelica": string.Template(effect.equations[0]).substitute(
+                x=f"plant.{plant.roles.position}", v=f"plant.{plant.roles.velocity}"),
             "validation_rms_before": final.val_rms, "validation_rms_after": trial.val_rms,
             "validation_gain": trial.val_rms / final.val_rms, "cost_reduction": reduction,
             "null_threshold": threshold, "fitted_parameters": dof}
-    check = {"status": "unexplained" if kept else "unexplained, no term validated",
+    check = {"status": status,
              "axis": plant.output_name, **where, "empirical_term" if kept else "rejected_term": term}
     if not kept:
         return final, check
