@@ -242,7 +242,6 @@ def refitted(law: EmpiricalForce, values: dict[str, float], signals: dict[str, n
     """``law`` (as written by :func:`as_effect`) at its output-error refitted ``values``, without the terms
     whose contribution (coefficient x RMS of the function over ``signals``) is below ``share`` of the RMS of
     the whole empirical force: the sequential thresholding of STLSQ, repeated on the output-error fit."""
-    law = without_parameter_terms(law)
     v_eps = float(values.get("empirical_v_eps", law.v_eps))
     coefficients = np.array([values[f"empirical_c{k}"] for k in range(1, len(law.terms) + 1)], float)
     columns = [t.evaluate(signals, v_eps) for t in law.terms]
@@ -254,14 +253,14 @@ def refitted(law: EmpiricalForce, values: dict[str, float], signals: dict[str, n
 
 
 def as_effect(law: EmpiricalForce, ctx: effect_models.Context) -> effect_models.Effect:
-    """The sparse law as an effect of the augmented model, labelled empirical: one Modelica parameter
+    """The sparse law (its terms as given: drop :data:`PARAMETER_TERMS` first with
+    :func:`without_parameter_terms`) as an effect of the augmented model, labelled empirical: one Modelica parameter
     ``empirical_c<k>`` per selected term (started at the regression's coefficient, refitted by output error
     with the rest), the sign functions' velocity scale ``empirical_v_eps`` (fitted too, when a sign term is
     selected), and the force ``empirical_F`` in the plant's position ``$x``, velocity ``$v``, acceleration
     ``der($v)`` and the commanded force ``u``. Not part of the catalogue (``effects.VOCABULARY``)."""
-    law = without_parameter_terms(law)
     if not law.terms:
-        raise ValueError("the empirical law has no term beyond the nominal parameters' own")
+        raise ValueError("the empirical law has no term to add")
     params = []
     for k, (term, c) in enumerate(zip(law.terms, law.coefficients), start=1):
         span = max(20 * abs(float(c)), 1e-9)
