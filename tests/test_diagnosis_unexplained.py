@@ -144,3 +144,18 @@ def test_verdict_applies_the_null_test_then_the_validation_rule():
     assert empirical.verdict(16.7, 16.7, 0.136, gain) == "none"
     assert empirical.verdict(15.0, 16.7, 0.136, gain) == "none"
     assert empirical.verdict(7.99e5, 16.7, gain, gain) == "unexplained, no term validated"
+
+
+def test_refit_drops_terms_the_output_error_fit_leaves_small():
+    """After the output-error refit, a term carrying under PRUNE_SHARE of the empirical force's RMS is dropped
+    (closed form: contributions |c| * RMS(term) of 1.0 N, 0.02 N and 0.2 N against a total of 1-1.2 N)."""
+    t = np.linspace(0, 4, 4001)
+    signals = {"x": 0.05 + 0.04 * np.sin(t), "v": 0.04 * np.cos(t), "a": -0.04 * np.sin(t), "u": np.zeros(t.size)}
+    library = {term.name: term for term in empirical.default_library()}
+    names = ["v*|v|", "x^2", "1"]
+    law = empirical.EmpiricalForce([library[n] for n in names], np.ones(3), 0.1, 0.0, 1.0, 1e-3)
+    rms = {n: float(np.sqrt(np.mean(library[n].evaluate(signals, 1e-3) ** 2))) for n in names}
+    values = {"empirical_c1": 1.0 / rms["v*|v|"], "empirical_c2": 0.02 / rms["x^2"], "empirical_c3": 0.2}
+    kept = empirical.refitted(law, values, signals)
+    assert kept.names == ["v*|v|", "1"]
+    np.testing.assert_allclose(kept.coefficients, [values["empirical_c1"], 0.2])
