@@ -433,6 +433,32 @@ def explain_remainder(bundle: Bundle, final: ModelFit, weights: outputerror.Weig
     kept = status == empirical.UNEXPLAINED
     _log(progress, f"  empirical term: validation rms {final.val_rms:.4g} -> {trial.val_rms:.4g} "
                    f"({'kept' if kept else 'rejected'})")
+    trial.evidence = dict(final.evidence)
+    absorbed: list[str] = []
+    for named in [e for e in trial.effects if kept and e.family != EMPIRICAL_EFFECT]:
+        # a catalogue effect the empirical term now carries (Coulomb friction inside x*sign(v) + sign(v)):
+        # dropped when removing it costs no more than its own null threshold and keeps the validation fit
+        rest = [e for e in trial.effects if e is not named]
+        start = {k: v for k, v in trial.fit.values.items() if k not in {q.name for q in named.params}}
+        try:
+            loop, bounds = build_structure(bundle, rest, start, work / f"without_{named.name}",
+                                           bundle.train.time.size, min_substeps=trial.loop.substeps)
+            result = outputerror.fit(loop, bundle.train, weights, bounds, start=start, max_nfev=MAX_NFEV)
+        except (RuntimeError, ValueError, np.linalg.LinAlgError):
+            continue
+        reduced = ModelFit(rest, loop.with_values(result.values), result, bounds, work / f"without_{named.name}")
+        extra = result.cost - trial.fit.cost
+        null_extra = evidence.projected_gain(trial.fit.jacobian, null) - evidence.projected_gain(result.jacobian, null)
+        if extra > evidence.null_threshold(null_extra, sum(q.fitted for q in named.params)):
+            continue
+        validate(bundle, reduced, work / f"v_without_{named.name}")
+        if not reduced.val_rms <= (2 - VALIDATION_GAIN) * trial.val_rms:
+            continue
+        _log(progress, f"  {named.name} is carried by the empirical term: without it cost +{extra:.4g}, "
+                       f"validation {trial.val_rms:.4g} -> {reduced.val_rms:.4g} m (dropped)")
+        reduced.evidence = {k: v for k, v in trial.evidence.items() if k != named.name}
+        absorbed.append(named.name)
+        trial = reduced
     where = empirical.locate_remainder((trial.fit.q_sim - final.fit.q_sim), bundle.train["q"] - final.fit.q_sim,
                                        bundle.train.time, inv.v * gain, bundle.train["q"], weights.sigma_q,
                                        bundle.controller.Ts)
@@ -446,12 +472,12 @@ def explain_remainder(bundle: Bundle, final: ModelFit, weights: outputerror.Weig
                 x=f"plant.{plant.roles.position}", v=f"plant.{plant.roles.velocity}"),
             "validation_rms_before": final.val_rms, "validation_rms_after": trial.val_rms,
             "validation_gain": trial.val_rms / final.val_rms, "cost_reduction": reduction,
-            "null_threshold": threshold, "fitted_parameters": dof}
+            "null_threshold": threshold, "fitted_parameters": dof, "absorbed_effects": absorbed}
     check = {"status": status,
              "axis": plant.output_name, **where, "empirical_term" if kept else "rejected_term": term}
     if not kept:
         return final, check
-    trial.evidence = {**final.evidence, EMPIRICAL_EFFECT: {
+    trial.evidence = {**trial.evidence, EMPIRICAL_EFFECT: {
         "cost_reduction": reduction, "null_threshold": threshold, "validation_rms_before": final.val_rms,
         "validation_rms_after": trial.val_rms, "previous": final}}
     return trial, check
