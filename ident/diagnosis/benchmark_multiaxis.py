@@ -19,11 +19,13 @@ The bundle's nominal plant is the same library class with the slider mass ``m_s`
 
     python -m motiontwin.ident.diagnosis.benchmark_multiaxis generate OUT_DIR [--set tuning|heldout] [--case NAME]
     python -m motiontwin.ident.diagnosis.benchmark_multiaxis run OUT_DIR [--set tuning|heldout] [--case NAME]
+    python -m motiontwin.ident.diagnosis.benchmark_multiaxis score OUT_DIR [--set ...]   # re-score OUT_DIR/results
 """
 from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import re
 import sys
@@ -210,7 +212,7 @@ def write_bundle(folder: Path, case: str, seed: int, scale: float, axes: list[st
     """Write one multi-axis bundle (experiment.json, train.csv, validation.csv) and ``NAME.truth.json`` next to
     it: true effects with their axes, truth model, nominal errors and, per axis, the concealment on the
     training run (max and RMS |q_truth - q_rigid| [m], max |u_truth - u_rigid| [N], the rigid truth driven by
-    the same references, disturbances and noise)."""
+    the same references, disturbances and noise; max |r - q_truth| [m], the tracking error)."""
     rng = np.random.default_rng(seed)
     folder = Path(folder)
     truth_values, effects = truth_parameters(case, axes, scale)
@@ -231,7 +233,9 @@ def write_bundle(folder: Path, case: str, seed: int, scale: float, axes: list[st
             dq, du = out["q_true"] - rigid["q_true"], out["u"] - rigid["u"]
             concealment = {o: {"max_abs_m": float(np.max(np.abs(dq[:, j]))),
                                "rms_m": float(np.sqrt(np.mean(dq[:, j] ** 2))),
-                               "force_max_abs_N": float(np.max(np.abs(du[:, j])))} for j, o in enumerate(outputs)}
+                               "force_max_abs_N": float(np.max(np.abs(du[:, j]))),
+                               "tracking_max_abs_m": float(np.max(np.abs(r[:, j] - out["q_true"][:, j])))}
+                           for j, o in enumerate(outputs)}
         columns = {}
         for j, (inp, o) in enumerate(plant.ports):
             columns.update({f"r_{o}": r[:, j], inp: out["u"][:, j], o: out["q"][:, j], f"u_ext_{inp}": u_ext[:, j]})
@@ -270,9 +274,9 @@ def generate(out: Path, which: str, only: str | None = None, durations: tuple[fl
         t0 = time.perf_counter()
         truth = write_bundle(out / which / case, case, seed, scale, axes, durations, fmu_dir=out / "fmus")
         hidden = ", ".join(f"{a} {c['max_abs_m'] * 1e6:.2f} um/{c['force_max_abs_N']:.3g} N"
-                           for a, c in truth["concealment"].items())
+                           f"/{c['tracking_max_abs_m'] * 1e6:.0f} um" for a, c in truth["concealment"].items())
         print(f"{which}/{case}: seed {seed}, scale {scale:.2f}, axes {','.join(axes) or '-'}, "
-              f"effects {','.join(e['name'] for e in truth['effects']) or '-'}; |q - q_rigid|, |u - u_rigid|: "
+              f"effects {','.join(e['name'] for e in truth['effects']) or '-'}; max |q - q_rigid|/|u - u_rigid|/|r - q|: "
               f"{hidden}; {time.perf_counter() - t0:.1f} s", flush=True)
 
 
@@ -344,7 +348,7 @@ def confusion_table(scores: list[dict]) -> tuple[list[str], list[str], dict[str,
     return rows, cols, table
 
 
-def format_line(case: str, truth: dict, s: dict, wall: float, cpu: float) -> str:
+def format_line(case: str, truth: dict, s: dict, wall: float, cpu: float | None) -> str:
     """One printed line per bundle: truth, outcome, errors, per-axis validation and time vs the budget."""
     true_text = ",".join(f"{e['axis']}:{e['name']}" for e in truth["effects"]) or "-"
     found_text = ",".join(f"{n}->{o}" for n, o in s["outcomes"]) or "-"
@@ -352,8 +356,9 @@ def format_line(case: str, truth: dict, s: dict, wall: float, cpu: float) -> str
     errs = " ".join(f"{k} {100 * v:+.0f}%" for k, v in {**s["parameter_errors"], **s["nominal_errors"]}.items())
     val = " ".join(f"{a} {n:.3g}->{g:.3g}" for a, (n, g) in s["validation"].items())
     budget = "ok" if wall <= BUDGET_S else "OVER"
+    cpu_text = "-" if cpu is None else f"{cpu:.0f} s"
     return (f"{case:18s} truth={true_text:40s} outcome={found_text:40s} extra={extra or '-'} {errs} "
-            f"val[m] {val} wall {wall:.0f} s cpu {cpu:.0f} s ({budget} vs {BUDGET_S:.0f} s)")
+            f"val[m] {val} wall {wall:.0f} s cpu {cpu_text} ({budget} vs {BUDGET_S:.0f} s)")
 
 
 def print_confusion(scores: list[dict]) -> str:
@@ -365,26 +370,34 @@ def print_confusion(scores: list[dict]) -> str:
     return "\n".join(lines)
 
 
-def run(out: Path, which: str, only: str | None = None) -> int:
-    """Diagnose every bundle of the set with ``diagnose_bundle``; print one line per bundle and the confusion
-    table. A bundle whose diagnosis fails is reported and left out of the table; exit code 1 then."""
+def run(out: Path, which: str, only: str | None = None, diagnose: bool = True) -> int:
+    """Diagnose every bundle of the set with ``diagnose_bundle`` into ``out/results/SET/CASE`` (or, with
+    ``diagnose=False``, score the diagnosis.json files already there, timed by their ``runtime_s``); print one
+    line per bundle and the confusion table. A bundle whose diagnosis fails or is missing is reported and left
+    out of the table; exit code 1 then."""
     from motiontwin.ident.diagnosis import diagnose_bundle
 
     scores, failed = [], 0
     for case, _, _, _ in case_list(which):
         if only not in (None, case):
             continue
-        truth = json.loads((out / which / f"{case}.truth.json").read_text())
+        result = out / "results" / which / case
         wall0, cpu0 = time.perf_counter(), _cpu_seconds()
         try:
-            doc = diagnose_bundle(out / which / case, out / "results" / which / case)
+            truth = json.loads((out / which / f"{case}.truth.json").read_text())
+            if diagnose:
+                doc = diagnose_bundle(out / which / case, result)
+                wall, cpu = time.perf_counter() - wall0, _cpu_seconds() - cpu0
+            else:
+                doc = json.loads((result / "diagnosis.json").read_text())
+                wall, cpu = float(doc.get("runtime_s", math.nan)), None
         except Exception as exc:  # a failing bundle must not hide the others' results
             print(f"{case:18s} diagnosis failed: {type(exc).__name__}: {exc}", flush=True)
             failed += 1
             continue
         s = score(doc, truth)
         scores.append(s)
-        print(format_line(case, truth, s, time.perf_counter() - wall0, _cpu_seconds() - cpu0), flush=True)
+        print(format_line(case, truth, s, wall, cpu), flush=True)
     print("\n" + print_confusion(scores))
     return 1 if failed else 0
 
@@ -397,7 +410,8 @@ def _cpu_seconds() -> float:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m motiontwin.ident.diagnosis.benchmark_multiaxis")
-    parser.add_argument("command", choices=["generate", "run"])
+    parser.add_argument("command", choices=["generate", "run", "score"],
+                        help="generate bundles; run: diagnose and score them; score: score existing results")
     parser.add_argument("out", type=Path)
     parser.add_argument("--set", default="tuning", choices=["tuning", "heldout"])
     parser.add_argument("--case", default=None, choices=CASES)
@@ -405,7 +419,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.command == "generate":
         generate(args.out, args.set, args.case)
         return 0
-    return run(args.out, args.set, args.case)
+    return run(args.out, args.set, args.case, diagnose=args.command == "run")
 
 
 if __name__ == "__main__":
