@@ -170,6 +170,18 @@ def test_two_axes_bundle_follows_the_format(two_axes, rest):
                                                     hidden["q7"]["force_max_abs_N"])
 
 
+def test_effective_masses_are_the_inverse_of_the_force_to_acceleration_map(rest):
+    """At the rest pose, finite force steps on the library plant's ODE give M^-1 column by column."""
+    _, masses = rest
+    model = build.load_model(PLANT.library_class)
+    fns, p = model.functions(), model.parameter_values()
+    x0 = np.array(fns["x0"](p)).ravel()
+    ode = lambda u: np.array(fns["ode"](0.0, x0, u, p)).ravel()[4:]    # the velocity states' derivatives
+    per_force = np.column_stack([ode(np.eye(4)[j]) - ode(np.zeros(4)) for j in range(4)])
+    assert np.allclose(masses, np.diag(np.linalg.inv(per_force)), rtol=1e-9)
+    assert np.all((masses > 0.7) & (masses < 1.0))                     # slider 0.7 kg plus its share of the links
+
+
 def test_workspace_check_refuses_positions_outside_the_actuator_ranges(rest):
     start, _ = rest
     mb.check_workspace(np.tile(start, (3, 1)), "rest")
@@ -204,12 +216,14 @@ def test_runner_scores_a_hand_made_diagnosis(two_axes):
     # the ripple on q5 reported on its axis as something else, and a found name on the right axis
     other = mb.score(_doc([{"name": "stribeck_friction", "axis": "q5", "parameters": {}}]), truth)
     assert other["outcomes"] == [("coulomb_friction", "(none)"), ("position_ripple", "stribeck_friction")]
-    rows, cols, table = mb.confusion_table([s, empty, empirical, other])
+    novel = mb.score(_doc([{"name": "backlash", "axis": "q7", "parameters": {}}]), quiet)   # a new candidate
+    rows, cols, table = mb.confusion_table([s, empty, empirical, other, novel])
+    assert table["(none)"]["backlash"] == 1 and cols[-3:] == [mb.UNEXPLAINED, "wrong axis", "(none)"]
     assert table["coulomb_friction"]["coulomb_friction"] == 1 and table["coulomb_friction"]["(none)"] == 1
     assert table["position_ripple"]["wrong axis"] == 1 and table["position_ripple"]["stribeck_friction"] == 1
     assert table["(none)"]["gravity_offset"] == 1 and table["(none)"][mb.UNEXPLAINED] == 1
     assert table["(none)"]["(none)"] == 1
-    assert sum(sum(row.values()) for row in table.values()) == 7
+    assert sum(sum(row.values()) for row in table.values()) == 8
     line = mb.format_line("two_axes", truth, s, wall=301.0, cpu=550.0)
     assert "OVER vs 300 s" in line and "q1:Fc +10%" in line and "q5 2e-06->1e-07" in line
     assert "(ok vs 300 s)" in mb.format_line("two_axes", truth, s, wall=120.0, cpu=200.0)

@@ -185,7 +185,8 @@ def simulate(parameters: dict[str, float], r: np.ndarray, u_ext: np.ndarray, noi
              noise_std: float = single.NOISE, resolution: float = single.RESOLUTION,
              plant: AxisPlant = CHEUNG) -> dict[str, np.ndarray]:
     """Closed-loop truth with the truth class at ``parameters``, pre-roll from rest at ``start`` cut off; every
-    axis' sensor noise drawn from its own seed. Returns (n, axes) arrays r, u, q (measured), u_ext, q_true."""
+    axis' sensor noise drawn from its own seed; the true positions are checked against the workspace, pre-roll
+    included. Returns (n, axes) arrays r, u, q (measured), u_ext, q_true."""
     cols = [single.with_preroll(r[:, j], u_ext[:, j], float(start[j])) for j in range(r.shape[1])]
     pre = cols[0][2]
     rr, ue = np.column_stack([c[0] for c in cols]), np.column_stack([c[1] for c in cols])
@@ -193,6 +194,7 @@ def simulate(parameters: dict[str, float], r: np.ndarray, u_ext: np.ndarray, noi
                              for s in noise_seeds])
     out = single.cosimulate_axes(plant.truth_class, parameters, single.loop_axes(plant.ports), ctrls, rr, ue, noise,
                                  resolution, fmu_dir)
+    check_workspace(out["q_true"], f"{plant.truth_class} run (pre-roll included)")
     return {k: v[pre:] for k, v in out.items() if k != "time"}
 
 
@@ -227,7 +229,6 @@ def write_bundle(folder: Path, case: str, seed: int, scale: float, axes: list[st
         check_workspace(r, f"{case} {part} reference")
         seeds = [int(s) for s in rng.integers(2 ** 31, size=len(outputs))]
         out = simulate(truth_values, r, u_ext, seeds, ctrls, start, fmu_dir, plant=plant)
-        check_workspace(out["q_true"], f"{case} {part} truth")
         if part == "train":
             rigid = simulate({}, r, u_ext, seeds, ctrls, start, fmu_dir, plant=plant)
             dq, du = out["q_true"] - rigid["q_true"], out["u"] - rigid["u"]
@@ -334,8 +335,11 @@ def score(doc: dict, truth: dict) -> dict:
 
 def confusion_table(scores: list[dict]) -> tuple[list[str], list[str], dict[str, dict[str, int]]]:
     """Rows: true effect names and "(none)" (parameters-only bundles, false positives); columns: found
-    names, "unexplained", "wrong axis" and "(none)"; counts over the bundles."""
-    names = list(single.MAIN_PARAMETER)
+    names, "unexplained", "wrong axis" and "(none)"; counts over the bundles. The names are the single-axis
+    vocabulary and any other name a diagnosis reports (new candidates)."""
+    reported = [n for s in scores for n in [o for _, o in s["outcomes"]] + s["false_positives"]]
+    extra = {UNEXPLAINED, "wrong axis", "(none)"}
+    names = list(dict.fromkeys(list(single.MAIN_PARAMETER) + [n for n in reported if n not in extra]))
     rows, cols = names + ["(none)"], names + [UNEXPLAINED, "wrong axis", "(none)"]
     table = {r: {c: 0 for c in cols} for r in rows}
     for s in scores:
