@@ -28,6 +28,12 @@ def fmu_dir(tmp_path_factory) -> Path:
 
 
 @pytest.fixture(scope="module")
+def library_model():
+    """The library CheungManipulator through the project's front end (CasADi form, no FMU)."""
+    return build.load_model(PLANT.library_class)
+
+
+@pytest.fixture(scope="module")
 def rest() -> tuple[np.ndarray, np.ndarray]:
     return mb.rest_state()
 
@@ -41,10 +47,9 @@ def two_axes(tmp_path_factory, fmu_dir) -> tuple[Path, dict]:
     return folder, truth
 
 
-def _casadi_loop(r: np.ndarray, u_ext: np.ndarray, noise: np.ndarray, ctrls: list, substeps: int = 16) -> dict:
+def _casadi_loop(model, r: np.ndarray, u_ext: np.ndarray, noise: np.ndarray, ctrls: list, substeps: int = 16) -> dict:
     """The library CheungManipulator (CasADi form) in closed loop with the per-axis PIDs: at every sample the
     controllers read q + noise, the force C z + D [r; y] + u_ext is held over Ts, RK4 with ``substeps``."""
-    model = build.load_model(PLANT.library_class)
     fns = model.functions()
     p = model.parameter_values()
     x0 = np.array(fns["x0"](p)).ravel()
@@ -77,7 +82,7 @@ def _casadi_loop(r: np.ndarray, u_ext: np.ndarray, noise: np.ndarray, ctrls: lis
     return {"q_true": out[:na].T, "u": out[na:].T}
 
 
-def test_parameters_only_truth_equals_casadi_closed_loop_of_the_library_plant(rest, fmu_dir):
+def test_parameters_only_truth_equals_casadi_closed_loop_of_the_library_plant(library_model, rest, fmu_dir):
     start, masses = rest
     ctrls = mb.controllers(masses)
     rng = np.random.default_rng(2)
@@ -89,7 +94,7 @@ def test_parameters_only_truth_equals_casadi_closed_loop_of_the_library_plant(re
     rr, ue = np.column_stack([c[0] for c in cols]), np.column_stack([c[1] for c in cols])
     noise = np.column_stack([measurement.add_noise(np.zeros(rr.shape[0]), single.NOISE, np.random.default_rng(s))
                              for s in seeds])
-    ref = _casadi_loop(rr, ue, noise, ctrls, substeps=4)
+    ref = _casadi_loop(library_model, rr, ue, noise, ctrls, substeps=4)
     pre = cols[0][2]
     dq = fmu["q_true"] - ref["q_true"][pre:]
     assert np.max(np.abs(dq)) < 1e-10                                  # 1 % of the encoder noise std
@@ -98,7 +103,7 @@ def test_parameters_only_truth_equals_casadi_closed_loop_of_the_library_plant(re
     assert np.all(np.ptp(fmu["q_true"], axis=0) > 1e-4) and np.max(np.ptp(fmu["q_true"], axis=0)) > 5e-3
 
 
-def test_concealed_effect_is_present_as_a_force_on_its_axis_only(rest, fmu_dir):
+def test_concealed_effect_is_present_as_a_force_on_its_axis_only(library_model, rest, fmu_dir):
     """Coulomb friction on q5: the library plant's rigid-body inverse dynamics on the truth trajectory leaves
     u - F_rigid = Fc*tanh(v5/v_eps) on q5 and nothing on the other actuators."""
     start, masses = rest
@@ -112,15 +117,15 @@ def test_concealed_effect_is_present_as_a_force_on_its_axis_only(rest, fmu_dir):
     v = (q[2:] - q[:-2]) / (2 * h)
     acc = (q[2:] - 2 * q[1:-1] + q[:-2]) / h ** 2
     force = (u[1:-1] + u[:-2]) / 2                     # the held forces of the two intervals around sample k
-    model = build.load_model(PLANT.library_class)
+    model = library_model
     accel = ca.Function("accel", [model.x, model.u, model.p],
                         [model.dx[4:], ca.jacobian(model.dx[4:], model.u)])   # M^-1 (u - c - g - c_v v), M^-1
     x = np.hstack([q[1:-1], v])
     p = model.parameter_values()
-    rigid = np.empty_like(force)
-    for k in range(x.shape[0]):
-        free, per_force = (np.array(a) for a in accel(x[k], np.zeros(4), p))
-        rigid[k] = np.linalg.solve(per_force, acc[k] - free.ravel())
+    n = x.shape[0]
+    free, per_force = (np.array(a) for a in accel.map(n)(x.T, np.zeros((4, n)), np.tile(p, (n, 1)).T))
+    per_force = per_force.reshape(4, n, 4).transpose(1, 0, 2)
+    rigid = np.linalg.solve(per_force, (acc - free.T)[..., None])[..., 0]
     residual = force - rigid
     expected = fc * np.tanh(v[:, 2] / single.V_EPS)
     assert np.sqrt(np.mean((residual[:, 2] - expected) ** 2)) < 0.15 * fc
@@ -170,16 +175,23 @@ def test_two_axes_bundle_follows_the_format(two_axes, rest):
                                                     hidden["q7"]["force_max_abs_N"])
 
 
-def test_effective_masses_are_the_inverse_of_the_force_to_acceleration_map(rest):
+def test_effective_masses_are_the_inverse_of_the_force_to_acceleration_map(library_model, rest):
     """At the rest pose, finite force steps on the library plant's ODE give M^-1 column by column."""
     _, masses = rest
-    model = build.load_model(PLANT.library_class)
+    model = library_model
     fns, p = model.functions(), model.parameter_values()
     x0 = np.array(fns["x0"](p)).ravel()
     ode = lambda u: np.array(fns["ode"](0.0, x0, u, p)).ravel()[4:]    # the velocity states' derivatives
     per_force = np.column_stack([ode(np.eye(4)[j]) - ode(np.zeros(4)) for j in range(4)])
     assert np.allclose(masses, np.diag(np.linalg.inv(per_force)), rtol=1e-9)
     assert np.all((masses > 0.7) & (masses < 1.0))                     # slider 0.7 kg plus its share of the links
+
+
+def test_effects_go_on_named_axes_of_the_plant():
+    with pytest.raises(ValueError, match="needs 1 different axes among q1, q3, q5, q7, got \\['q2'\\]"):
+        mb.truth_parameters("coulomb_friction", ["q2"], 1.0)
+    with pytest.raises(ValueError, match="needs 2 different axes"):
+        mb.truth_parameters("two_axes", ["q3", "q3"], 1.0)
 
 
 def test_workspace_check_refuses_positions_outside_the_actuator_ranges(rest):

@@ -53,8 +53,8 @@ DURATIONS = (10.0, 5.0)     # s, training and validation recordings
 @dataclass(frozen=True)
 class AxisPlant:
     """A multi-axis plant of the benchmark: the library class (the bundle's nominal plant), the truth class
-    that adds the effect forces, its axes as (input, output, position state, velocity state), the
-    parameters the nominal gets wrong, and the workspace check of a (n, axes) array of positions."""
+    that adds the effect forces, its axes as (input, output, position state, velocity state) and the
+    parameters the nominal gets wrong."""
 
     library_class: str
     truth_class: str
@@ -98,13 +98,15 @@ def _suffix(output: str) -> str:
     return re.sub(r"^\D+", "", output)
 
 
-def truth_parameters(case: str, axes: list[str], scale: float) -> tuple[dict[str, float], list[dict]]:
+def truth_parameters(case: str, axes: list[str], scale: float,
+                     plant: AxisPlant = CHEUNG) -> tuple[dict[str, float], list[dict]]:
     """Truth-class parameter values and the true effects (name, axis, parameters, contract) of ``case`` with
     its effects on ``axes``: each effect is the single-axis benchmark's (:func:`benchmark.truth_plant`) at
     ``scale * EFFECT_SCALE``, its library parameters moved onto that axis (Coulomb friction: Fs = Fc)."""
     names = effect_names(case)
-    if len(axes) != len(names) or len(set(axes)) != len(axes):
-        raise ValueError(f"case {case!r} needs {len(names)} different axes, got {axes}")
+    if len(axes) != len(names) or len(set(axes)) != len(axes) or not set(axes) <= set(plant.outputs):
+        raise ValueError(f"case {case!r} needs {len(names)} different axes among {', '.join(plant.outputs)}, "
+                         f"got {axes}")
     parameters: dict[str, float] = {"v_eps": single.V_EPS}
     effects = []
     for name, axis in zip(names, axes):
@@ -217,7 +219,7 @@ def write_bundle(folder: Path, case: str, seed: int, scale: float, axes: list[st
     the same references, disturbances and noise; max |r - q_truth| [m], the tracking error)."""
     rng = np.random.default_rng(seed)
     folder = Path(folder)
-    truth_values, effects = truth_parameters(case, axes, scale)
+    truth_values, effects = truth_parameters(case, axes, scale, plant)
     true_nominal, guess = _nominal(rng, plant)
     start, masses = rest_state(plant)
     ctrls = controllers(masses)
