@@ -237,8 +237,10 @@ def test_runner_scores_a_hand_made_diagnosis(two_axes):
     assert table["(none)"]["(none)"] == 1
     assert sum(sum(row.values()) for row in table.values()) == 8
     line = mb.format_line("two_axes", truth, s, wall=301.0, cpu=550.0)
-    assert "OVER vs 300 s" in line and "q1:Fc +10%" in line and "q5 2e-06->1e-07" in line
+    assert "OVER vs 300 s" in line and "q1:Fc +10%" in line and "q5 2e-06->1e-07 (x0.05)" in line
     assert "(ok vs 300 s)" in mb.format_line("two_axes", truth, s, wall=120.0, cpu=200.0)
+    diverged = mb.format_line("two_axes", truth, {**s, "validation": {"q1": (3e-6, None)}}, wall=1.0, cpu=None)
+    assert "q1 3e-06->None (diverged)" in diverged
     text = mb.print_confusion([s, empty, empirical, other])
     assert text.splitlines()[-1].split()[-1] == "1"                   # (none) row ends with the (none) count
 

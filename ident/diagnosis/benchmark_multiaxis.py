@@ -360,11 +360,18 @@ def format_line(case: str, truth: dict, s: dict, wall: float, cpu: float | None)
     found_text = ",".join(f"{n}->{o}" for n, o in s["outcomes"]) or "-"
     extra = ",".join(s["false_positives"])
     errs = " ".join(f"{k} {100 * v:+.0f}%" for k, v in {**s["parameter_errors"], **s["nominal_errors"]}.items())
-    val = " ".join(f"{a} {n:.3g}->{g:.3g}" for a, (n, g) in s["validation"].items())
+    val = " ".join(f"{a} {_gain(n, g)}" for a, (n, g) in s["validation"].items())
     budget = "ok" if wall <= BUDGET_S else "OVER"
     cpu_text = "-" if cpu is None else f"{cpu:.0f} s"
     return (f"{case:18s} truth={true_text:40s} outcome={found_text:40s} extra={extra or '-'} {errs} "
             f"val[m] {val} wall {wall:.0f} s cpu {cpu_text} ({budget} vs {BUDGET_S:.0f} s)")
+
+
+def _gain(nominal: float | None, augmented: float | None) -> str:
+    """Validation RMS nominal -> augmented and their ratio; a diverged (None) fit says so."""
+    if nominal is None or augmented is None:
+        return f"{nominal}->{augmented} (diverged)"
+    return f"{nominal:.3g}->{augmented:.3g} (x{augmented / nominal:.2f})" if nominal else f"0->{augmented:.3g}"
 
 
 def print_confusion(scores: list[dict]) -> str:
