@@ -11,6 +11,7 @@ ROOT = Path(__file__).resolve().parents[1]
 ARGPARSE_ALLOWED = {
     "harness/examples/joint_bode.py": "example script (python -m motiontwin.harness.examples.joint_bode)",
     "ident/diagnosis/benchmark.py": "benchmark script (python -m motiontwin.ident.diagnosis.benchmark)",
+    "ident/diagnosis/benchmark_multiaxis.py": "benchmark script (python -m motiontwin.ident.diagnosis.benchmark_multiaxis)",
     "ident/diagnosis/__init__.py": "python -m motiontwin.ident.diagnosis; the diagnosis work moves it to the app",
 }
 # What each library layer may import of the project (itself and the layers below it).

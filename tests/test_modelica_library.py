@@ -47,6 +47,7 @@ EXPORTED = [
     "MotionTwin.Controllers.StateSpaceController",
     "MotionTwin.Controllers.DiscreteStateSpaceController",
     "MotionTwin.Examples.JointWithRobustController",
+    "MotionTwin.Benchmarks.CheungEffects",
     "MotionTwin.Benchmarks.Encoder",
     "MotionTwin.Benchmarks.LoopController",
     "MotionTwin.Benchmarks.OffsetRippleJoint",

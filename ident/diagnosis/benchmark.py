@@ -277,6 +277,12 @@ def pid_controller(ts: float = TS, mass: float = TRUE_M, bandwidth: float = 60.0
     return Controller(ts, np.atleast_2d(a), np.hstack([b, -b]), np.atleast_2d(c), np.hstack([d, -d]))
 
 
+def controller_json(ctrl: Controller) -> dict:
+    """The bundle's controller object of a discrete state-space law with inputs [r, q] and output u."""
+    return {"kind": "discrete_state_space", "Ts": ctrl.Ts, "inputs": ["r", "q"], "outputs": ["u"],
+            "A": ctrl.A.tolist(), "B": ctrl.B.tolist(), "C": ctrl.C.tolist(), "D": ctrl.D.tolist()}
+
+
 def reference(duration: float, rng: np.random.Generator, stroke: float, sweep: float) -> tuple[np.ndarray, ...]:
     """Point-to-point moves (cosine velocity profile) with dwells, then a swept sine on u_ext at rest."""
     t = np.arange(int(round(duration / TS))) * TS
@@ -304,10 +310,11 @@ def reference(duration: float, rng: np.random.Generator, stroke: float, sweep: f
     return t, r, u_ext
 
 
-def with_preroll(r: np.ndarray, u_ext: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
-    """Prepend the pre-roll (cosine move from 0 to r[0], then a dwell); returns r, u_ext and its length."""
+def with_preroll(r: np.ndarray, u_ext: np.ndarray, start: float = 0.0) -> tuple[np.ndarray, np.ndarray, int]:
+    """Prepend the pre-roll (cosine move from the plant's rest position ``start`` to r[0], then a dwell);
+    returns r, u_ext and its length."""
     n_move, n_dwell = int(round(PRE_MOVE / TS)), int(round(PRE_DWELL / TS))
-    move = r[0] * (1 - np.cos(np.pi * np.linspace(0, 1, n_move))) / 2
+    move = start + (r[0] - start) * (1 - np.cos(np.pi * np.linspace(0, 1, n_move))) / 2
     pre = n_move + n_dwell
     return (np.concatenate([move, np.full(n_dwell, r[0]), r]), np.concatenate([np.zeros(pre), u_ext]), pre)
 
@@ -327,31 +334,91 @@ def truth_fmus(classes: list[str], folder: Path | None = None) -> dict[str, Path
     return {c: _BUILT[(c, str(folder))] for c in classes}
 
 
-def loop_system(plant_fmu: Path, controller_fmu: Path, encoder_fmu: Path, ctrl: Controller,
-                plant_parameters: dict[str, float], resolution: float) -> dict:
-    """The harness system description (as a dict) of controller -> plant -> encoder -> controller."""
-    matrices = {f"{name}[{i + 1},{j + 1}]": float(mat[i, j])
-                for name, mat in zip("ABCD", (ctrl.A, ctrl.B, ctrl.C, ctrl.D))
-                for i in range(mat.shape[0]) for j in range(mat.shape[1])}
-    fast = ctrl.Ts / PLANT_SUBSTEPS
+@dataclass(frozen=True)
+class LoopAxis:
+    """Names of one axis of the benchmark loop: the plant's input and output ports, the controller and encoder
+    instances and the external signals (reference, input disturbance, sensor noise) that feed them."""
+
+    input: str
+    output: str
+    ctrl: str
+    enc: str
+    r: str
+    u_ext: str
+    noise: str
+
+
+SINGLE_AXIS = (LoopAxis("u", "q", "ctrl", "enc", "r", "u_ext", "noise"),)
+
+
+def loop_axes(ports: list[tuple[str, str]]) -> tuple[LoopAxis, ...]:
+    """The names of a multi-axis loop, by the (input, output) ports of the plant; the axis is named by its
+    output: instances ``ctrl_q3``, ``enc_q3``, signals ``r_q3``, ``u_ext_u3``, ``noise_q3``."""
+    return tuple(LoopAxis(i, o, f"ctrl_{o}", f"enc_{o}", f"r_{o}", f"u_ext_{i}", f"noise_{o}") for i, o in ports)
+
+
+def loop_system(plant_fmu: Path, controller_fmu: Path, encoder_fmu: Path, ctrl: Controller | list[Controller],
+                plant_parameters: dict[str, float], resolution: float,
+                axes: tuple[LoopAxis, ...] = SINGLE_AXIS) -> dict:
+    """The harness system description (as a dict) of controller -> plant -> encoder -> controller, one
+    controller and one encoder instance per axis (``ctrl``: one controller, or one per axis, same Ts)."""
+    ctrls = list(ctrl) if isinstance(ctrl, (list, tuple)) else [ctrl] * len(axes)
+    if len(ctrls) != len(axes) or len({c.Ts for c in ctrls}) != 1:
+        raise ValueError(f"loop_system: {len(ctrls)} controllers for {len(axes)} axes, sample times "
+                         f"{sorted({c.Ts for c in ctrls})} (one controller per axis, one Ts)")
+    ts = ctrls[0].Ts
+    fast = ts / PLANT_SUBSTEPS
+    controllers, encoders, inputs, connections, signals = {}, {}, {}, [], []
+    for axis, c in zip(axes, ctrls):
+        matrices = {f"{name}[{i + 1},{j + 1}]": float(mat[i, j])
+                    for name, mat in zip("ABCD", (c.A, c.B, c.C, c.D))
+                    for i in range(mat.shape[0]) for j in range(mat.shape[1])}
+        controllers[axis.ctrl] = {"path": str(controller_fmu), "step": ts, "parameters": {**matrices, "Ts": ts}}
+        encoders[axis.enc] = {"path": str(encoder_fmu), "step": fast, "parameters": {"resolution": resolution}}
+        inputs.update({axis.r: {"unit": "m"}, axis.u_ext: {"unit": "N"}, axis.noise: {"unit": "m"}})
+        connections += [
+            {"from": f"input.{axis.r}", "to": f"{axis.ctrl}.u[1]"},
+            {"from": f"{axis.enc}.y", "to": f"{axis.ctrl}.u[2]"},
+            {"from": [f"{axis.ctrl}.y", f"input.{axis.u_ext}"], "to": f"plant.{axis.input}"},
+            {"from": f"plant.{axis.output}", "to": f"{axis.enc}.q"},
+            {"from": f"input.{axis.noise}", "to": f"{axis.enc}.noise"},
+        ]
+        signals += [f"input.{axis.r}", f"plant.{axis.input}", f"{axis.enc}.y", f"input.{axis.u_ext}",
+                    f"plant.{axis.output}"]
     return {
         "base_step": fast,
-        "fmus": {
-            "ctrl": {"path": str(controller_fmu), "step": ctrl.Ts, "parameters": {**matrices, "Ts": ctrl.Ts}},
-            "plant": {"path": str(plant_fmu), "step": fast, "parameters": dict(plant_parameters)},
-            "enc": {"path": str(encoder_fmu), "step": fast, "parameters": {"resolution": resolution}},
-        },
-        "inputs": {"r": {"unit": "m"}, "u_ext": {"unit": "N"}, "noise": {"unit": "m"}},
-        "connections": [
-            {"from": "input.r", "to": "ctrl.u[1]"},
-            {"from": "enc.y", "to": "ctrl.u[2]"},
-            {"from": ["ctrl.y", "input.u_ext"], "to": "plant.u"},
-            {"from": "plant.q", "to": "enc.q"},
-            {"from": "input.noise", "to": "enc.noise"},
-        ],
-        "log": [{"name": "samples", "signals": ["input.r", "plant.u", "enc.y", "input.u_ext", "plant.q"],
-                 "step": ctrl.Ts}],
+        "fmus": {**controllers, "plant": {"path": str(plant_fmu), "step": fast, "parameters": dict(plant_parameters)},
+                 **encoders},
+        "inputs": inputs,
+        "connections": connections,
+        "log": [{"name": "samples", "signals": signals, "step": ts}],
     }
+
+
+def cosimulate_axes(plant_class: str, plant_parameters: dict[str, float], axes: tuple[LoopAxis, ...],
+                    ctrls: list[Controller], r: np.ndarray, u_ext: np.ndarray, noise: np.ndarray,
+                    resolution: float = RESOLUTION, fmu_dir: Path | None = None) -> dict[str, np.ndarray]:
+    """Closed-loop co-simulation of a plant FMU with one controller and one encoder FMU per axis on the
+    controller grid k*Ts, k = 0..n-1. ``r``, ``u_ext``, ``noise``: (n, n_axes) arrays (``noise[k]``: the sensor
+    noise of sample k); returns time and, as (n, n_axes) arrays, r, u, q (measured), u_ext and q_true."""
+    paths = truth_fmus([plant_class, CONTROLLER, ENCODER], fmu_dir)
+    system = system_from_dict(loop_system(paths[plant_class], paths[CONTROLLER], paths[ENCODER], ctrls,
+                                          plant_parameters, resolution, axes))
+    n = r.shape[0]
+    ts = ctrls[0].Ts
+    t = np.arange(n) * ts
+    # the encoder output read at base tick k*M was computed at tick k*M - 1: give it noise[k] there
+    fine = np.minimum((np.arange(n * PLANT_SUBSTEPS + 1) + 1) // PLANT_SUBSTEPS, n - 1)
+    signals = {}
+    for j, axis in enumerate(axes):
+        signals.update({axis.r: (t, r[:, j]), axis.u_ext: (t, u_ext[:, j]), axis.noise: noise[fine, j]})
+    with Master(system, progress=False) as master:
+        log = master.run(inputs=signals, stop_time=n * ts)["samples"][:n]
+
+    def column(pattern: str) -> np.ndarray:
+        return np.column_stack([log[pattern.format(a=axis)] for axis in axes])
+    return {"time": t, "r": column("input.{a.r}"), "u": column("plant.{a.input}"), "q": column("{a.enc}.y"),
+            "u_ext": column("input.{a.u_ext}"), "q_true": column("plant.{a.output}")}
 
 
 def cosimulate(plant: TruthPlant, r: np.ndarray, u_ext: np.ndarray, noise: np.ndarray,
@@ -359,20 +426,9 @@ def cosimulate(plant: TruthPlant, r: np.ndarray, u_ext: np.ndarray, noise: np.nd
                fmu_dir: Path | None = None) -> dict[str, np.ndarray]:
     """Closed-loop co-simulation on the controller grid k*Ts, k = 0..n-1; returns r, u, q (measured),
     u_ext and q_true. ``noise[k]`` is the sensor noise of sample k."""
-    ctrl = ctrl or pid_controller()
-    paths = truth_fmus([plant.class_name, CONTROLLER, ENCODER], fmu_dir)
-    system = system_from_dict(loop_system(paths[plant.class_name], paths[CONTROLLER], paths[ENCODER], ctrl,
-                                          plant.parameters, resolution))
-    n = r.size
-    t = np.arange(n) * ctrl.Ts
-    # the encoder output read at base tick k*M was computed at tick k*M - 1: give it noise[k] there
-    fine = np.arange(n * PLANT_SUBSTEPS + 1)
-    noise_fine = noise[np.minimum((fine + 1) // PLANT_SUBSTEPS, n - 1)]
-    with Master(system, progress=False) as master:
-        log = master.run(inputs={"r": (t, r), "u_ext": (t, u_ext), "noise": noise_fine},
-                         stop_time=n * ctrl.Ts)["samples"][:n]
-    return {"time": t, "r": log["input.r"], "u": log["plant.u"], "q": log["enc.y"], "u_ext": log["input.u_ext"],
-            "q_true": log["plant.q"]}
+    out = cosimulate_axes(plant.class_name, plant.parameters, SINGLE_AXIS, [ctrl or pid_controller()],
+                          r[:, None], u_ext[:, None], noise[:, None], resolution, fmu_dir)
+    return {k: v if k == "time" else v[:, 0] for k, v in out.items()}
 
 
 def casadi_truth(plant: TruthPlant, r: np.ndarray, u_ext: np.ndarray, noise: np.ndarray,
@@ -486,8 +542,7 @@ def write_bundle(folder: Path, case: str, seed: int, scale: float = 1.0, nominal
     experiment = {
         "plant": {"modelica": "plant.mo", "class": written.class_name, "input": written.input,
                   "output": written.output},
-        "controller": {"kind": "discrete_state_space", "Ts": TS, "inputs": ["r", "q"], "outputs": ["u"],
-                       "A": ctrl.A.tolist(), "B": ctrl.B.tolist(), "C": ctrl.C.tolist(), "D": ctrl.D.tolist()},
+        "controller": controller_json(ctrl),
         "recordings": {"train": "train.csv", "validation": "validation.csv"},
     }
     truth = {"case": case, "seed": seed, "scale": scale, "m": mass, "d": damping, "stroke": stroke,
@@ -588,10 +643,10 @@ def verify(case: str = "coulomb_friction", seed: int = 10, duration: float = 12.
 
 # -- the runner ------------------------------------------------------------------------------------
 
-_MAIN = {"gravity_offset": "F0", "coulomb_friction": "Fc", "asymmetric_friction": "Fc_pos",
+MAIN_PARAMETER = {"gravity_offset": "F0", "coulomb_friction": "Fc", "asymmetric_friction": "Fc_pos",
          "stribeck_friction": "Fs", "position_ripple": "amplitude", "time_delay": "delay",
          "resonance": "frequency", "position_dependent_inertia": "mass_max"}
-VOCABULARY = list(_MAIN)
+VOCABULARY = list(MAIN_PARAMETER)
 UNEXPLAINED = "unexplained"    # the answer for a law outside the catalogue (row and column of the confusion table)
 
 
@@ -644,7 +699,7 @@ def run(out: Path, which: str, only: list[str] | None = None) -> int:
                 errors += _term_errors(effect["contract"], doc.get("unexplained"))
                 continue
             match = [e for e in doc["effects"] if e["name"] == effect["name"]]
-            key = _MAIN[effect["name"]]
+            key = MAIN_PARAMETER[effect["name"]]
             true_value = effect["contract"].get(key)
             if match and true_value:
                 fv = match[0]["parameters"].get(key)
