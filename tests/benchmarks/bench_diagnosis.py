@@ -18,13 +18,11 @@ import tempfile
 import time
 from pathlib import Path
 
-from motiontwin.ident.diagnosis import diagnose_bundle
+from motiontwin.ident.diagnosis import benchmark, diagnose_bundle
 from motiontwin.ident.diagnosis import effects as effect_models
 
 TARGET_S = 120.0
-MAIN_PARAMETER = {"gravity_offset": "F0", "coulomb_friction": "Fc", "asymmetric_friction": "Fc_pos",
-                  "stribeck_friction": "Fs", "position_ripple": "amplitude", "time_delay": "delay",
-                  "resonance": "frequency", "position_dependent_inertia": "mass_max"}
+MAIN_PARAMETER = benchmark.MAIN_PARAMETER
 
 
 def truth_contract(effect: dict, mass: float) -> dict[str, float]:
@@ -32,7 +30,7 @@ def truth_contract(effect: dict, mass: float) -> dict[str, float]:
     ctx = effect_models.Context(5e-4, 0.0, 0.1, 0.2, mass)
     candidate = effect_models.VOCABULARY[effect["name"]](ctx)
     values = {p.name: sum(p.bounds) / 2 for p in candidate.params} | effect["parameters"] | {"plant.m": mass}
-    return candidate.contract(values, ctx)
+    return candidate.contract(values, ctx) | effect.get("contract", {})
 
 
 def cpu_seconds() -> float:
@@ -67,7 +65,6 @@ def main() -> int:
     args = parser.parse_args()
     folder = args.bench / args.set
     if not folder.is_dir():
-        from motiontwin.ident.diagnosis import benchmark
         benchmark.generate(args.bench, args.set)
     cases = sorted(p.name for p in folder.iterdir() if (p / "experiment.json").is_file())
     print(f"target: {TARGET_S:.0f} s per bundle (12 s + 6 s at 2 kHz), {os.cpu_count()} cores")
