@@ -20,7 +20,7 @@ import pytest
 from motiontwin.ident.diagnosis import benchmark as bench
 from motiontwin.ident.diagnosis import effects as effect_models
 from motiontwin.ident.diagnosis import pipeline
-from motiontwin.ident.diagnosis.bundle import BundleError, read_bundle
+from motiontwin.ident.diagnosis.bundle import BundleError, make_bundle, read_bundle
 from motiontwin.ident.diagnosis.plant_roles import PlantRoles
 
 SEED = 21
@@ -81,15 +81,25 @@ def test_cogging_is_screened_only_with_a_pole_pitch(diagnoses):
 
 
 def test_pole_pitch_must_be_a_positive_length(tmp_path):
-    """A bad plant.pole_pitch gives one error naming experiment.json and the field."""
+    """A bad plant.pole_pitch gives one error naming experiment.json and the field (the schema), and the
+    in-memory API names the argument; a good one reaches the plant in metres."""
     folder = tmp_path / "b"
     bench.write_bundle(folder, "params_only_a", seed=SEED, durations=(0.1, 0.1), engine="casadi")
+    good = read_bundle(folder)
+    assert good.plant.pole_pitch is None
     experiment = json.loads((folder / "experiment.json").read_text())
-    for bad in (-0.03, "32 mm"):
+    for bad in (-0.03, 0, "32 mm"):
         experiment["plant"]["pole_pitch"] = bad
         (folder / "experiment.json").write_text(json.dumps(experiment))
         with pytest.raises(BundleError, match=r"experiment\.json.*pole_pitch"):
             read_bundle(folder)
+        with pytest.raises(BundleError, match=r"plant: field 'pole_pitch' must be a positive length"):
+            make_bundle(folder / "plant.mo", good.controller, good.train, good.validation, pole_pitch=bad)
+    experiment["plant"]["pole_pitch"] = 0.032
+    (folder / "experiment.json").write_text(json.dumps(experiment))
+    assert read_bundle(folder).plant.pole_pitch == 0.032
+    assert make_bundle(folder / "plant.mo", good.controller, good.train, good.validation,
+                       pole_pitch=0.032).plant.pole_pitch == 0.032
 
 
 # -- the laws the augmented model writes, against closed forms ---------------------------------------------
@@ -144,7 +154,8 @@ def test_force_laws_of_the_new_effects(tmp_path):
 def test_lugre_and_backlash_states(tmp_path):
     """LuGre (Dahl's form) with the bristle force F_z as state: F = F_z, der(F_z) = (Fc/z0)(v - |v| F_z/Fc);
     backlash: the load mass is pulled by k*DeadZone(x - x2) + c*DeadZoneSlope(x - x2)*(v - v2), k and c from
-    m2, fa, zeta, with the dead zone of half-width b (0 inside the gap, x - x2 -+ b in contact)."""
+    m2, fa, zeta, with the dead zone of half-width b (0 inside the gap, x - x2 -+ b in contact), and the motor
+    is the plant's mass less the load: (m - m2)*der(v) = -d*v - F_z - F_transmission."""
     fc, z0, m2, fa, zeta, b, eps = 0.15, 1e-4, 0.6, 200.0, 0.05, 5e-6, 1e-9
     values = {"lugre_Fc": fc, "lugre_z0": z0, "backlash_m2": m2, "backlash_fa": fa, "backlash_zeta": zeta,
               "backlash_b": b, "backlash_eps": eps}
@@ -164,4 +175,4 @@ def test_lugre_and_backlash_states(tmp_path):
     spring = k * np.where(contact, gap - np.sign(gap) * b, 0.0) + c * contact * (v - v2)
     np.testing.assert_allclose(dx[names.index("lugre_Fz")], fc / z0 * (v - np.abs(v) * fz / fc), rtol=1e-10)
     np.testing.assert_allclose(m2 * dx[names.index("backlash_v2")], spring, rtol=1e-6, atol=1e-6)
-    np.testing.assert_allclose(M * dx[names.index("plant.v")], -D * v - fz - spring, rtol=1e-6, atol=1e-6)
+    np.testing.assert_allclose((M - m2) * dx[names.index("plant.v")], -D * v - fz - spring, rtol=1e-6, atol=1e-6)

@@ -430,6 +430,8 @@ def casadi_truth(plant: TruthPlant, r: np.ndarray, u_ext: np.ndarray, noise: np.
         raise ValueError("position_dependent_inertia: the truth (cosine mass) has no exact CasADi counterpart")
     ctx = effect_models.Context(TS, 0.0, 0.1, 0.2, TRUE_M)
     m = plant.parameters.get("m", plant.parameters.get("m1", TRUE_M))
+    if plant.class_name.endswith("BacklashJoint"):   # the backlash effect takes its load out of plant.m
+        m += plant.parameters["m2"]
     d = plant.parameters["d"] if plant.parameters.get("d") else TRUE_D
     effects, values = [], {"plant.m": m, "plant.d": d}
     for true in plant.effects:

@@ -312,12 +312,15 @@ BACKLASH_EPS = 1e-7    # rounding of the gap's corners [m of the measured output
 
 
 def backlash(ctx: Context) -> Effect:
-    """Backlash: the resonance's coupled mass behind a gap of 2*b (MotionTwin.Effects.BacklashJoint)."""
+    """Backlash (MotionTwin.Effects.BacklashJoint): a load mass m2 behind a gap of 2*b in a compliant
+    transmission. The load is taken out of the plant's mass (the motor is plant.m - m2), so plant.m stays the
+    total mass the nominal refit found and the fit starts at the nominal's low-frequency behaviour."""
     def init(c: Context) -> list[dict[str, float]]:
         guesses = c.resonance_guess or [0.1 / c.ts]
-        return [{"backlash_m2": 0.1 * c.mass, "backlash_fa": f_res / math.sqrt(1.1), "backlash_zeta": 0.05,
-                 "backlash_b": 1e-6 / _scale(c)} for f_res in guesses[:2]]
-    params = _two_mass_params(ctx, "backlash") + [
+        return [{"backlash_m2": 0.3 * c.mass, "backlash_fa": f_res / math.sqrt(1.5), "backlash_zeta": 0.05,
+                 "backlash_b": 2e-6 / _scale(c)} for f_res in guesses[:3]]
+    params = [_p("backlash_m2", "kg", "Load mass behind the gap (the motor mass is plant.m - m2)", 1e-3 * ctx.mass,
+                 0.9 * ctx.mass)] + _two_mass_params(ctx, "backlash")[1:] + [
         _p("backlash_b", "m", "Half-width of the gap (total backlash 2*b)", 0.0, 1e-4 / _scale(ctx)),
         _p("backlash_eps", "m", "Rounding of the gap corners", BACKLASH_EPS / _scale(ctx),
            BACKLASH_EPS / _scale(ctx), False)]
@@ -327,11 +330,13 @@ def backlash(ctx: Context) -> Effect:
            "backlash_m2*der(backlash_v2) = backlash_F",
            f"backlash_F = {k}*MotionTwin.Effects.DeadZone({gap}) + "
            f"{c}*MotionTwin.Effects.DeadZoneSlope({gap})*($v - backlash_v2)"]
-    return Effect("backlash", "resonance", params, _two_mass_declarations("backlash"), "backlash_F", eqs,
+    return Effect("backlash", "resonance", params, _two_mass_declarations("backlash"),
+                  "backlash_F - backlash_m2*der($v)", eqs,
                   ["DeadZone.mo", "DeadZoneSlope.mo"], init,
                   lambda v, c: {"b": v["backlash_b"] * abs(c.position_gain),
                                 "gap": 2 * v["backlash_b"] * abs(c.position_gain),
-                                **_two_mass_contract(v, c, "backlash")},
+                                **_two_mass_contract({**v, "plant.m": v.get("plant.m", c.mass) - v["backlash_m2"]},
+                                                     c, "backlash")},
                   "A gap in a compliant transmission between the motor and a load mass: inside the gap the "
                   "motor moves alone, in contact the pair is a two-mass resonator; the residual shows a force "
                   "step at every velocity reversal (the load is picked up after crossing the gap) and the "

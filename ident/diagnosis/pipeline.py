@@ -153,7 +153,8 @@ def context(bundle: Bundle, nominal: ModelFit) -> effect_models.Context:
     v = inv.v if inv else np.gradient(rec["q"], ts)
     mass = _mass_equivalent(bundle, nominal.fit.values)
     ctx = effect_models.Context(ts, float(q.min()), float(q.max()), float(np.max(np.abs(v))) or 1e-3, mass,
-                     position_gain=gain, u=bundle.train["u"], duration=float(bundle.train.time[-1] - bundle.train.time[0]),
+                     position_gain=gain, u=bundle.train["u"],
+                     duration=float(bundle.train.time[-1] - bundle.train.time[0]),
                      pole_pitch=_pitch_in_state_coordinates(plant.pole_pitch, gain))
     if inv is not None:
         ctx.x, ctx.v, ctx.a, ctx.force, ctx.udot = inv.x, inv.v, inv.a, inv.force, inv.udot
@@ -430,8 +431,9 @@ def _close_richer(ranked: list[str], screened: dict, cost: float) -> list[str]:
 
 
 def _simplest(name: str, trials: dict, null: np.ndarray, bundle: Bundle, work: Path, progress) -> str:
-    """Prefer the nested simpler effect (coulomb in stribeck/asymmetric) unless the extra parameters beat
-    their own null reference and improve the validation fit by the same margin as any effect."""
+    """Prefer the nested simpler effect (``NESTED``: coulomb in the richer frictions, resonance in backlash)
+    unless the extra parameters beat their own null reference and improve the validation fit by the same
+    margin as any effect."""
     simple = effect_models.NESTED.get(name)
     if simple not in trials or trials[simple][1] <= trials[simple][2]:
         return name
