@@ -18,7 +18,7 @@ Every run starts at x = 0 with a pre-roll (a smooth move to the first reference 
 cut off, so recordings start at rest. Recordings hold ``time, r, u, q, u_ext`` at the controller instants; the
 nominal ``plant.mo`` is the rigid axis with mass and damping guesses 20-40 % off. Units: SI (s, m, N, kg).
 
-    python -m motiontwin.ident.diagnosis.benchmark generate OUT_DIR [--set tuning|heldout]
+    python -m motiontwin.ident.diagnosis.benchmark generate OUT_DIR [--set tuning|heldout] [--case NAME]
     python -m motiontwin.ident.diagnosis.benchmark run OUT_DIR [--set tuning|heldout]
     python -m motiontwin.ident.diagnosis.benchmark conceal OUT_DIR [--set ...] [--case NAME]
     python -m motiontwin.ident.diagnosis.benchmark verify OUT_DIR [--case coulomb_friction]
@@ -573,9 +573,12 @@ def trajectory(which: str, seed: int) -> dict[str, float]:
     return {"stroke": float(rng.uniform(0.06, 0.14)), "sweep_fraction": float(rng.uniform(0.2, 0.35))}
 
 
-def generate(out: Path, which: str) -> None:
-    """Write every bundle of the set ``which`` into ``out/which/CASE`` (FMUs built into ``out/fmus``)."""
+def generate(out: Path, which: str, only: list[str] | None = None) -> None:
+    """Write every bundle of the set ``which`` (or the cases ``only``) into ``out/which/CASE`` (FMUs built
+    into ``out/fmus``); a case's bundle does not depend on which others are written."""
     for case, seed, scale in case_list(which):
+        if only and case not in only:
+            continue
         t0 = time.perf_counter()
         shape = trajectory(which, seed)
         form = plant_form(which, seed)
@@ -691,7 +694,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--case", default=None)
     args = parser.parse_args(argv)
     if args.command == "generate":
-        generate(args.out, args.set)
+        generate(args.out, args.set, [args.case] if args.case else None)
     elif args.command == "conceal":
         for case, seed, scale in case_list(args.set):
             if args.case in (None, case):

@@ -69,7 +69,8 @@ def main() -> int:
     cases = sorted(p.name for p in folder.iterdir() if (p / "experiment.json").is_file())
     print(f"target: {TARGET_S:.0f} s per bundle (12 s + 6 s at 2 kHz), {os.cpu_count()} cores")
     print(f"{'case':28s} {'truth':38s} {'found':38s} {'main parameter (found/true)':34s} "
-          f"{'val ratio':>9s} {'above floor':>11s} {'wall s':>7s} {'cpu s':>6s} {'load':>5s} ok")
+          f"{'val RMS nominal->augmented m':>28s} {'val ratio':>9s} {'above floor':>11s} {'wall s':>7s} {'cpu s':>6s} "
+          f"{'load':>5s} ok")
     worst = 0.0
     for case in cases:
         if args.case and case not in args.case:
@@ -84,6 +85,7 @@ def main() -> int:
         true_names = ",".join(e["name"] for e in truth["effects"]) or "-"
         found = ",".join(e["name"] for e in doc["effects"]) or "-"
         print(f"{case:28s} {true_names:38s} {found:38s} {parameter_errors(truth, doc):34s} "
+              f"{val['nominal_rms']:>13.3g}->{val['augmented_rms']:<13.3g} "
               f"{val['augmented_rms'] / val['nominal_rms']:9.2f} {_ratio(val.get('excess_ratio')):>11s} "
               f"{wall:7.1f} {cpu:6.1f} {os.getloadavg()[0]:5.1f} {'yes' if wall < TARGET_S else 'NO'}",
               flush=True)
