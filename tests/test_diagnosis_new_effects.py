@@ -62,6 +62,17 @@ def test_concealed_new_effect_gives_exactly_that_effect(diagnoses, case):
         assert val["augmented_rms"] < 3 * val["noise_floor_rms"], val
 
 
+def test_lugre_loop_takes_the_substeps_of_its_bristle_state(diagnoses):
+    """The bristle state is stiff (rate |v|/z0): the LuGre loops take the effect's RK4 substeps, so that at the
+    top recorded speed and the smallest allowed z0 the rate times the step stays inside RK4's region."""
+    result, _, _ = diagnoses("lugre_friction")
+    final = result["final"]
+    effect = final.effects[0]
+    z0_min = next(p.bounds[0] for p in effect.params if p.name == "lugre_z0")
+    assert effect.min_substeps >= 2 and final.loop.substeps >= effect.min_substeps
+    assert result["context"].v_max * bench.TS / final.loop.substeps / z0_min <= 1.0 + 1e-12
+
+
 def test_cogging_order_and_harmonic_from_the_pole_pitch(diagnoses):
     """The cogging period is the pole pitch / n with n chosen from the residual (truth n = 3 of 32 mm), and the
     second harmonic is recovered too (a free-period ripple has one harmonic only)."""

@@ -7,6 +7,8 @@ time, the CPU time of this process and the 1-minute load average (other jobs inf
 time of the single-threaded diagnosis does not depend on them).
 
 Run: .venv/bin/python tests/benchmarks/bench_diagnosis.py [BENCH_DIR] [--set heldout|tuning] [--case NAME]
+[--effects NAME,...] (the vocabulary to keep: the runtime cost of the others; MOTIONTWIN_DIAGNOSIS_WORKERS=1
+screens in-process, so that the CPU column holds all of the work)
 (bundles are generated into BENCH_DIR by ``python -m motiontwin.ident.diagnosis.benchmark generate`` when missing).
 """
 from __future__ import annotations
@@ -62,7 +64,18 @@ def main() -> int:
     parser.add_argument("bench", nargs="?", type=Path, default=Path(tempfile.gettempdir()) / "mt-diagnosis-bench")
     parser.add_argument("--set", default="heldout", choices=["heldout", "tuning"])
     parser.add_argument("--case", action="append", default=None)
+    parser.add_argument("--effects", default=None,
+                        help="comma-separated vocabulary to keep (the runtime cost of the others), e.g. the eight "
+                             "effects before issue 16")
     args = parser.parse_args()
+    if args.effects:
+        keep = args.effects.split(",")
+        unknown = sorted(set(keep) - set(effect_models.VOCABULARY))
+        if unknown:
+            parser.error(f"--effects: unknown {', '.join(unknown)}; known: {', '.join(effect_models.VOCABULARY)}")
+        for table in (effect_models.VOCABULARY, effect_models.NESTED):
+            for name in [n for n in table if n not in keep]:
+                del table[name]
     folder = args.bench / args.set
     if not folder.is_dir():
         benchmark.generate(args.bench, args.set)
