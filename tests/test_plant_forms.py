@@ -4,7 +4,7 @@ Ten forms of the same rigid axis (tests/models/plant_forms/): the output as the 
 (``der(q) = v``), an alias, a gear ratio, a sensor offset, other names for everything, parameter
 attributes, extra inputs/outputs, ``extends``, a class inside a package, SI types. Each form is checked
 cheaply against independent references: its roles and output map against the equations written in the file,
-every catalogue effect's augmented model (all eight at once, closed loop) against the same physics on the
+every catalogue effect's augmented model (all of them at once, closed loop) against the same physics on the
 library-form plant, and ``identify oe`` against the exact ZOH discretisation (scipy) of the true axis. The
 full diagnosis (about 30-90 s each on a shared machine) runs on a representative subset: the issue's form
 (``der(q) = v``) and the gear ratio (position and velocity in other units than the measured output).
@@ -116,6 +116,13 @@ LIBRARY_VALUES = {
     "inertia_slope": 3.0, "inertia_centre": 0.03,
     "delay_T": 3e-4,
     "resonance_m2": 0.2, "resonance_fa": 150.0, "resonance_zeta": 0.05,
+    "backlash_m2": 0.2, "backlash_fa": 150.0, "backlash_zeta": 0.05, "backlash_b": 5e-6, "backlash_eps": 1e-7,
+    "lugre_Fc": 0.2, "lugre_z0": 1e-4,
+    "saturation_Fmax": 1e3, "saturation_eps": 1e-3,   # neutral: the PID winds up when it saturates
+    "cogging_a1": 0.3, "cogging_b1": -0.1, "cogging_a2": 0.05, "cogging_b2": 0.02, "cogging_pitch": 0.032,
+    "cogging_n": 3.0, "cogging_zero": 0.0, "cogging_quarter": math.pi / 2,
+    "load_Fc0": 0.1, "load_mu": 0.05, "load_v_eps": 0.004,
+    "drift_Fc0": 0.2, "drift_dFc": -0.1, "drift_tau": 0.2, "drift_v_eps": 0.003,
 }
 
 
@@ -124,29 +131,34 @@ def _state_values(form: Form) -> dict[str, float]:
     *gain, the ripple phase shifted by the offset), i.e. the same physics seen from the plant's states."""
     g, b = form.gain, form.offset
     v = dict(LIBRARY_VALUES)
-    for name in ("coulomb_v_eps", "asym_v_eps", "stribeck_vs", "stribeck_v_eps", "ripple_period"):
+    for name in ("coulomb_v_eps", "asym_v_eps", "stribeck_vs", "stribeck_v_eps", "ripple_period", "backlash_b",
+                 "backlash_eps", "lugre_z0", "cogging_pitch", "load_v_eps", "drift_v_eps"):
         v[name] /= g
     v["inertia_slope"] *= g ** 2
     v["inertia_centre"] = (v["inertia_centre"] - b) / g
     v["resonance_m2"] *= g
-    shift = 2 * math.pi * b / LIBRARY_VALUES["ripple_period"]   # a sin(k q) + b cos(k q), q = g x_s + offset
-    a, c = LIBRARY_VALUES["ripple_a"], LIBRARY_VALUES["ripple_b"]
-    v["ripple_a"] = a * math.cos(shift) - c * math.sin(shift)
-    v["ripple_b"] = a * math.sin(shift) + c * math.cos(shift)
+    v["backlash_m2"] *= g
+    harmonics = [("ripple_a", "ripple_b", 2 * math.pi * b / LIBRARY_VALUES["ripple_period"])]
+    cogging = 2 * math.pi * LIBRARY_VALUES["cogging_n"] * b / LIBRARY_VALUES["cogging_pitch"]
+    harmonics += [("cogging_a1", "cogging_b1", cogging), ("cogging_a2", "cogging_b2", 2 * cogging)]
+    for sine, cosine, shift in harmonics:   # a sin(k q) + b cos(k q), q = g x_s + offset
+        a, c = LIBRARY_VALUES[sine], LIBRARY_VALUES[cosine]
+        v[sine] = a * math.cos(shift) - c * math.sin(shift)
+        v[cosine] = a * math.sin(shift) + c * math.cos(shift)
     return v
 
 
 def _closed_loop_q(form: Form, folder: Path) -> np.ndarray:
-    """Closed-loop free run (benchmark PID, 0.4 s of moves from q0 = 12 mm) of the form's plant with all
-    eight effects, at the true mass and damping: the model is the one the diagnosis' first pass builds."""
+    """Closed-loop free run (benchmark PID, 0.4 s of moves from q0 = 12 mm) of the form's plant with every
+    catalogue effect, at the true mass and damping: the model is the one the diagnosis' first pass builds."""
     roles = _roles(form)
     ctx = effect_models.Context(bench.TS, 0.0, 0.1 / form.gain, 0.2 / form.gain, TRUE_M * form.gain)
     augmented = effect_models.check_buildable(folder, form.path.read_text(), form.path, form.class_name, roles, ctx,
                                               "Augmented")
     text = (folder / "all" / "Augmented.mo").read_text()
     assert "$" not in text and f"plant.{roles.position}" in text and f"plant.{roles.velocity}" in text
-    assert {f"plant.{form.position}", f"plant.{form.velocity}", "resonance_x2", "delay_a"} <= \
-        {s.name for s in augmented.states}
+    assert {f"plant.{form.position}", f"plant.{form.velocity}", "resonance_x2", "delay_a", "backlash_x2",
+            "lugre_Fz", "drift_s"} <= {s.name for s in augmented.states}
     values = {**_state_values(form), **{f"plant.{k}": v for k, v in form.truth().items()}}
     n = 800
     t = np.arange(n) * bench.TS
@@ -154,7 +166,8 @@ def _closed_loop_q(form: Form, folder: Path) -> np.ndarray:
     u_ext = 0.5 * np.sin(2 * np.pi * 40 * t)
     rec = make_recording(t, {"r": r, "u": np.zeros(n), "q": np.full(n, 0.012), "u_ext": u_ext})
     loop = outputerror.build_loop(augmented, bench.pid_controller(), "q", [], values, n, substeps=8,
-                                  tracking={"resonance_x2": "q", "delay_p1": "u"}, with_jacobian=False)
+                                  tracking={"resonance_x2": "q", "backlash_x2": "q", "delay_p1": "u",
+                                            "lugre_Fz": "u"}, with_jacobian=False)
     q, _ = outputerror.simulate(loop, rec)
     return q
 
@@ -175,7 +188,7 @@ def library_q(tmp_path_factory) -> np.ndarray:
 @pytest.mark.parametrize("form", FORMS, ids=IDS)
 def test_every_effect_builds_and_matches_the_library_form(form, library_q, tmp_path):
     """The first pass of the diagnosis builds every catalogue effect's augmented model on the form, and the
-    model with all eight effects reproduces the same physics on the library's LinearAxis (the form the
+    model with every catalogue effect reproduces the same physics on the library's LinearAxis (the form the
     benchmark verifies against FMU co-simulations) to round-off."""
     q = _closed_loop_q(form, tmp_path)
     assert np.all(np.isfinite(q)) and np.ptp(q) > 0.02

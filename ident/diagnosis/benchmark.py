@@ -18,7 +18,7 @@ Every run starts at x = 0 with a pre-roll (a smooth move to the first reference 
 cut off, so recordings start at rest. Recordings hold ``time, r, u, q, u_ext`` at the controller instants; the
 nominal ``plant.mo`` is the rigid axis with mass and damping guesses 20-40 % off. Units: SI (s, m, N, kg).
 
-    python -m motiontwin.ident.diagnosis.benchmark generate OUT_DIR [--set tuning|heldout]
+    python -m motiontwin.ident.diagnosis.benchmark generate OUT_DIR [--set tuning|heldout] [--case NAME]
     python -m motiontwin.ident.diagnosis.benchmark run OUT_DIR [--set tuning|heldout]
     python -m motiontwin.ident.diagnosis.benchmark conceal OUT_DIR [--set ...] [--case NAME]
     python -m motiontwin.ident.diagnosis.benchmark verify OUT_DIR [--case coulomb_friction]
@@ -151,7 +151,9 @@ OUTSIDE_LAWS = {
 OUTSIDE_PREFIX = {"quadratic_drag": "drag_", "position_friction": "posfric_"}
 CASES = ["params_only_a", "params_only_b", "gravity_offset", "coulomb_friction", "asymmetric_friction",
          "stribeck_friction", "position_ripple", "position_dependent_inertia", "time_delay", "resonance",
-         "two_effects", *OUTSIDE_LAWS]
+         "two_effects", "backlash", "lugre_friction", "actuator_saturation", "cogging", "load_dependent_friction",
+         "friction_drift", *OUTSIDE_LAWS]
+POLE_PITCH = 0.032          # magnet pole pitch of the cogging case's motor [m] (plant.pole_pitch of its bundle)
 
 
 @dataclass
@@ -228,6 +230,8 @@ def truth_plant(case: str, scale: float = 1.0, mass: float = TRUE_M, damping: fl
         k = 3.0 * s
         law = {"Fc0": 0.0, "k": k, "v_eps": V_EPS}
         return TruthPlant(OUTSIDE_LAWS[case][0], {**rigid, **law}, [_outside(case, law, {"x*sign(v)": k})])
+    if case in NEW_EFFECT_CASES:
+        return NEW_EFFECT_CASES[case](s, rigid)
     raise KeyError(f"unknown benchmark case {case!r}; cases: {', '.join(CASES)}")
 
 
@@ -249,6 +253,78 @@ def outside_effect(true: dict):
               for n, v in true["parameters"].items()]
     return effect_models.Effect(true["name"], true["name"], params, "", force, [], [], lambda c: [{}],
                                 lambda v, c: {}, f"Truth outside the catalogue: F = {force}")
+
+
+def _backlash(s: float, rigid: dict[str, float]) -> TruthPlant:
+    """Motor 1.4 kg + load 0.6 kg behind a gap of 2*b, contact antiresonance 200 Hz."""
+    from motiontwin.ident.diagnosis.effects import BACKLASH_EPS
+
+    m2, fa, zeta, b = 0.6, 200.0, 0.05, 5e-6 * s
+    m1 = rigid["m"] - m2
+    wa = 2 * math.pi * fa
+    k, c = m2 * wa ** 2, 2 * zeta * m2 * wa
+    mu = m1 * m2 / (m1 + m2)
+    w_res = math.sqrt(k / mu)
+    return TruthPlant("MotionTwin.Effects.BacklashJoint",
+                      {"m1": m1, "m2": m2, "k": k, "c": c, "b": b, "eps": BACKLASH_EPS, "d": rigid["d"]},
+                      [_effect("backlash", {"b": b, "frequency": w_res / (2 * math.pi)},
+                               {"backlash_m2": m2, "backlash_fa": fa, "backlash_zeta": zeta, "backlash_b": b,
+                                "backlash_eps": BACKLASH_EPS})])
+
+
+def _lugre(s: float, rigid: dict[str, float]) -> TruthPlant:
+    """LuGre in Dahl's form (Fs = Fc, sigma1 = 0), pre-sliding displacement z0 = Fc/sigma0 = 0.1 mm."""
+    fc, z0 = 0.15 * s, 1e-4
+    return TruthPlant("MotionTwin.Effects.LuGreJoint",
+                      {"m": rigid["m"], "d": 0.0, "Fc": fc, "Fs": fc, "vs": 1.0, "sigma0": fc / z0, "sigma1": 0.0,
+                       "sigma2": rigid["d"]},
+                      [_effect("lugre_friction", {"Fc": fc, "z0": z0, "sigma0": fc / z0},
+                               {"lugre_Fc": fc, "lugre_z0": z0})])
+
+
+SATURATION_EPS = 1e-3       # rounding of the truth's saturation corners [N]
+
+
+def _saturation(s: float, rigid: dict[str, float]) -> TruthPlant:
+    fmax = 3.8 - 0.1 * s     # a larger effect is a lower force limit [N] (3.5 N winds the PID up)
+    return TruthPlant("MotionTwin.Effects.SaturationJoint", {**rigid, "Fmax": fmax, "eps": SATURATION_EPS},
+                      [_effect("actuator_saturation", {"Fmax": fmax},
+                               {"saturation_Fmax": fmax, "saturation_eps": SATURATION_EPS})])
+
+
+def _cogging(s: float, rigid: dict[str, float]) -> TruthPlant:
+    """Three cogging periods per pole pitch (period 10.7 mm) and a second harmonic of 40 %."""
+    a1, a2, phase1, phase2, order = 0.4 * s, 0.16 * s, 0.4, -1.0, 3.0
+    return TruthPlant("MotionTwin.Effects.CoggingJoint",
+                      {**rigid, "pole_pitch": POLE_PITCH, "n": order, "A1": a1, "A2": a2, "phase1": phase1,
+                       "phase2": phase2},
+                      [_effect("cogging", {"A1": a1, "A2": a2, "n": order, "period": POLE_PITCH / order},
+                               {"cogging_a1": a1 * math.cos(phase1), "cogging_b1": a1 * math.sin(phase1),
+                                "cogging_a2": a2 * math.cos(phase2), "cogging_b2": a2 * math.sin(phase2),
+                                "cogging_pitch": POLE_PITCH, "cogging_n": order})])
+
+
+def _load_dependent(s: float, rigid: dict[str, float]) -> TruthPlant:
+    fc0, mu = 0.08 * s, 0.08 * s
+    return TruthPlant("MotionTwin.Effects.LoadDependentFrictionJoint", {**rigid, "Fc0": fc0, "mu": mu, "v_eps": V_EPS},
+                      [_effect("load_dependent_friction", {"Fc0": fc0, "mu": mu},
+                               {"load_Fc0": fc0, "load_mu": mu, "load_v_eps": V_EPS})])
+
+
+def _drift(s: float, rigid: dict[str, float]) -> TruthPlant:
+    """Coulomb level 0.25 N falling by 0.15 N (x scale) with tau = 3 s from the start of the run (the
+    pre-roll's start); the contract is the drift seen from the start of the recordings, after the pre-roll."""
+    fc0, dfc, tau = 0.25 * s, -0.15 * s, 3.0
+    left = math.exp(-(PRE_MOVE + PRE_DWELL) / tau)
+    return TruthPlant("MotionTwin.Effects.FrictionDriftJoint",
+                      {**rigid, "Fc0": fc0, "dFc": dfc, "tau_drift": tau, "v_eps": V_EPS},
+                      [_effect("friction_drift", {"Fc_start": fc0 + dfc * (1 - left), "dFc": dfc * left, "tau": tau},
+                               {"drift_Fc0": fc0, "drift_dFc": dfc, "drift_tau": tau, "drift_v_eps": V_EPS})])
+
+
+#: the issue-16 effects: case -> truth (scale, rigid axis m and d)
+NEW_EFFECT_CASES = {"backlash": _backlash, "lugre_friction": _lugre, "actuator_saturation": _saturation,
+                    "cogging": _cogging, "load_dependent_friction": _load_dependent, "friction_drift": _drift}
 
 
 def _ripple(name: str, class_name: str, base: dict[str, float], a: float, b: float, period: float,
@@ -445,6 +521,8 @@ def casadi_truth(plant: TruthPlant, r: np.ndarray, u_ext: np.ndarray, noise: np.
         raise ValueError("position_dependent_inertia: the truth (cosine mass) has no exact CasADi counterpart")
     ctx = effect_models.Context(TS, 0.0, 0.1, 0.2, TRUE_M)
     m = plant.parameters.get("m", plant.parameters.get("m1", TRUE_M))
+    if plant.class_name.endswith("BacklashJoint"):   # the backlash effect takes its load out of plant.m
+        m += plant.parameters["m2"]
     d = plant.parameters["d"] if plant.parameters.get("d") else TRUE_D
     effects, values = [], {"plant.m": m, "plant.d": d}
     for true in plant.effects:
@@ -541,7 +619,7 @@ def write_bundle(folder: Path, case: str, seed: int, scale: float = 1.0, nominal
         write_recording(folder / f"{part}.csv", rec)
     experiment = {
         "plant": {"modelica": "plant.mo", "class": written.class_name, "input": written.input,
-                  "output": written.output},
+                  "output": written.output, **({"pole_pitch": POLE_PITCH} if case == "cogging" else {})},
         "controller": controller_json(ctrl),
         "recordings": {"train": "train.csv", "validation": "validation.csv"},
     }
@@ -588,7 +666,7 @@ def trajectory(which: str, seed: int) -> dict[str, float]:
 
 def generate(out: Path, which: str, only: list[str] | None = None) -> None:
     """Write every bundle of the set ``which`` (or the cases ``only``) into ``out/which/CASE`` (FMUs built
-    into ``out/fmus``)."""
+    into ``out/fmus``); a case's bundle does not depend on which others are written."""
     for case, seed, scale in case_list(which):
         if only and case not in only:
             continue
@@ -643,9 +721,12 @@ def verify(case: str = "coulomb_friction", seed: int = 10, duration: float = 12.
 
 # -- the runner ------------------------------------------------------------------------------------
 
+#: the main parameter of each effect's contract, compared with the truth
 MAIN_PARAMETER = {"gravity_offset": "F0", "coulomb_friction": "Fc", "asymmetric_friction": "Fc_pos",
-         "stribeck_friction": "Fs", "position_ripple": "amplitude", "time_delay": "delay",
-         "resonance": "frequency", "position_dependent_inertia": "mass_max"}
+                  "stribeck_friction": "Fs", "position_ripple": "amplitude", "time_delay": "delay",
+                  "resonance": "frequency", "position_dependent_inertia": "mass_max", "backlash": "b",
+                  "lugre_friction": "z0", "actuator_saturation": "Fmax", "cogging": "A1",
+                  "load_dependent_friction": "mu", "friction_drift": "dFc"}
 VOCABULARY = list(MAIN_PARAMETER)
 UNEXPLAINED = "unexplained"    # the answer for a law outside the catalogue (row and column of the confusion table)
 

@@ -19,6 +19,7 @@ Units: time [s], positions [m], forces [N].
 from __future__ import annotations
 
 import json
+import math
 from dataclasses import dataclass
 from dataclasses import field as dataclass_field
 from pathlib import Path
@@ -76,6 +77,7 @@ class PlantInfo:
     velocity_state: str          # state equal to the position state's derivative
     roles: PlantRoles            # the above, the held inputs and how they were found
     parameters: dict[str, float] = dataclass_field(default_factory=dict)   # plant.parameters: user start values
+    pole_pitch: float | None = None   # plant.pole_pitch [m]: magnet pole pitch, fixes the cogging period
 
 
 @dataclass
@@ -111,15 +113,29 @@ def read_plant(doc: dict, bundle_dir: Path, where: str) -> PlantInfo:
     class_name = _field(doc, "class", where, str)
     input_name = doc.get("input", "u")
     output_name = doc.get("output", "q")
+    pole_pitch = check_pole_pitch(doc.get("pole_pitch"), where)
     if "modelica" not in doc:
-        return library_plant(class_name, input_name, output_name, doc.get("parameters", {}), where,
+        info = library_plant(class_name, input_name, output_name, doc.get("parameters", {}), where,
                              doc.get("position"), doc.get("velocity"))
-    file_name = _field(doc, "modelica", where, str)
-    path = bundle_dir / Path(file_name).expanduser()
-    if not path.is_file():
-        raise BundleError(f"{where}: field 'modelica' names {file_name!r}, but {path} does not exist")
-    return load_plant(path, class_name, input_name, output_name, doc.get("parameters", {}), where,
-                      doc.get("position"), doc.get("velocity"))
+    else:
+        file_name = _field(doc, "modelica", where, str)
+        path = bundle_dir / Path(file_name).expanduser()
+        if not path.is_file():
+            raise BundleError(f"{where}: field 'modelica' names {file_name!r}, but {path} does not exist")
+        info = load_plant(path, class_name, input_name, output_name, doc.get("parameters", {}), where,
+                          doc.get("position"), doc.get("velocity"))
+    info.pole_pitch = pole_pitch
+    return info
+
+
+def check_pole_pitch(value: Any, where: str) -> float | None:
+    """``plant.pole_pitch`` [m]: absent (None) or a finite positive number (the magnet pole pitch)."""
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
+        raise BundleError(f"{where}: field 'pole_pitch' must be a positive length in m (the motor's magnet "
+                          f"pole pitch), got {value!r}")
+    return float(value)
 
 
 def library_plant(class_name: str, input_name: str = "u", output_name: str = "q", parameters: Any = None,
@@ -265,7 +281,7 @@ IN_MEMORY = Path("(in memory)")
 
 def make_bundle(plant: str | Path, controller: Controller | dict, train: Recording, validation: Recording,
                 plant_class: str | None = None, parameters: dict[str, float] | None = None,
-                input_name: str = "u", output_name: str = "q") -> Bundle:
+                input_name: str = "u", output_name: str = "q", pole_pitch: float | None = None) -> Bundle:
     """A bundle from in-memory objects, checked as :func:`read_bundle` checks a folder.
 
     Parameters
@@ -276,6 +292,7 @@ def make_bundle(plant: str | Path, controller: Controller | dict, train: Recordi
     plant_class : the plant class (default: the first ``model`` of the text/file).
     parameters : start values of plant parameters (as ``plant.parameters`` of experiment.json).
     input_name, output_name : the plant's force input and position output.
+    pole_pitch : the motor's magnet pole pitch [m] (as ``plant.pole_pitch``), or None.
 
     Returns
     -------
@@ -302,6 +319,7 @@ def make_bundle(plant: str | Path, controller: Controller | dict, train: Recordi
         if is_text:
             path.write_text(source, encoding="utf-8")
         info = load_plant(path, plant_class, input_name, output_name, parameters, "plant")
+    info.pole_pitch = check_pole_pitch(pole_pitch, "plant")
     checked = [check_recording(rec, name, controller.Ts) for rec, name in ((train, "train"), (validation, "validation"))]
     experiment = {"recordings": {"train": "train", "validation": "validation"}}
     return Bundle(IN_MEMORY, experiment, info, controller, *checked)

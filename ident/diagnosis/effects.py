@@ -45,6 +45,9 @@ class Context:
     udot: np.ndarray | None = None
     resonance_guess: list[float] = field(default_factory=list)  # candidate frequencies [Hz]
     position_gain: float = 1.0    # measured output per unit of the plant's position state
+    u: np.ndarray | None = None   # recorded applied force on the training run [N]
+    duration: float = 0.0         # length of the training recording [s]
+    pole_pitch: float | None = None   # motor pole pitch (plant.pole_pitch) in the plant's coordinates
 
 
 @dataclass
@@ -71,6 +74,8 @@ class Effect:
     delays_input: bool = False             # replaces u by a delayed u
     tracks_position: list[str] = field(default_factory=list)   # states starting at the measured position
     tracks_force: list[str] = field(default_factory=list)      # states starting at the held force
+    applicable: bool = True                # False: the bundle lacks what the effect needs (not screened)
+    min_substeps: int = 1                  # RK4 substeps per sample its fastest state needs at the top speed
 
 
 def _p(name: str, unit: str, text: str, lo: float, hi: float, fitted: bool = True) -> Param:
@@ -264,28 +269,248 @@ def resonance(ctx: Context) -> Effect:
             starts.append({"resonance_m2": 0.1 * c.mass, "resonance_fa": f_res / math.sqrt(1.1),
                            "resonance_zeta": 0.03})
         return starts
-    fmax = 0.45 / ctx.ts
-    params = [_p("resonance_m2", "kg", "Mass coupled elastically to the driven mass", 1e-3 * ctx.mass, ctx.mass),
-              _p("resonance_fa", "Hz", "Antiresonance frequency sqrt(k/m2)/(2 pi)", 5.0, fmax),
-              _p("resonance_zeta", "1", "Damping ratio of the coupling (relative to m2)", 1e-3, 0.5)]
-    decl = ('  Real resonance_x2(unit = "m", start = 0, fixed = true) "Position of the coupled mass";\n'
-            '  Real resonance_v2(unit = "m/s", start = 0, fixed = true) "Velocity of the coupled mass";\n'
-            '  Real resonance_F(unit = "N") "Coupling force on the driven mass";\n')
-    k = "resonance_m2*(6.283185307179586*resonance_fa)^2"
-    c = "2*resonance_zeta*resonance_m2*6.283185307179586*resonance_fa"
+    params = _two_mass_params(ctx, "resonance")
+    decl = _two_mass_declarations("resonance")
+    k, c = _two_mass_terms("resonance")
     eqs = ["der(resonance_x2) = resonance_v2",
            "resonance_m2*der(resonance_v2) = resonance_F",
            f"resonance_F = {k}*($x - resonance_x2) + {c}*($v - resonance_v2)"]
-    return Effect("resonance", "resonance", params, decl, "resonance_F", eqs, [], init, _resonance_contract,
+    return Effect("resonance", "resonance", params, decl, "resonance_F", eqs, [], init,
+                  lambda v, c: _two_mass_contract(v, c, "resonance"),
                   "An unmodelled structural mode: a second mass coupled by a spring and a damper to the driven "
                   "mass (as MotionTwin.Effects.TwoMassJoint); the residual concentrates in a narrow frequency "
                   "band of the swept-sine excitation.", tracks_position=["resonance_x2"])
 
 
-def _resonance_contract(v: dict[str, float], c: Context) -> dict[str, float]:
-    m1, m2 = v.get("plant.m", c.mass), v["resonance_m2"]
+def _two_mass_contract(v: dict[str, float], c: Context, prefix: str) -> dict[str, float]:
+    """Frequency [Hz] and damping ratio of the coupled mode (driven mass plant.m, coupled mass PREFIX_m2)."""
+    m1, m2 = v.get("plant.m", c.mass), v[f"{prefix}_m2"]
     ratio = math.sqrt((m1 + m2) / m1)
-    return {"frequency": v["resonance_fa"] * ratio, "damping": v["resonance_zeta"] * ratio}
+    return {"frequency": v[f"{prefix}_fa"] * ratio, "damping": v[f"{prefix}_zeta"] * ratio}
+
+
+def _two_mass_params(ctx: Context, prefix: str) -> list[Param]:
+    """Coupled mass, antiresonance frequency and damping ratio of a second mass on the driven one."""
+    return [_p(f"{prefix}_m2", "kg", "Mass coupled elastically to the driven mass", 1e-3 * ctx.mass, ctx.mass),
+            _p(f"{prefix}_fa", "Hz", "Antiresonance frequency sqrt(k/m2)/(2 pi)", 5.0, 0.45 / ctx.ts),
+            _p(f"{prefix}_zeta", "1", "Damping ratio of the coupling (relative to m2)", 1e-3, 0.5)]
+
+
+def _two_mass_declarations(prefix: str) -> str:
+    return (f'  Real {prefix}_x2(unit = "m", start = 0, fixed = true) "Position of the coupled mass";\n'
+            f'  Real {prefix}_v2(unit = "m/s", start = 0, fixed = true) "Velocity of the coupled mass";\n'
+            f'  Real {prefix}_F(unit = "N") "Coupling force on the driven mass";\n')
+
+
+def _two_mass_terms(prefix: str) -> tuple[str, str]:
+    """Stiffness and damping coefficient of the coupling from PREFIX_m2, PREFIX_fa, PREFIX_zeta."""
+    return (f"{prefix}_m2*(6.283185307179586*{prefix}_fa)^2",
+            f"2*{prefix}_zeta*{prefix}_m2*6.283185307179586*{prefix}_fa")
+
+
+BACKLASH_EPS = 1e-7    # rounding of the gap's corners [m of the measured output]
+
+
+def backlash(ctx: Context) -> Effect:
+    """Backlash (MotionTwin.Effects.BacklashJoint): a load mass m2 behind a gap of 2*b in a compliant
+    transmission. The load is taken out of the plant's mass (the motor is plant.m - m2), so plant.m stays the
+    total mass the nominal refit found and the fit starts at the nominal's low-frequency behaviour."""
+    def init(c: Context) -> list[dict[str, float]]:
+        guesses = c.resonance_guess or [0.1 / c.ts]
+        return [{"backlash_m2": 0.3 * c.mass, "backlash_fa": f_res / math.sqrt(1.5), "backlash_zeta": 0.05,
+                 "backlash_b": 2e-6 / _scale(c)} for f_res in guesses[:3]]
+    params = [_p("backlash_m2", "kg", "Load mass behind the gap (the motor mass is plant.m - m2)", 1e-3 * ctx.mass,
+                 0.9 * ctx.mass)] + _two_mass_params(ctx, "backlash")[1:] + [
+        _p("backlash_b", "m", "Half-width of the gap (total backlash 2*b)", 0.0, 1e-4 / _scale(ctx)),
+        _p("backlash_eps", "m", "Rounding of the gap corners", BACKLASH_EPS / _scale(ctx),
+           BACKLASH_EPS / _scale(ctx), False)]
+    k, c = _two_mass_terms("backlash")
+    gap = "$x - backlash_x2, backlash_b, backlash_eps"
+    eqs = ["der(backlash_x2) = backlash_v2",
+           "backlash_m2*der(backlash_v2) = backlash_F",
+           f"backlash_F = {k}*MotionTwin.Effects.DeadZone({gap}) + "
+           f"{c}*MotionTwin.Effects.DeadZoneSlope({gap})*($v - backlash_v2)"]
+    return Effect("backlash", "resonance", params, _two_mass_declarations("backlash"),
+                  "backlash_F - backlash_m2*der($v)", eqs,
+                  ["DeadZone.mo", "DeadZoneSlope.mo"], init,
+                  lambda v, c: {"b": v["backlash_b"] * abs(c.position_gain),
+                                "gap": 2 * v["backlash_b"] * abs(c.position_gain),
+                                **_two_mass_contract({**v, "plant.m": v.get("plant.m", c.mass) - v["backlash_m2"]},
+                                                     c, "backlash")},
+                  "A gap in a compliant transmission between the motor and a load mass: inside the gap the "
+                  "motor moves alone, in contact the pair is a two-mass resonator; the residual shows a force "
+                  "step at every velocity reversal (the load is picked up after crossing the gap) and the "
+                  "contact resonance in the swept sine.", tracks_position=["backlash_x2"])
+
+
+LUGRE_STEP = 4       # the bristle state's rate |v|/z0 times Ts stays below this at the top recorded speed
+
+
+def lugre_friction(ctx: Context) -> Effect:
+    """LuGre friction in Dahl's form (Fs = Fc, sigma1 = sigma2 = 0; the plant's d is the viscous part) with
+    the bristle state written as the bristle force F_z = sigma0*z, so that it starts at the held force."""
+    z0_min = max(1e-6 / _scale(ctx), ctx.v_max * ctx.ts / LUGRE_STEP)
+
+    def init(c: Context) -> list[dict[str, float]]:
+        fc = abs(float(_ls([_sign(c), np.ones_like(c.v)], c.force)[0])) if c.force is not None else 0.1
+        return [{"lugre_Fc": max(fc, 1e-3), "lugre_z0": 4 * z0_min}]
+    params = [_p("lugre_Fc", "N", "Coulomb (sliding) friction level", 1e-6, 1e4),
+              _p("lugre_z0", "m", "Pre-sliding displacement Fc/sigma0 (bristle deflection in sliding)", z0_min,
+                 max(1e-3 / _scale(ctx), 10 * z0_min))]
+    decl = ('  Real lugre_Fz(unit = "N", start = 0, fixed = true) "Bristle force sigma0*z";\n'
+            '  Real lugre_F(unit = "N") "LuGre friction force";\n'
+            '  Real lugre_dz(unit = "m/s") "Rate of the bristle deflection";\n')
+    # Fs = Fc (the Stribeck velocity 1 m/s then has no effect), bristle damping and viscous part 0
+    eqs = ["(lugre_F, lugre_dz) = MotionTwin.Effects.LuGreFriction($v, lugre_z0/lugre_Fc*lugre_Fz, lugre_Fc, "
+           "lugre_Fc, 1.0, lugre_Fc/lugre_z0, 0.0, 0.0)",
+           "der(lugre_Fz) = lugre_Fc/lugre_z0*lugre_dz"]
+    return Effect("lugre_friction", FRICTION, params, decl, "lugre_F", eqs, ["LuGreFriction.mo"], init,
+                  lambda v, c: {"Fc": v["lugre_Fc"], "z0": v["lugre_z0"] * abs(c.position_gain),
+                                "sigma0": v["lugre_Fc"] / (v["lugre_z0"] * abs(c.position_gain))},
+                  "Friction with pre-sliding (LuGre bristle model, Dahl's form): after each velocity reversal "
+                  "the friction force builds up over a displacement of about z0 instead of switching with the "
+                  "velocity, so the residual is a hysteresis loop in position around every reversal and the "
+                  "axis behaves like a spring of stiffness sigma0 = Fc/z0 at rest.",
+                  tracks_force=["lugre_Fz"], min_substeps=math.ceil(ctx.v_max * ctx.ts / z0_min))
+
+
+def _u_max(ctx: Context) -> float:
+    return float(np.max(np.abs(ctx.u))) if ctx.u is not None and ctx.u.size else 1e4
+
+
+def _saturation_excess(u: np.ndarray, limit: float) -> np.ndarray:
+    return u - np.clip(u, -limit, limit)
+
+
+def actuator_saturation(ctx: Context) -> Effect:
+    u_max = _u_max(ctx)
+
+    def init(c: Context) -> list[dict[str, float]]:
+        if c.force is None or c.u is None:
+            return [{"saturation_Fmax": 0.9 * u_max}]
+        best = []
+        for limit in np.quantile(np.abs(c.u), [0.5, 0.7, 0.8, 0.9, 0.95, 0.98, 0.99, 0.995]):
+            cols = [_saturation_excess(c.u, limit), _sign(c), np.ones_like(c.u)]
+            coef, *_ = np.linalg.lstsq(np.column_stack(cols), c.force, rcond=None)
+            rest = c.force - np.column_stack(cols) @ coef
+            best.append((float(np.sum(rest ** 2)), float(limit)))
+        return [{"saturation_Fmax": min(best)[1]}]
+    params = [_p("saturation_Fmax", "N", "Force limit of the actuator (current limit of the amplifier)",
+                 0.2 * u_max, 1.5 * u_max),
+              _p("saturation_eps", "N", "Rounding of the saturation corners", 1e-3 * u_max, 1e-3 * u_max, False)]
+    return Effect("actuator_saturation", "actuator_saturation", params, "",
+                  "u - MotionTwin.Effects.SaturatedForce(u, saturation_Fmax, saturation_eps)", [],
+                  ["SaturatedForce.mo"], init, lambda v, c: {"Fmax": v["saturation_Fmax"]},
+                  "The actuator delivers at most +-Fmax (amplifier current limit): the residual is zero for "
+                  "small commands and grows as u - Fmax*sign(u) on the largest |u| (fast moves, the sweep), "
+                  "in the direction of the command.")
+
+
+COGGING_ORDERS = range(1, 13)   # cogging periods per pole pitch tried (e.g. slots per pole)
+
+
+def _cogging_fit(c: Context, pitch: float, order: int) -> float:
+    """Residual sum of squares of the force residual after the two cogging harmonics of ``order``."""
+    theta = 2 * np.pi * order * c.x / pitch
+    cols = np.column_stack([np.sin(theta), np.cos(theta), np.sin(2 * theta), np.cos(2 * theta),
+                            np.ones_like(c.x), _sign(c)])
+    coef, *_ = np.linalg.lstsq(cols, c.force, rcond=None)
+    return float(np.sum((c.force - cols @ coef) ** 2))
+
+
+def cogging_order(c: Context, pitch: float) -> int:
+    """Cogging periods per pole pitch whose two harmonics explain most of the force residual (1 without it)."""
+    if c.force is None or c.x is None:
+        return 1
+    return min(COGGING_ORDERS, key=lambda order: _cogging_fit(c, pitch, order))
+
+
+def cogging(ctx: Context) -> Effect:
+    """Cogging tied to the motor's pole pitch: period pole_pitch/n (n an integer, chosen from the residual)
+    and its second harmonic. Only with ``plant.pole_pitch`` in the bundle; else ``position_ripple`` (free
+    period, one harmonic) stands for any force periodic in position."""
+    span = max(ctx.x_max - ctx.x_min, 1e-6 / _scale(ctx))
+    pitch = ctx.pole_pitch if ctx.pole_pitch is not None else span / 4
+    order = cogging_order(ctx, pitch)
+
+    def init(c: Context) -> list[dict[str, float]]:
+        start = {"cogging_a1": 0.0, "cogging_b1": 0.0, "cogging_a2": 0.0, "cogging_b2": 0.0}
+        if c.force is None:
+            return [start]
+        theta = 2 * np.pi * order * c.x / pitch
+        coef = _ls([np.sin(theta), np.cos(theta), np.sin(2 * theta), np.cos(2 * theta), np.ones_like(c.x),
+                    _sign(c)], c.force)
+        return [dict(zip(start, (float(a) for a in coef[:4])))]
+    params = [_p("cogging_a1", "N", "Sine amplitude of the fundamental", -1e4, 1e4),
+              _p("cogging_b1", "N", "Cosine amplitude of the fundamental", -1e4, 1e4),
+              _p("cogging_a2", "N", "Sine amplitude of the second harmonic", -1e4, 1e4),
+              _p("cogging_b2", "N", "Cosine amplitude of the second harmonic", -1e4, 1e4),
+              _p("cogging_pitch", "m", "Magnet pole pitch (plant.pole_pitch)", pitch, pitch, False),
+              _p("cogging_n", "1", "Cogging periods per pole pitch", order, order, False),
+              _p("cogging_zero", "rad", "Phase of the sine parts", 0.0, 0.0, False),
+              _p("cogging_quarter", "rad", "Phase of the cosine parts", math.pi / 2, math.pi / 2, False)]
+    harmonics = "cogging_pitch, cogging_n, cogging_{0}1, cogging_{0}2, cogging_{1}, cogging_{1}"
+    return Effect("cogging", "position_ripple", params, "",
+                  f"MotionTwin.Effects.CoggingForce($x, {harmonics.format('a', 'zero')}) + "
+                  f"MotionTwin.Effects.CoggingForce($x, {harmonics.format('b', 'quarter')})", [],
+                  ["CoggingForce.mo"], init,
+                  lambda v, c: {"A1": float(math.hypot(v["cogging_a1"], v["cogging_b1"])),
+                                "A2": float(math.hypot(v["cogging_a2"], v["cogging_b2"])),
+                                "n": v["cogging_n"],
+                                "period": abs(v["cogging_pitch"] * c.position_gain) / v["cogging_n"]},
+                  "Cogging of a permanent-magnet motor: a force periodic in position with the period "
+                  "pole_pitch/n and its second harmonic, at any speed (position_ripple has a free period and "
+                  "one harmonic).", applicable=ctx.pole_pitch is not None)
+
+
+def load_dependent_friction(ctx: Context) -> Effect:
+    def init(c: Context) -> list[dict[str, float]]:
+        if c.force is None or c.u is None:
+            return [{"load_Fc0": 0.1, "load_mu": 0.01, "load_v_eps": _v_eps(c)}]
+        fc0, mu = _ls([_sign(c), np.abs(c.u) * _sign(c), np.ones_like(c.v)], c.force)[:2]
+        return [{"load_Fc0": max(float(fc0), 1e-3), "load_mu": max(float(mu), 1e-4), "load_v_eps": _v_eps(c)}]
+    params = [_p("load_Fc0", "N", "Coulomb friction level without load", 0.0, 1e4),
+              _p("load_mu", "1", "Friction rise per newton of drive force", 0.0, 2.0),
+              _p("load_v_eps", "m/s", "Velocity scale of the tanh (presliding)", *_eps_bounds(ctx))]
+    return Effect("load_dependent_friction", FRICTION, params, "",
+                  "MotionTwin.Effects.LoadDependentFriction($v, u, load_Fc0, load_mu, load_v_eps)", [],
+                  ["LoadDependentFriction.mo"], init, lambda v, c: {"Fc0": v["load_Fc0"], "mu": v["load_mu"]},
+                  "Friction that grows with the drive force (gear, screw or preloaded bearing friction): the "
+                  "residual opposes the motion like Coulomb friction, with a level that rises with |u| (larger "
+                  "while accelerating than while cruising).")
+
+
+def friction_drift(ctx: Context) -> Effect:
+    """Coulomb friction whose level drifts over the run with a first-order (thermal) state s, s(0) = 0:
+    Fc = Fc0 + dFc*s, tau*der(s) = 1 - s (a state, not ``time``: the loop's dynamics are time-invariant).
+    Each recording starts at s = 0, i.e. train and validation start in the same thermal state."""
+    duration = ctx.duration or 1.0
+
+    def init(c: Context) -> list[dict[str, float]]:
+        if c.force is None:
+            return [{"drift_Fc0": 0.1, "drift_dFc": 0.0, "drift_tau": duration, "drift_v_eps": _v_eps(c)}]
+        t = np.arange(c.force.size) * c.ts
+        best = []
+        for tau in (0.2 * duration, 0.5 * duration, duration):
+            cols = np.column_stack([_sign(c), _sign(c) * (1 - np.exp(-t / tau)), np.ones_like(t)])
+            coef, *_ = np.linalg.lstsq(cols, c.force, rcond=None)
+            best.append((float(np.sum((c.force - cols @ coef) ** 2)), tau, float(coef[0]), float(coef[1])))
+        _, tau, fc0, dfc = min(best)
+        fc0 = max(fc0, 1e-3)   # the slope of a noisy residual overshoots: start at most half the level
+        return [{"drift_Fc0": fc0, "drift_dFc": float(np.clip(dfc, -0.5 * fc0, 0.5 * fc0)), "drift_tau": tau,
+                 "drift_v_eps": _v_eps(c)}]
+    params = [_p("drift_Fc0", "N", "Coulomb friction level at the start of the recording", 0.0, 1e4),
+              _p("drift_dFc", "N", "Change of the Coulomb level once settled", -1e4, 1e4),
+              _p("drift_tau", "s", "Time constant of the drift", 0.05 * duration, 10 * duration),
+              _p("drift_v_eps", "m/s", "Velocity scale of the tanh (presliding)", *_eps_bounds(ctx))]
+    decl = '  Real drift_s(start = 0, fixed = true) "Progress of the drift, 1 - exp(-t/tau)";\n'
+    return Effect("friction_drift", FRICTION, params, decl,
+                  "MotionTwin.Effects.CoulombFriction($v, drift_Fc0 + drift_dFc*drift_s, drift_v_eps)",
+                  ["drift_tau*der(drift_s) = 1 - drift_s"], ["CoulombFriction.mo"], init,
+                  lambda v, c: {"Fc_start": v["drift_Fc0"], "dFc": v["drift_dFc"], "tau": v["drift_tau"]},
+                  "Coulomb friction whose level changes slowly over the run (the lubricant warms up): the "
+                  "residual jumps with the sign of the velocity as for Coulomb friction, by an amount that "
+                  "trends over time, Fc0 + dFc*(1 - exp(-t/tau)) from the start of the recording.")
 
 
 VOCABULARY: dict[str, Callable[[Context], Effect]] = {
@@ -297,9 +522,18 @@ VOCABULARY: dict[str, Callable[[Context], Effect]] = {
     "position_dependent_inertia": position_dependent_inertia,
     "time_delay": time_delay,
     "resonance": resonance,
+    "backlash": backlash,
+    "lugre_friction": lugre_friction,
+    "actuator_saturation": actuator_saturation,
+    "cogging": cogging,
+    "load_dependent_friction": load_dependent_friction,
+    "friction_drift": friction_drift,
 }
 
-NESTED = {"stribeck_friction": "coulomb_friction", "asymmetric_friction": "coulomb_friction"}
+#: richer effect -> the simpler effect it contains (preferred unless the extra parameters earn their place)
+NESTED = {"stribeck_friction": "coulomb_friction", "asymmetric_friction": "coulomb_friction",
+          "lugre_friction": "coulomb_friction", "load_dependent_friction": "coulomb_friction",
+          "friction_drift": "coulomb_friction", "backlash": "resonance"}
 
 
 def modelica_text(plant_class: str, effects: list[Effect], values: dict[str, float],

@@ -156,11 +156,18 @@ def context(bundle: Bundle, nominal: ModelFit) -> effect_models.Context:
     v = inv.v if inv else np.gradient(rec["q"], ts)
     mass = _mass_equivalent(bundle, nominal.fit.values)
     ctx = effect_models.Context(ts, float(q.min()), float(q.max()), float(np.max(np.abs(v))) or 1e-3, mass,
-                     position_gain=gain)
+                     position_gain=gain, u=bundle.train["u"],
+                     duration=float(bundle.train.time[-1] - bundle.train.time[0]),
+                     pole_pitch=_pitch_in_state_coordinates(plant.pole_pitch, gain))
     if inv is not None:
         ctx.x, ctx.v, ctx.a, ctx.force, ctx.udot = inv.x, inv.v, inv.a, inv.force, inv.udot
     ctx.resonance_guess = evidence.resonance_guesses(bundle.train["q"] - nominal.fit.q_sim, ts)
     return ctx
+
+
+def _pitch_in_state_coordinates(pole_pitch: float | None, gain: float) -> float | None:
+    """``plant.pole_pitch`` [m of the measured output] in units of the plant's position state."""
+    return None if pole_pitch is None else pole_pitch / gain
 
 
 def _mass_equivalent(bundle: Bundle, values: dict[str, float]) -> float:
@@ -217,6 +224,7 @@ def build_structure(bundle: Bundle, effects: list[effect_models.Effect], values:
     all_values.update({k: v for k, v in values.items() if k in all_values})
     tracking = {s: "q" for e in effects for s in e.tracks_position} | _moving_start(bundle, "plant.")
     tracking.update({s: "u" for e in effects for s in e.tracks_force})
+    min_substeps = max([min_substeps] + [e.min_substeps for e in effects])
     substeps = substeps or max(min_substeps, outputerror.stable_substeps(model, all_values, bundle.controller.Ts))
     key = (names, n_samples, substeps, with_jacobian)
     if key not in cache.loops:
@@ -296,8 +304,8 @@ def select(bundle: Bundle, nominal: ModelFit, weights: outputerror.Weights, ctx:
         null = evidence.bootstrap_residuals(noisy, current.fit.q_sim, current.fit.u_sim, weights.sigma_q,
                                             weights.sigma_u, bundle.train.time.size, BOOTSTRAP_COUNT, seed=rounds)
         base_gain = evidence.projected_gain(current.fit.jacobian, null)
-        names = [n for n, factory in effect_models.VOCABULARY.items()
-                 if n in shortlist and factory(ctx).family not in used_families]
+        candidates = {n: factory(ctx) for n, factory in effect_models.VOCABULARY.items() if n in shortlist}
+        names = [n for n, e in candidates.items() if e.applicable and e.family not in used_families]
         screened = screen(bundle, current, names, ctx, weights, work / f"r{rounds}", progress)
         order = sorted(screened, key=lambda n: screened[n][0].cost)
         shortlist = order[:FULL_FITS + 2]     # later rounds screen only the effects that ranked high here
@@ -305,6 +313,7 @@ def select(bundle: Bundle, nominal: ModelFit, weights: outputerror.Weights, ctx:
         for name in list(ranked):
             if effect_models.NESTED.get(name) in screened and effect_models.NESTED[name] not in ranked:
                 ranked.append(effect_models.NESTED[name])
+        ranked += _close_richer(ranked, screened, current.fit.cost)
         trials: dict[str, tuple[ModelFit, float, float, np.ndarray]] = {}
         for name in ranked:
             t0 = time.perf_counter()
@@ -540,9 +549,22 @@ def screen(bundle: Bundle, current: ModelFit, names: list[str], ctx: effect_mode
     return out
 
 
+NESTED_SCREEN_SHARE = 0.9   # a richer effect screened within 10 % of its ranked simpler one's gain is fitted too
+
+
+def _close_richer(ranked: list[str], screened: dict, cost: float) -> list[str]:
+    """Richer effects (``NESTED``) of a ranked simpler one whose screening gain is at least
+    NESTED_SCREEN_SHARE of the simpler one's: a few steps do not converge their extra parameters (a drift
+    time constant, a load coefficient), so the screening cannot tell them from the simpler effect."""
+    return [rich for rich, simple in effect_models.NESTED.items()
+            if simple in ranked and rich in screened and rich not in ranked
+            and cost - screened[rich][0].cost >= NESTED_SCREEN_SHARE * (cost - screened[simple][0].cost) > 0]
+
+
 def _simplest(name: str, trials: dict, null: np.ndarray, bundle: Bundle, work: Path, progress) -> str:
-    """Prefer the nested simpler effect (coulomb in stribeck/asymmetric) unless the extra parameters beat
-    their own null reference and improve the validation fit by the same margin as any effect."""
+    """Prefer the nested simpler effect (``NESTED``: coulomb in the richer frictions, resonance in backlash)
+    unless the extra parameters beat their own null reference and improve the validation fit by the same
+    margin as any effect."""
     simple = effect_models.NESTED.get(name)
     if simple not in trials or trials[simple][1] <= trials[simple][2]:
         return name
@@ -641,7 +663,7 @@ def check_plant_form(bundle: Bundle, folder: Path) -> None:
         x = (np.concatenate([bundle.train["q"], bundle.validation["q"]]) - offset) / gain
         v_max = float(np.max(np.abs(np.gradient(x, ts)))) or 1e-3
         ctx = effect_models.Context(ts, float(x.min()), float(x.max()), v_max, _mass_equivalent(bundle, values),
-                         position_gain=gain)
+                         position_gain=gain, pole_pitch=_pitch_in_state_coordinates(plant.pole_pitch, gain))
         effect_models.check_buildable(folder, plant.text, plant.source, plant.class_name, plant.roles, ctx,
                                       AUGMENTED_CLASS)
     except PlantFormError as exc:
@@ -735,7 +757,7 @@ class Diagnosis:
 
 def diagnose(plant: str | Path, controller: Controller | dict, train: Recording, validation: Recording, *,
              plant_class: str | None = None, parameters: dict[str, float] | None = None,
-             progress: Callable[[str], None] | None = None) -> Diagnosis:
+             pole_pitch: float | None = None, progress: Callable[[str], None] | None = None) -> Diagnosis:
     """Diagnose the mismatch between a nominal plant and two closed-loop recordings (in memory).
 
     Parameters
@@ -745,6 +767,7 @@ def diagnose(plant: str | Path, controller: Controller | dict, train: Recording,
     train, validation : :class:`harness.recording.Recording` with time [s], r [m], u [N], q [m][, u_ext [N]].
     plant_class : the plant class (default: the first ``model`` in the source).
     parameters : start values of plant parameters (default: Modelica values and inverse dynamics).
+    pole_pitch : the motor's magnet pole pitch [m] (enables the ``cogging`` candidate), or None.
     progress : called with one line per step.
 
     Returns
@@ -757,7 +780,7 @@ def diagnose(plant: str | Path, controller: Controller | dict, train: Recording,
     symbolic layer shares reference-counted constants between expressions and is not thread-safe (parallel
     diagnoses belong in separate processes).
     """
-    bundle = make_bundle(plant, controller, train, validation, plant_class, parameters)
+    bundle = make_bundle(plant, controller, train, validation, plant_class, parameters, pole_pitch=pole_pitch)
     return diagnose_bundle_object(bundle, progress)
 
 

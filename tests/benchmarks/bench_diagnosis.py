@@ -7,6 +7,8 @@ time, the CPU time of this process and the 1-minute load average (other jobs inf
 time of the single-threaded diagnosis does not depend on them).
 
 Run: .venv/bin/python tests/benchmarks/bench_diagnosis.py [BENCH_DIR] [--set heldout|tuning] [--case NAME]
+[--effects NAME,...] (the vocabulary to keep: the runtime cost of the others; MOTIONTWIN_DIAGNOSIS_WORKERS=1
+screens in-process, so that the CPU column holds all of the work)
 (bundles are generated into BENCH_DIR by ``python -m motiontwin.ident.diagnosis.benchmark generate`` when missing).
 """
 from __future__ import annotations
@@ -18,13 +20,11 @@ import tempfile
 import time
 from pathlib import Path
 
-from motiontwin.ident.diagnosis import diagnose_bundle
+from motiontwin.ident.diagnosis import benchmark, diagnose_bundle
 from motiontwin.ident.diagnosis import effects as effect_models
 
 TARGET_S = 120.0
-MAIN_PARAMETER = {"gravity_offset": "F0", "coulomb_friction": "Fc", "asymmetric_friction": "Fc_pos",
-                  "stribeck_friction": "Fs", "position_ripple": "amplitude", "time_delay": "delay",
-                  "resonance": "frequency", "position_dependent_inertia": "mass_max"}
+MAIN_PARAMETER = benchmark.MAIN_PARAMETER
 
 
 def truth_contract(effect: dict, mass: float) -> dict[str, float]:
@@ -32,7 +32,7 @@ def truth_contract(effect: dict, mass: float) -> dict[str, float]:
     ctx = effect_models.Context(5e-4, 0.0, 0.1, 0.2, mass)
     candidate = effect_models.VOCABULARY[effect["name"]](ctx)
     values = {p.name: sum(p.bounds) / 2 for p in candidate.params} | effect["parameters"] | {"plant.m": mass}
-    return candidate.contract(values, ctx)
+    return candidate.contract(values, ctx) | effect.get("contract", {})
 
 
 def cpu_seconds() -> float:
@@ -64,15 +64,26 @@ def main() -> int:
     parser.add_argument("bench", nargs="?", type=Path, default=Path(tempfile.gettempdir()) / "mt-diagnosis-bench")
     parser.add_argument("--set", default="heldout", choices=["heldout", "tuning"])
     parser.add_argument("--case", action="append", default=None)
+    parser.add_argument("--effects", default=None,
+                        help="comma-separated vocabulary to keep (the runtime cost of the others), e.g. the eight "
+                             "effects before issue 16")
     args = parser.parse_args()
+    if args.effects:
+        keep = args.effects.split(",")
+        unknown = sorted(set(keep) - set(effect_models.VOCABULARY))
+        if unknown:
+            parser.error(f"--effects: unknown {', '.join(unknown)}; known: {', '.join(effect_models.VOCABULARY)}")
+        for table in (effect_models.VOCABULARY, effect_models.NESTED):
+            for name in [n for n in table if n not in keep]:
+                del table[name]
     folder = args.bench / args.set
     if not folder.is_dir():
-        from motiontwin.ident.diagnosis import benchmark
         benchmark.generate(args.bench, args.set)
     cases = sorted(p.name for p in folder.iterdir() if (p / "experiment.json").is_file())
     print(f"target: {TARGET_S:.0f} s per bundle (12 s + 6 s at 2 kHz), {os.cpu_count()} cores")
     print(f"{'case':28s} {'truth':38s} {'found':38s} {'main parameter (found/true)':34s} "
-          f"{'val ratio':>9s} {'above floor':>11s} {'wall s':>7s} {'cpu s':>6s} {'load':>5s} ok")
+          f"{'val RMS nominal->augmented m':>28s} {'val ratio':>9s} {'above floor':>11s} {'wall s':>7s} {'cpu s':>6s} "
+          f"{'load':>5s} ok")
     worst = 0.0
     for case in cases:
         if args.case and case not in args.case:
@@ -87,6 +98,7 @@ def main() -> int:
         true_names = ",".join(e["name"] for e in truth["effects"]) or "-"
         found = ",".join(e["name"] for e in doc["effects"]) or "-"
         print(f"{case:28s} {true_names:38s} {found:38s} {parameter_errors(truth, doc):34s} "
+              f"{val['nominal_rms']:>13.3g}->{val['augmented_rms']:<13.3g} "
               f"{val['augmented_rms'] / val['nominal_rms']:9.2f} {_ratio(val.get('excess_ratio')):>11s} "
               f"{wall:7.1f} {cpu:6.1f} {os.getloadavg()[0]:5.1f} {'yes' if wall < TARGET_S else 'NO'}",
               flush=True)
