@@ -409,9 +409,16 @@ def screen(bundle: Bundle, current: ModelFit, names: list[str], ctx: effect_mode
     return out
 
 
-def _simplest(name: str, trials: dict, null: np.ndarray, bundle: Bundle, work: Path, progress) -> str:
+def _validation_rms(bundle: Bundle, structure: ModelFit, folder: Path) -> float:
+    validate(bundle, structure, folder)
+    return structure.val_rms
+
+
+def _simplest(name: str, trials: dict, null: np.ndarray, bundle: Bundle, work: Path, progress,
+              check: Callable[[Bundle, ModelFit, Path], float] = _validation_rms) -> str:
     """Prefer the nested simpler effect (coulomb in stribeck/asymmetric) unless the extra parameters beat
-    their own null reference and improve the validation fit by the same margin as any effect."""
+    their own null reference and improve the validation fit by the same margin as any effect
+    (``check``: validates a structure and returns the validation RMS that decides, e.g. one axis's)."""
     simple = effect_models.NESTED.get(name)
     if simple not in trials or trials[simple][1] <= trials[simple][2]:
         return name
@@ -423,11 +430,11 @@ def _simplest(name: str, trials: dict, null: np.ndarray, bundle: Bundle, work: P
     threshold = evidence.null_threshold(null_extra, dof)
     if extra <= threshold:
         return simple
-    validate(bundle, rich[0], work / f"n_{name}")
-    validate(bundle, small[0], work / f"n_{simple}")
+    rich_rms = check(bundle, rich[0], work / f"n_{name}")
+    small_rms = check(bundle, small[0], work / f"n_{simple}")
     _log(progress, f"  {name} vs {simple}: extra -{extra:.4g}, null {threshold:.4g}, validation "
-                   f"{rich[0].val_rms:.4g} vs {small[0].val_rms:.4g}")
-    return name if rich[0].val_rms < VALIDATION_GAIN * small[0].val_rms else simple
+                   f"{rich_rms:.4g} vs {small_rms:.4g}")
+    return name if rich_rms < VALIDATION_GAIN * small_rms else simple
 
 
 def _fitted_count(structure: ModelFit) -> int:
@@ -483,21 +490,26 @@ def _effect_values(structure: ModelFit, effect: effect_models.Effect) -> dict[st
     return {p.name: structure.fit.values[p.name] for p in effect.params}
 
 
-def validation_floor(loop: outputerror.Loop, bundle: Bundle, values: dict[str, float], sigma_q: float,
-                     count: int = FLOOR_REPLICATES) -> float:
+def validation_floor(loop: outputerror.Loop, bundle: Bundle, values: dict[str, float], sigma_q: float | np.ndarray,
+                     count: int = FLOOR_REPLICATES) -> float | np.ndarray:
     """RMS of measured minus free-run q that the fitted model itself leaves on the validation excitation
     [m]: the model is re-simulated with white encoder noise of the estimated level fed back through the
     controller (the noise and its closed-loop echo, which no free-run simulation can predict). No model
-    can bring the validation RMS below this floor, so the improvement is also reported above it."""
+    can bring the validation RMS below this floor, so the improvement is also reported above it.
+    A multi-axis loop takes one noise level per axis and returns one floor per axis."""
     rec = bundle.validation
     q_free, _ = outputerror.simulate(loop, rec, values)
     rng = np.random.default_rng(0)
     power = []
+    per_axis = np.ndim(sigma_q) > 0
     for _ in range(count):
-        noise = rng.normal(0.0, sigma_q, rec.time.size)
+        if per_axis:
+            noise = rng.normal(0.0, 1.0, (np.size(sigma_q), rec.time.size)) * np.reshape(sigma_q, (-1, 1))
+        else:
+            noise = rng.normal(0.0, sigma_q, rec.time.size)
         q_noisy, _ = outputerror.simulate(loop, rec, values, noise=noise)
-        power.append(np.mean((q_noisy + noise - q_free) ** 2))
-    return float(np.sqrt(np.mean(power)))
+        power.append(np.mean((q_noisy + noise - q_free) ** 2, axis=-1))
+    return np.sqrt(np.mean(power, axis=0)) if per_axis else float(np.sqrt(np.mean(power)))
 
 
 def check_plant_form(bundle: Bundle, folder: Path) -> None:
@@ -622,7 +634,12 @@ def diagnose(plant: str | Path, controller: Controller | dict, train: Recording,
 
 
 def diagnose_bundle_object(bundle: Bundle, progress: Callable[[str], None] | None = None) -> Diagnosis:
-    """:func:`diagnose` of an already read :class:`Bundle` (working files in a temporary folder)."""
+    """:func:`diagnose` of an already read :class:`Bundle` (working files in a temporary folder); a
+    multi-axis bundle goes to :mod:`ident.diagnosis.multiaxis`."""
+    if bundle.multi_axis:
+        from motiontwin.ident.diagnosis import multiaxis
+
+        return multiaxis.diagnose_bundle_object(bundle, progress)
     with _CASADI_LOCK, tempfile.TemporaryDirectory(prefix="motiontwin-diagnosis-") as tmp:
         return Diagnosis.from_result(run(bundle, Path(tmp), progress))
 
