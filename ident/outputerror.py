@@ -60,6 +60,7 @@ __all__ = ["Signals", "Loop", "Weights", "Fit", "OutputErrorResult", "build_loop
 
 _LOG = logging.getLogger(__name__)
 JIT_OPTIONS = {"jit": True, "compiler": "shell", "jit_options": {"flags": ["-O2"]}}
+CALL_INSTRUCTIONS = 400     # plant right-hand sides above this many SX instructions are called, not inlined
 
 
 @dataclass(frozen=True)
@@ -214,7 +215,8 @@ def build_loop(model: symbolic.SymbolicModel, controller: Controller | None, pos
                values: dict[str, float], n_samples: int, substeps: int | None = None,
                tracking: dict[str, str] | None = None, with_jacobian: bool = True, min_substeps: int = 1,
                ts: float | None = None, input_name: str | None = None, signals: Signals = Signals(),
-               jit: bool = False, native: bool | None = None, axes: list[Signals] | None = None) -> Loop:
+               jit: bool = False, native: bool | None = None, axes: list[Signals] | None = None,
+               initial_sensitivity: bool = True) -> Loop:
     """Compile the free-run simulation of ``n_samples`` samples with the parameters ``free`` symbolic.
 
     controller: None for open loop (then ``ts`` [s] is required); position_state: the state or output
@@ -228,7 +230,9 @@ def build_loop(model: symbolic.SymbolicModel, controller: Controller | None, pos
     ``output`` are plant names (and recording columns); ``position_state`` and ``input_name`` are then
     ignored. The controller maps y = [r_1..r_n, q_1..q_n] to u = [u_1..u_n] (block-diagonal or
     multivariable); w = [r (n); u_ext (n); measurement noise (n)] per sample, and the step returns q and u
-    with n entries each.
+    with n entries each. initial_sensitivity: compile the sensitivities w.r.t. the initial state too (needed
+    to estimate initial states, ``fit(..., estimate_initial=...)``); without them the Jacobian step of a
+    large coupled plant is a fraction of the size (its d/ds0 blocks are then empty).
     """
     if ca.depends_on(model.dx, model.t):
         raise ValueError(f"{model.name}: time-varying plants are not supported by the output-error refit")
@@ -257,16 +261,19 @@ def build_loop(model: symbolic.SymbolicModel, controller: Controller | None, pos
     values = {n: float(values.get(n, model.parameters[i].start)) for i, n in enumerate(names)}
     substeps = substeps or max(min_substeps, stable_substeps(model, values, ts))
     fixed = [n for n in names if n not in free]
-    theta = ca.SX.sym("theta", len(free))
-    pfix = ca.SX.sym("pfix", len(fixed))
-    p_full = ca.vertcat(*[theta[free.index(n)] if n in free else pfix[fixed.index(n)] for n in names])
     f = ca.Function("f", [model.x, model.u, model.p], [model.dx])
+    # a large right-hand side (a coupled mechanism's mass-matrix solve) is called, not inlined, in every RK4
+    # stage (MX graph): the step and its sensitivity step then compile from kilobytes instead of megabytes
+    sym = ca.MX if f.n_instructions() > CALL_INSTRUCTIONS else ca.SX
+    theta = sym.sym("theta", len(free))
+    pfix = sym.sym("pfix", len(fixed))
+    p_full = ca.vertcat(*[theta[free.index(n)] if n in free else pfix[fixed.index(n)] for n in names])
     q_expr = ca.vertcat(*[_output_expression(model, name) for name in observed])
     h_out = ca.Function("h", [model.x, model.u, model.p], [q_expr])
     nx = model.x.numel()
     nz = controller.n_states if controller is not None else 0
-    s = ca.SX.sym("s", nx + nz)
-    w = ca.SX.sym("w", 3 * n_ax)  # per axis, closed loop: r, u_ext, measurement noise; open loop: -, input, -
+    s = sym.sym("s", nx + nz)
+    w = sym.sym("w", 3 * n_ax)  # per axis, closed loop: r, u_ext, measurement noise; open loop: -, input, -
     x, z = s[:nx], s[nx:]
     held = [0.0 if v.start is None or not isinstance(v.start, (int, float)) else float(v.start) for v in model.inputs]
     k_in = [inputs.index(name) for name in driven]
@@ -282,7 +289,7 @@ def build_loop(model: symbolic.SymbolicModel, controller: Controller | None, pos
         if ca.depends_on(q_expr, model.u):
             raise ValueError(f"{model.name}: output {', '.join(map(repr, observed))} depends on the input "
                              "directly; closing a sampled loop around it is an algebraic loop")
-        q = h_out(x, plant_input(ca.SX.zeros(n_ax)), p_full)
+        q = h_out(x, plant_input(sym.zeros(n_ax)), p_full)
         y = ca.vertcat(w[:n_ax], q + w[2 * n_ax:])
         A, B, C, D = (ca.DM(m) for m in (controller.A, controller.B, controller.C, controller.D))
         u = (C @ z if nz else 0) + D @ y + w[n_ax:2 * n_ax]
@@ -298,7 +305,15 @@ def build_loop(model: symbolic.SymbolicModel, controller: Controller | None, pos
         xk = xk + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
     s_next, out_k = ca.vertcat(xk, z_next), ca.vertcat(q, u)
     step = ca.Function("step", [s, w, theta, pfix], [ca.densify(s_next), ca.densify(q), ca.densify(u)])
-    aug, seed = _sensitivity_step(s, w, theta, pfix, s_next, out_k) if with_jacobian else (None, None)
+    if not with_jacobian:
+        aug, seed = None, None
+    elif sym is ca.SX:
+        aug, seed = _sensitivity_step(s, w, theta, pfix, s_next, out_k, initial_sensitivity)
+    else:
+        select_p = np.array([[1.0 if n == m else 0.0 for m in free] for n in names]).reshape(len(names), len(free))
+        select_u = np.array([[1.0 if i == k else 0.0 for k in k_in] for i in range(len(inputs))])
+        aug, seed = _called_sensitivity_step(model, observed, controller, plant_input, select_p, select_u, p_full,
+                                             s, w, theta, pfix, substeps, ts, initial_sensitivity)
     pair = None
     if native or (native is None and native_chain.available()):
         try:
@@ -324,22 +339,97 @@ def _check_controller_shape(controller: Controller, n_axes: int) -> None:
 
 
 def _sensitivity_step(s: ca.SX, w: ca.SX, theta: ca.SX, pfix: ca.SX, s_next: ca.SX,
-                      out_k: ca.SX) -> tuple[ca.Function, np.ndarray]:
+                      out_k: ca.SX, initial: bool = True) -> tuple[ca.Function, np.ndarray]:
     """The step augmented with forward sensitivities w.r.t. [theta; s0], propagated sample by sample with
     the step's AD Jacobians (S+ = ds+/ds S + [ds+/dtheta, 0]), and the initial seed vec([0, I]): one pass
-    over the recording gives the whole residual Jacobian, at a cost of about (1 + n_theta + n_s) free runs."""
+    over the recording gives the whole residual Jacobian, at a cost of about (1 + n_theta + n_s) free runs.
+    Without ``initial`` only the theta columns are propagated (seed 0) and the d/ds0 outputs are omitted."""
     ns, nth = s.numel(), theta.numel()
-    sens = ca.SX.sym("S", ns, nth + ns)
-    pad = ca.SX.zeros(ns, ns)
+    n0 = ns if initial else 0
+    sens = ca.SX.sym("S", ns, nth + n0)
+    pad = ca.SX.zeros(ns, n0)
     s_sens = ca.jacobian(s_next, s) @ sens + ca.horzcat(ca.jacobian(s_next, theta), pad)
     n_out = out_k.numel() // 2      # q then u, one entry per axis
-    o_sens = ca.jacobian(out_k, s) @ sens + ca.horzcat(ca.jacobian(out_k, theta), ca.SX.zeros(2 * n_out, ns))
+    o_sens = ca.jacobian(out_k, s) @ sens + ca.horzcat(ca.jacobian(out_k, theta), ca.SX.zeros(2 * n_out, n0))
     # per sample and channel: axis 0's row, then axis 1's, ... (see _channel_major)
-    outs = [ca.vertcat(s_next, ca.vec(s_sens)), ca.vec(o_sens[:n_out, :nth].T), ca.vec(o_sens[n_out:, :nth].T),
-            ca.vec(o_sens[:n_out, nth:].T), ca.vec(o_sens[n_out:, nth:].T)]
+    outs = [ca.vertcat(s_next, ca.vec(s_sens)), ca.vec(o_sens[:n_out, :nth].T), ca.vec(o_sens[n_out:, :nth].T)]
+    if initial:
+        outs += [ca.vec(o_sens[:n_out, nth:].T), ca.vec(o_sens[n_out:, nth:].T)]
     aug = ca.Function("sstep", [ca.vertcat(s, ca.vec(sens)), w, theta, pfix], [ca.densify(o) for o in outs])
-    seed = np.hstack([np.zeros((ns, nth)), np.eye(ns)]).ravel(order="F")
+    seed = np.hstack([np.zeros((ns, nth)), np.eye(ns)[:, :n0]]).ravel(order="F")
     return aug, seed
+
+
+def _called_sensitivity_step(model: symbolic.SymbolicModel, observed: list[str], controller: Controller | None,
+                             plant_input: Callable, select_p: np.ndarray, select_u: np.ndarray, p_full: ca.MX,
+                             s: ca.MX, w: ca.MX, theta: ca.MX, pfix: ca.MX, substeps: int, ts: float,
+                             initial: bool) -> tuple[ca.Function, np.ndarray]:
+    """:func:`_sensitivity_step` for a large plant (MX graph): the variational equations of the same RK4
+    step written out, with the plant's Jacobians [df/dx, df/du, df/dp] and [dh/dx, dh/du, dh/dp] as one
+    called function each, so that the generated code holds each Jacobian once instead of one forward
+    derivative per sensitivity direction inlined in every stage."""
+    nx, ns, nth = model.x.numel(), s.numel(), theta.numel()
+    nz, n_ax = ns - nx, len(observed)
+    n0 = ns if initial else 0
+    na = nth + n0
+    dx_expr = model.dx
+    q_expr = ca.vertcat(*[_output_expression(model, name) for name in observed])
+    f_jac = ca.Function("f_jac", [model.x, model.u, model.p],
+                        [dx_expr] + [ca.jacobian(dx_expr, v) for v in (model.x, model.u, model.p)])
+    h_jac = ca.Function("h_jac", [model.x, model.u, model.p],
+                        [q_expr] + [ca.jacobian(q_expr, v) for v in (model.x, model.u, model.p)])
+    s_aug = ca.MX.sym("s_aug", ns * (1 + na))
+    x, z = s_aug[:nx], s_aug[nx:ns]
+    sens = ca.reshape(s_aug[ns:], ns, na)
+    sx, sz = sens[:nx, :], sens[nx:, :]
+    dp = ca.horzcat(ca.DM(select_p), ca.DM.zeros(select_p.shape[0], n0))      # d p / d [theta, s0]
+    p_val = p_full       # an expression of theta and pfix, inputs of the augmented step too
+    su = ca.DM(select_u)
+    if controller is None:
+        u, du = w[n_ax:2 * n_ax], ca.MX.zeros(n_ax, na)
+        q, hx, hu, hp = h_jac(x, plant_input(u), p_val)
+        dq = hx @ sx + hp @ dp
+        z_next, dz = z, sz
+    else:
+        q, hx, hu, hp = h_jac(x, plant_input(ca.MX.zeros(n_ax)), p_val)
+        dq = hx @ sx + hp @ dp
+        y = ca.vertcat(w[:n_ax], q + w[2 * n_ax:])
+        A, B, C, D = (ca.DM(m) for m in (controller.A, controller.B, controller.C, controller.D))
+        u = (C @ z if nz else 0) + D @ y + w[n_ax:2 * n_ax]
+        du = (C @ sz if nz else 0) + D[:, n_ax:] @ dq
+        z_next = A @ z + B @ y if nz else z
+        dz = A @ sz + B[:, n_ax:] @ dq if nz else sz
+    uvec = plant_input(u)
+    duvec = su @ du
+    h = ts / substeps
+    xk, sk = x, sx
+
+    def stage(xs: ca.MX, dxs: ca.MX) -> tuple[ca.MX, ca.MX]:
+        k, fx, fu, fp = f_jac(xs, uvec, p_val)
+        return k, fx @ dxs + fu @ duvec + fp @ dp
+
+    for _ in range(substeps):
+        k1, d1 = stage(xk, sk)
+        k2, d2 = stage(xk + h / 2 * k1, sk + h / 2 * d1)
+        k3, d3 = stage(xk + h / 2 * k2, sk + h / 2 * d2)
+        k4, d4 = stage(xk + h * k3, sk + h * d3)
+        xk = xk + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+        sk = sk + h / 6 * (d1 + 2 * d2 + 2 * d3 + d4)
+    s_sens = ca.vertcat(sk, dz)
+    outs = [ca.vertcat(xk, z_next, ca.vec(s_sens)), ca.vec(dq[:, :nth].T), ca.vec(du[:, :nth].T)]
+    if initial:
+        outs += [ca.vec(dq[:, nth:].T), ca.vec(du[:, nth:].T)]
+    aug = ca.Function("sstep", [s_aug, w, theta, pfix], [ca.densify(o) for o in outs])
+    seed = np.hstack([np.zeros((ns, nth)), np.eye(ns)[:, :n0]]).ravel(order="F")
+    return aug, seed
+
+
+def _with_initial_blocks(blocks: list) -> tuple:
+    """(dq, du, dq0, du0): empty d/ds0 blocks when the loop was compiled without them."""
+    if len(blocks) == 4:
+        return tuple(blocks)
+    dq, du = (np.asarray(b) for b in blocks)
+    return dq, du, np.zeros((dq.shape[0], 0)), np.zeros((du.shape[0], 0))
 
 
 def _native_pair(step: ca.Function, aug: ca.Function | None, seed: np.ndarray | None,
@@ -352,8 +442,7 @@ def _native_pair(step: ca.Function, aug: ca.Function | None, seed: np.ndarray | 
         return q.T, u.T
 
     def jac(s0, W, th, pf) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        dq, du, dq0, du0 = chains[1](np.concatenate([np.asarray(s0, float).ravel(), seed]), W, th, pf)
-        return dq, du, dq0, du0
+        return _with_initial_blocks(chains[1](np.concatenate([np.asarray(s0, float).ravel(), seed]), W, th, pf))
 
     return sim, (jac if aug is not None else None)
 
@@ -373,8 +462,9 @@ def _casadi_pair(step: ca.Function, aug: ca.Function | None, seed: np.ndarray | 
         return sim, None
     if opts:
         aug = ca.Function("sstep", aug.sx_in(), aug.call(aug.sx_in()), opts)
-    _, dq, du, dq0, du0 = _chain(aug, n_samples, ca.vertcat(s0, ca.DM(seed)), W, th, pf)
-    return sim, ca.Function("simjac", [s0, W, th, pf], [dq.T, du.T, dq0.T, du0.T])
+    blocks = _chain(aug, n_samples, ca.vertcat(s0, ca.DM(seed)), W, th, pf)[1:]
+    simjac = ca.Function("simjac", [s0, W, th, pf], [b.T for b in blocks])
+    return sim, lambda *args: _with_initial_blocks([np.array(b) for b in simjac(*args)])
 
 
 def _chain(step: ca.Function, n_samples: int, s0: ca.MX, W: ca.MX, th: ca.MX, pf: ca.MX) -> list[ca.MX]:
@@ -527,6 +617,8 @@ def _channel_major(sens: np.ndarray, n_axes: int) -> np.ndarray:
     if n_axes == 1:
         return sens
     n = sens.shape[0]
+    if sens.shape[1] == 0:
+        return np.zeros((n_axes * n, 0))
     return sens.reshape(n, n_axes, -1).transpose(1, 0, 2).reshape(n_axes * n, -1)
 
 

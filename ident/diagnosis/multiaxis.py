@@ -330,7 +330,7 @@ def build(bundle: Bundle, effects: list[tuple[str, effect_models.Effect]], value
         cache.loops[key] = outputerror.build_loop(model, bundle.controller, bundle.plant.axes[0].output, free,
                                                   all_values, n_samples, substeps=substeps,
                                                   tracking=_tracking(bundle, effects), with_jacobian=with_jacobian,
-                                                  axes=axes_signals(bundle.plant))
+                                                  axes=axes_signals(bundle.plant), initial_sensitivity=False)
     return cache.loops[key].with_values(all_values), bounds
 
 
