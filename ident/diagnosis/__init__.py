@@ -25,10 +25,13 @@ def run(bundle: str, out: str, quiet: bool = False) -> int:
     except DivergenceError as exc:
         print(f"motiontwin diagnose: {exc}", file=sys.stderr)
         return 2
-    names = ", ".join(e["name"] for e in doc["effects"]) or "none (only parameters were off)"
+    names = ", ".join(e["name"] + (f" on {e['axis']}" if "axis" in e else "") for e in doc["effects"]) \
+        or "none (only parameters were off)"
     val = doc["validation"]
-    print(f"effects: {names}; validation RMS {_metres(val['nominal_rms'])} -> {_metres(val['augmented_rms'])}; "
-          f"report: {out}/report.md")
+    per_axis = "".join(f"; {axis} {_metres(v['nominal_rms'])} -> {_metres(v['augmented_rms'])}"
+                       for axis, v in val.get("per_axis", {}).items())
+    print(f"effects: {names}; validation RMS {_metres(val['nominal_rms'])} -> {_metres(val['augmented_rms'])}"
+          f"{per_axis}; report: {out}/report.md")
     return 0
 
 

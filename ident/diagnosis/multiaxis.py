@@ -47,6 +47,9 @@ from motiontwin.ident.diagnosis.plant_roles import PlantRoles, output_map
 
 AUGMENTED_CLASS = pipeline.AUGMENTED_CLASS
 LOCATE_REPLICATES = 2       # noise re-simulations for each axis's reference force-residual level
+#: after an accepted effect, another round runs only when some axis's force residual still exceeds its noise
+#: reference by this factor (the first round always screens, so a parameters-only bundle meets the null test)
+NEXT_ROUND_SCORE = 1.5
 #: effects that replace the applied input (an input delay) are not offered per axis yet
 PER_AXIS_EXCLUDED = ("time_delay",)
 
@@ -402,6 +405,17 @@ def fit_candidate(bundle: Bundle, current: Structure, effect: effect_models.Effe
                      evidence=dict(current.evidence))
 
 
+def placed_structure(bundle: Bundle, current: Structure, name: str, axis: str, ctx: effect_models.Context,
+                     fit: outputerror.Fit, substeps: int, folder: Path) -> Structure:
+    """The structure of a screened candidate (its loop rebuilt here: the compiled library is on disk)."""
+    roles = next(a for a in bundle.plant.axes if a.output == axis)
+    placed = on_axis(effect_models.VOCABULARY[name](ctx), roles)
+    loop, bounds = build(bundle, current.placed + [(axis, placed)], fit.values, folder, bundle.train.time.size,
+                         min_substeps=substeps)
+    return Structure(current.effects + [placed], current.axes + [axis], loop.with_values(fit.values), fit, bounds,
+                     evidence=dict(current.evidence))
+
+
 def _bootstrap(bundle: Bundle, current: Structure, weights: outputerror.Weights, seed: int) -> np.ndarray:
     noisy = lambda n: outputerror.simulate(current.loop, bundle.train, current.fit.values, noise=n)  # noqa: E731
     return evidence.bootstrap_residuals(noisy, current.fit.q_sim, current.fit.u_sim, weights.sigma_q,
@@ -429,21 +443,23 @@ def select(bundle: Bundle, nominal: Structure, weights: outputerror.Weights, wor
         located.append({"round": rounds, "scores": {e.axis: e.score for e in ranking}})
         target = ranking[0]
         axis, ctx = target.axis, target.context
-        pipeline._log(progress, f"round {rounds}: force residual / noise reference per axis: "
-                                + ", ".join(f"{e.axis} {e.score:.3g}" for e in ranking) + f"; screening {axis}")
+        scores = ", ".join(f"{e.axis} {e.score:.3g}" for e in ranking)
+        if rounds > 1 and target.score < NEXT_ROUND_SCORE:
+            pipeline._log(progress, f"round {rounds}: force residual / noise reference per axis: {scores}; "
+                                    f"none above {NEXT_ROUND_SCORE}, done")
+            break
+        pipeline._log(progress, f"round {rounds}: force residual / noise reference per axis: {scores}; "
+                                f"screening {axis}")
         null = _bootstrap(bundle, current, weights, rounds)
         base_gain = evidence.projected_gain(current.fit.jacobian, null)
-        screened: dict[str, Structure] = {}
-        for name in candidates(ctx, used[axis]):
-            t0 = time.perf_counter()
-            try:
-                screened[name] = fit_candidate(bundle, current, effect_models.VOCABULARY[name](ctx), axis, ctx,
-                                               weights, work / f"r{rounds}_{name}", pipeline.SCREEN_NFEV)
-            except (RuntimeError, ValueError, np.linalg.LinAlgError) as exc:
-                pipeline._log(progress, f"  {name} on {axis}: fit failed ({exc})")
-                continue
-            pipeline._log(progress, f"  screen {name} on {axis}: cost -{current.fit.cost - screened[name].fit.cost:.4g}"
-                                    f" ({time.perf_counter() - t0:.1f} s)")
+        def fit_one(name: str, c: Structure = current, a: str = axis, x: effect_models.Context = ctx,
+                    r: int = rounds) -> Structure:
+            return fit_candidate(bundle, c, effect_models.VOCABULARY[name](x), a, x, weights, work / f"r{r}_{name}",
+                                 pipeline.SCREEN_NFEV)
+
+        fits = pipeline.screen(bundle, current, candidates(ctx, used[axis]), ctx, weights, work, progress, fit_one)
+        screened = {name: placed_structure(bundle, current, name, axis, ctx, fit, substeps, work / f"r{rounds}_{name}")
+                    for name, (fit, substeps) in fits.items()}
         order = sorted(screened, key=lambda n: screened[n].fit.cost)
         ranked = order[:pipeline.FULL_FITS]
         for name in list(ranked):

@@ -355,18 +355,17 @@ def select(bundle: Bundle, nominal: ModelFit, weights: outputerror.Weights, ctx:
 #: one diagnosis at a time per process: CasADi's symbolic layer is not thread-safe (see :func:`diagnose`)
 _CASADI_LOCK = threading.Lock()
 
-#: screening jobs by token, (bundle, current, ctx, weights, folder): forked workers inherit the table and are
-#: sent only (token, name); every call adds its own token and removes it, so concurrent diagnoses do not collide
+#: screening jobs by token (the function fitting one candidate by name): forked workers inherit the table and
+#: are sent only (token, name); every call adds its own token and removes it, so concurrent diagnoses do not collide
 _SCREEN_JOBS: dict[int, tuple] = {}
 
 
 def _screen_one(token: int, name: str) -> tuple[str, outputerror.Fit | None, int, float, str]:
     """Cheap fit of the current structure plus the effect ``name`` (run in a worker or in-process)."""
-    bundle, current, ctx, weights, folder = _SCREEN_JOBS[token]
+    fit_one = _SCREEN_JOBS[token]
     t0 = time.perf_counter()
     try:
-        trial = fit_structure(bundle, current, effect_models.VOCABULARY[name](ctx), ctx, weights, folder / name,
-                              SCREEN_NFEV)
+        trial = fit_one(name)
     except (RuntimeError, ValueError, np.linalg.LinAlgError) as exc:
         return name, None, 0, time.perf_counter() - t0, str(exc)
     return name, trial.fit, trial.loop.substeps, time.perf_counter() - t0, ""
@@ -384,11 +383,18 @@ def screen_workers() -> int:
 
 
 def screen(bundle: Bundle, current: ModelFit, names: list[str], ctx: effect_models.Context,
-           weights: outputerror.Weights, folder: Path, progress=None) -> dict[str, tuple[outputerror.Fit, int]]:
+           weights: outputerror.Weights, folder: Path, progress=None,
+           fit_one: Callable[[str], ModelFit] | None = None) -> dict[str, tuple[outputerror.Fit, int]]:
     """Screen every candidate effect with a few Gauss-Newton steps, in parallel processes (forked, so
-    they share the bundle and the current fit): name -> (fit, RK4 substeps of its loop)."""
+    they share the bundle and the current fit): name -> (fit, RK4 substeps of its loop). ``fit_one``: the
+    cheap fit of one candidate by name (default: :func:`fit_structure` with ``SCREEN_NFEV``; the multi-axis
+    diagnosis places the effect on its located axis)."""
+    if fit_one is None:
+        def fit_one(name: str) -> ModelFit:
+            return fit_structure(bundle, current, effect_models.VOCABULARY[name](ctx), ctx, weights, folder / name,
+                                 SCREEN_NFEV)
     token = next(_TOKENS)
-    _SCREEN_JOBS[token] = (bundle, current, ctx, weights, folder)
+    _SCREEN_JOBS[token] = fit_one
     workers = min(screen_workers(), len(names))
     try:
         if workers > 1:
