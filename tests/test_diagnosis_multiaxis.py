@@ -113,20 +113,24 @@ def _pid(mass: float) -> Controller:
     return read_controller(truth.pid_document(TS, mass, 60.0), "pid")
 
 
-def test_mimo_jacobian_matches_finite_differences(tmp_path):
-    """The chained AD sensitivities of a two-axis loop (channel-major rows) against central differences."""
+def _coupled_case(tmp_path: Path, n: int, disturbance: float) -> tuple:
+    """The coupled plant, its block-diagonal PID, the axes' columns and a recording of sine references."""
     (tmp_path / "plant.mo").write_text(PLANT)
     model = symbolic.build(frontend.load(tmp_path / "plant.mo", "Coupled2"))
-    ctrl = block_diagonal([_pid(2.0), _pid(3.0)])
-    n = 300
     signals = [outputerror.axis_signals("u1", "q1"), outputerror.axis_signals("u2", "q2")]
     t = np.arange(n) * TS
     cols = {}
     for k, s in enumerate(signals):
         cols.update({s.reference: 0.01 * (k + 1) + 1e-3 * np.sin(2 * np.pi * (k + 2) * t), s.input: np.zeros(n),
-                     s.output: np.full(n, 0.01 * (k + 1))})
-    rec = make_recording(t, cols)
+                     s.output: np.full(n, 0.01 * (k + 1)), s.disturbance: disturbance * np.sin(2 * np.pi * 40 * t)})
     values = {v.name: float(v.start) for v in model.parameters}
+    return model, block_diagonal([_pid(2.0), _pid(3.0)]), signals, make_recording(t, cols), values
+
+
+def test_mimo_jacobian_matches_finite_differences(tmp_path):
+    """The chained AD sensitivities of a two-axis loop (channel-major rows) against central differences."""
+    n = 300
+    model, ctrl, signals, rec, values = _coupled_case(tmp_path, n, 0.0)
     free = ["m1", "kc"]
     loop = outputerror.build_loop(model, ctrl, "q1", free, values, n, substeps=4, axes=signals)
     weights = outputerror.Weights(np.array([1e-6, 2e-6]), np.array([0.1, 0.3]))
@@ -145,18 +149,8 @@ def test_mimo_jacobian_matches_finite_differences(tmp_path):
 def test_called_rhs_loop_equals_inlined_loop(tmp_path, monkeypatch):
     """The large-plant form of the loop (right-hand side and its Jacobians called in an MX graph, variational
     RK4 written out) against the inlined SX loop with CasADi's own AD: same free run and same Jacobian."""
-    (tmp_path / "plant.mo").write_text(PLANT)
-    model = symbolic.build(frontend.load(tmp_path / "plant.mo", "Coupled2"))
-    ctrl = block_diagonal([_pid(2.0), _pid(3.0)])
     n = 400
-    signals = [outputerror.axis_signals("u1", "q1"), outputerror.axis_signals("u2", "q2")]
-    t = np.arange(n) * TS
-    cols = {}
-    for k, s in enumerate(signals):
-        cols.update({s.reference: 0.01 * (k + 1) + 1e-3 * np.sin(2 * np.pi * (k + 2) * t), s.input: np.zeros(n),
-                     s.output: np.full(n, 0.01 * (k + 1)), s.disturbance: 0.2 * np.sin(2 * np.pi * 40 * t)})
-    rec = make_recording(t, cols)
-    values = {v.name: float(v.start) for v in model.parameters}
+    model, ctrl, signals, rec, values = _coupled_case(tmp_path, n, 0.2)
     tracking = {"v2": "dq:q2"}
     loops = []
     for limit in (10 ** 9, 0):          # inlined SX, then called MX
@@ -273,3 +267,23 @@ def test_effect_on_axis_renames_parameters_and_states():
     assert placed.contract({"q3_coulomb_Fc": 0.7}, ctx) == {"Fc": 0.7}
     delay = multiaxis.on_axis(effect_models.VOCABULARY["resonance"](ctx), roles)
     assert "der(q3_resonance_x2) = q3_resonance_v2" in delay.equations
+
+
+def test_in_memory_multi_axis_bundle_equals_folder(small_bundle):
+    """make_bundle(axes=...) (the Python diagnose) reads the same plant axes, controller and recordings."""
+    from motiontwin.harness.recording import read_recording
+    from motiontwin.ident.diagnosis import make_bundle
+
+    folder = read_bundle(small_bundle)
+    doc = json.loads((small_bundle / "experiment.json").read_text())
+    memory = make_bundle(PLANT, doc["controller"], read_recording(small_bundle / "train.csv"),
+                         read_recording(small_bundle / "validation.csv"), "Coupled2", START, axes=AXES)
+    assert memory.multi_axis and [a.as_dict() for a in memory.plant.axes] == [a.as_dict() for a in folder.plant.axes]
+    for name in "ABCD":
+        np.testing.assert_array_equal(getattr(memory.controller, name), getattr(folder.controller, name))
+    np.testing.assert_array_equal(memory.train["u_ext_u2"], np.zeros(memory.train.time.size))
+    with pytest.raises(BundleError, match="required column 'q2' missing"):
+        rec = read_recording(small_bundle / "train.csv")
+        del rec.columns["q2"]
+        make_bundle(PLANT, doc["controller"], rec, read_recording(small_bundle / "validation.csv"), "Coupled2",
+                    axes=AXES)

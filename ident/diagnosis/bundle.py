@@ -135,6 +135,18 @@ def read_plant(doc: dict, bundle_dir: Path, where: str) -> PlantInfo:
                       doc.get("position"), doc.get("velocity"))
 
 
+def library_source(class_name: str, where: str, example: str) -> tuple[Path, str]:
+    """The file of a MotionTwin library class and its source without the ``within`` clause."""
+    from motiontwin.fmus.build import MODELICA_DIR
+
+    path = MODELICA_DIR.joinpath(*class_name.split(".")).with_suffix(".mo")
+    if not class_name.startswith("MotionTwin.") or not path.is_file():
+        raise BundleError(f"{where}: field 'class' names {class_name!r}, which is not a class of the MotionTwin "
+                          f"library (without field 'modelica', 'class' must be one, e.g. {example})")
+    lines = path.read_text(encoding="utf-8").splitlines()
+    return path, "\n".join(line for line in lines if not line.lstrip().startswith("within ")) + "\n"
+
+
 def library_plant(class_name: str, input_name: str = "u", output_name: str = "q", parameters: Any = None,
                   where: str = "plant", position: str | None = None, velocity: str | None = None) -> PlantInfo:
     """A plant class of the MotionTwin library by its full name (e.g. ``MotionTwin.Plants.LinearMotorJoint``).
@@ -142,15 +154,7 @@ def library_plant(class_name: str, input_name: str = "u", output_name: str = "q"
     self-contained: a class that uses other library classes is refused with a message saying so."""
     import tempfile
 
-    from motiontwin.fmus.build import MODELICA_DIR
-
-    path = MODELICA_DIR.joinpath(*class_name.split(".")).with_suffix(".mo")
-    if not class_name.startswith("MotionTwin.") or not path.is_file():
-        raise BundleError(f"{where}: field 'class' names {class_name!r}, which is not a class of the MotionTwin "
-                          f"library (without field 'modelica', 'class' must be one, e.g. "
-                          f"MotionTwin.Plants.LinearMotorJoint)")
-    lines = path.read_text(encoding="utf-8").splitlines()
-    text = "\n".join(line for line in lines if not line.lstrip().startswith("within ")) + "\n"
+    path, text = library_source(class_name, where, "MotionTwin.Plants.LinearMotorJoint")
     if "MotionTwin." in text:
         raise BundleError(f"{where}: library class {class_name} uses other library classes; give it as a flat "
                           f"Modelica file (field 'modelica')")
@@ -223,13 +227,7 @@ def read_axes_plant(doc: dict, bundle_dir: Path, where: str) -> PlantInfo:
             raise BundleError(f"{where}: field 'modelica' names {file_name!r}, but {path} does not exist")
         text = path.read_text(encoding="utf-8")
     else:
-        path = MODELICA_DIR.joinpath(*class_name.split(".")).with_suffix(".mo")
-        if not class_name.startswith("MotionTwin.") or not path.is_file():
-            raise BundleError(f"{where}: field 'class' names {class_name!r}, which is not a class of the MotionTwin "
-                              f"library (without field 'modelica', 'class' must be one, e.g. "
-                              f"MotionTwin.Plants.CheungManipulator)")
-        lines = path.read_text(encoding="utf-8").splitlines()
-        text = "\n".join(line for line in lines if not line.lstrip().startswith("within ")) + "\n"
+        path, text = library_source(class_name, where, "MotionTwin.Plants.CheungManipulator")
         class_name = class_name.rsplit(".", 1)[-1]
     try:
         if "modelica" in doc:
@@ -400,9 +398,17 @@ def read_bundle(bundle_dir: str | Path) -> Bundle:
 IN_MEMORY = Path("(in memory)")
 
 
+def _is_file(text: str) -> bool:
+    """True when ``text`` names an existing file (a Modelica source longer than a file name is not one)."""
+    try:
+        return Path(text).is_file()
+    except OSError:
+        return False
+
+
 def make_bundle(plant: str | Path, controller: Controller | dict, train: Recording, validation: Recording,
                 plant_class: str | None = None, parameters: dict[str, float] | None = None,
-                input_name: str = "u", output_name: str = "q") -> Bundle:
+                input_name: str = "u", output_name: str = "q", axes: list[dict] | None = None) -> Bundle:
     """A bundle from in-memory objects, checked as :func:`read_bundle` checks a folder.
 
     Parameters
@@ -413,6 +419,9 @@ def make_bundle(plant: str | Path, controller: Controller | dict, train: Recordi
     plant_class : the plant class (default: the first ``model`` of the text/file).
     parameters : start values of plant parameters (as ``plant.parameters`` of experiment.json).
     input_name, output_name : the plant's force input and position output.
+    axes : a multi-axis plant, ``[{"input": "u1", "output": "q1"}, ...]`` as ``plant.axes`` of experiment.json
+        (then the controller is a per_axis or multivariable object, or a :class:`Controller` mapping
+        [r_1..r_n, q_1..q_n] to [u_1..u_n], and the recordings have the per-axis columns).
 
     Returns
     -------
@@ -422,10 +431,8 @@ def make_bundle(plant: str | Path, controller: Controller | dict, train: Recordi
     import re
     import tempfile
 
-    if not isinstance(controller, Controller):
-        controller = read_controller(dict(controller), "controller")
     text = str(plant)
-    is_text = isinstance(plant, str) and ("\n" in text or ";" in text) and not Path(text).is_file()
+    is_text = isinstance(plant, str) and ("\n" in text or ";" in text) and not _is_file(text)
     if not is_text and not Path(plant).is_file():
         raise BundleError(f"plant: {plant!r} is neither a Modelica file nor Modelica source text")
     source = text if is_text else Path(plant).read_text(encoding="utf-8")
@@ -438,7 +445,15 @@ def make_bundle(plant: str | Path, controller: Controller | dict, train: Recordi
         path = Path(tmp) / "plant.mo" if is_text else Path(plant)
         if is_text:
             path.write_text(source, encoding="utf-8")
-        info = load_plant(path, plant_class, input_name, output_name, parameters, "plant")
-    checked = [check_recording(rec, name, controller.Ts) for rec, name in ((train, "train"), (validation, "validation"))]
+        if axes:
+            info = read_axes_plant({"modelica": str(path), "class": plant_class, "axes": list(axes),
+                                    "parameters": parameters or {}}, path.parent, "plant")
+        else:
+            info = load_plant(path, plant_class, input_name, output_name, parameters, "plant")
+    if not isinstance(controller, Controller):
+        controller = (read_axes_controller(dict(controller), "controller", info.axes) if axes
+                      else read_controller(dict(controller), "controller"))
+    checked = [check_recording(rec, name, controller.Ts, info.axes)
+               for rec, name in ((train, "train"), (validation, "validation"))]
     experiment = {"recordings": {"train": "train", "validation": "validation"}}
     return Bundle(IN_MEMORY, experiment, info, controller, *checked)

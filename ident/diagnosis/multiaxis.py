@@ -308,8 +308,8 @@ def _models(bundle: Bundle) -> dict:
 
 
 def build(bundle: Bundle, effects: list[tuple[str, effect_models.Effect]], values: dict[str, float], folder: Path,
-          n_samples: int, with_jacobian: bool = True, min_substeps: int = 1,
-          free: list[str] | None = None) -> tuple[outputerror.Loop, dict[str, tuple[float, float]]]:
+          n_samples: int, with_jacobian: bool = True,
+          min_substeps: int = 1) -> tuple[outputerror.Loop, dict[str, tuple[float, float]]]:
     """Write, load and compile the multi-axis loop of the nominal plant + ``effects`` (cached by structure)."""
     cache = _models(bundle)
     names = tuple(f"{e.name}@{axis}" for axis, e in effects)
@@ -317,16 +317,8 @@ def build(bundle: Bundle, effects: list[tuple[str, effect_models.Effect]], value
     if model is None:
         write_structure(bundle.plant, effects, values, folder)
         model = cache.models[names] = load_structure(folder)
-    nominal, bounds = bundle.nominal_free
-    free = list(nominal) if free is None else list(free)
-    bounds = dict(bounds)
-    for _, effect in effects:
-        for p in effect.params:
-            if p.fitted:
-                free.append(p.name)
-                bounds[p.name] = p.bounds
-    all_values = {v.name: float(v.start) for v in model.parameters}
-    all_values.update({k: v for k, v in values.items() if k in all_values})
+    free, bounds, all_values = pipeline.structure_parameters(model, [e for _, e in effects], *bundle.nominal_free,
+                                                             values)
     substeps = max(min_substeps, outputerror.stable_substeps(model, all_values, bundle.controller.Ts))
     key = ("axes",) + (names, n_samples, substeps, with_jacobian)
     if key not in cache.loops:

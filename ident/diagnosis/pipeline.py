@@ -191,6 +191,22 @@ def write_structure(bundle: Bundle, effects: list[effect_models.Effect], values:
                           AUGMENTED_CLASS, bundle.plant.roles)
 
 
+def structure_parameters(model, effects: list[effect_models.Effect], free: list[str],
+                         bounds: dict[str, tuple[float, float]], values: dict[str, float]
+                         ) -> tuple[list[str], dict[str, tuple[float, float]], dict[str, float]]:
+    """Free parameters and bounds of a structure (the nominal ones, then each effect's fitted ones) and the
+    values of every parameter of its ``model`` (``values`` over the Modelica start values)."""
+    free, bounds = list(free), dict(bounds)
+    for effect in effects:
+        for p in effect.params:
+            if p.fitted:
+                free.append(p.name)
+                bounds[p.name] = p.bounds
+    all_values = {v.name: float(v.start) for v in model.parameters}
+    all_values.update({k: v for k, v in values.items() if k in all_values})
+    return free, bounds, all_values
+
+
 def build_structure(bundle: Bundle, effects: list[effect_models.Effect], values: dict[str, float], folder: Path,
                     n_samples: int, with_jacobian: bool = True, min_substeps: int = 1,
                     substeps: int | None = None) -> tuple[outputerror.Loop, dict[str, tuple[float, float]]]:
@@ -204,14 +220,7 @@ def build_structure(bundle: Bundle, effects: list[effect_models.Effect], values:
     if model is None:
         write_structure(bundle, effects, values, folder)
         model = cache.models[names] = effect_models.load_augmented(folder, AUGMENTED_CLASS)
-    free, bounds = _nominal_bounds(bundle, "plant.")
-    for effect in effects:
-        for p in effect.params:
-            if p.fitted:
-                free.append(p.name)
-                bounds[p.name] = p.bounds
-    all_values = {v.name: float(v.start) for v in model.parameters}
-    all_values.update({k: v for k, v in values.items() if k in all_values})
+    free, bounds, all_values = structure_parameters(model, effects, *_nominal_bounds(bundle, "plant."), values)
     tracking = {s: "q" for e in effects for s in e.tracks_position} | _moving_start(bundle, "plant.")
     tracking.update({s: "u" for e in effects for s in e.tracks_force})
     substeps = substeps or max(min_substeps, outputerror.stable_substeps(model, all_values, bundle.controller.Ts))
@@ -613,7 +622,7 @@ class Diagnosis:
 
 def diagnose(plant: str | Path, controller: Controller | dict, train: Recording, validation: Recording, *,
              plant_class: str | None = None, parameters: dict[str, float] | None = None,
-             progress: Callable[[str], None] | None = None) -> Diagnosis:
+             progress: Callable[[str], None] | None = None, axes: list[dict] | None = None) -> Diagnosis:
     """Diagnose the mismatch between a nominal plant and two closed-loop recordings (in memory).
 
     Parameters
@@ -624,6 +633,8 @@ def diagnose(plant: str | Path, controller: Controller | dict, train: Recording,
     plant_class : the plant class (default: the first ``model`` in the source).
     parameters : start values of plant parameters (default: Modelica values and inverse dynamics).
     progress : called with one line per step.
+    axes : a multi-axis plant (``[{"input": "u1", "output": "q1"}, ...]``, see :func:`bundle.make_bundle`);
+        the result then names each effect's axis and the validation RMS per axis.
 
     Returns
     -------
@@ -635,7 +646,7 @@ def diagnose(plant: str | Path, controller: Controller | dict, train: Recording,
     symbolic layer shares reference-counted constants between expressions and is not thread-safe (parallel
     diagnoses belong in separate processes).
     """
-    bundle = make_bundle(plant, controller, train, validation, plant_class, parameters)
+    bundle = make_bundle(plant, controller, train, validation, plant_class, parameters, axes=axes)
     return diagnose_bundle_object(bundle, progress)
 
 
