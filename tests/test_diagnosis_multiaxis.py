@@ -22,30 +22,8 @@ from motiontwin.ident.diagnosis import multiaxis_truth as truth
 from motiontwin.ident.diagnosis.bundle import BundleError
 
 TS = 5e-4
-PLANT = '''model Coupled2 "Two carriages with inertial and elastic coupling"
-  parameter Real m1(unit = "kg", min = 1e-6) = 2.0 "Mass of carriage 1";
-  parameter Real m2(unit = "kg", min = 1e-6) = 3.0 "Mass of carriage 2";
-  parameter Real mc(unit = "kg", min = 0) = 0.6 "Inertial coupling";
-  parameter Real d(unit = "N.s/m", min = 0) = 10 "Viscous damping of each carriage";
-  parameter Real kc(unit = "N/m", min = 0) = 2000 "Coupling spring";
-  input Real u1(unit = "N");
-  input Real u2(unit = "N");
-  output Real q1(unit = "m");
-  output Real q2(unit = "m");
-  Real x1(unit = "m", start = 0.01, fixed = true);
-  Real x2(unit = "m", start = 0.02, fixed = true);
-  Real v1(unit = "m/s", start = 0, fixed = true);
-  Real v2(unit = "m/s", start = 0, fixed = true);
-equation
-  der(x1) = v1;
-  der(x2) = v2;
-  m1*der(v1) + mc*der(v2) = u1 - d*v1 - kc*(x1 - x2);
-  mc*der(v1) + m2*der(v2) = u2 - d*v2 - kc*(x2 - x1);
-  q1 = x1;
-  q2 = x2;
-end Coupled2;
-'''
-AXES = [{"input": "u1", "output": "q1"}, {"input": "u2", "output": "q2"}]
+PLANT = truth.COUPLED2_TEXT
+AXES = truth.COUPLED2_AXES
 CONTROLLER = {"kind": "per_axis", "axes": [truth.pid_document(TS, 2.0, 60.0), truth.pid_document(TS, 3.0, 60.0)]}
 START = {"m1": 2.3, "d": 8.0}          # the nominal model is off: the refit must move these, not name an effect
 FC_TRUE = 0.3

@@ -22,6 +22,32 @@ from motiontwin.ident.diagnosis import effects as effect_models
 from motiontwin.ident.diagnosis import multiaxis
 from motiontwin.ident.diagnosis.bundle import read_axes_controller, read_axes_plant
 
+#: a small coupled plant for tests and examples: two carriages with inertial (mc) and elastic (kc) coupling
+COUPLED2_TEXT = '''model Coupled2 "Two carriages with inertial and elastic coupling"
+  parameter Real m1(unit = "kg", min = 1e-6) = 2.0 "Mass of carriage 1";
+  parameter Real m2(unit = "kg", min = 1e-6) = 3.0 "Mass of carriage 2";
+  parameter Real mc(unit = "kg", min = 0) = 0.6 "Inertial coupling";
+  parameter Real d(unit = "N.s/m", min = 0) = 10 "Viscous damping of each carriage";
+  parameter Real kc(unit = "N/m", min = 0) = 2000 "Coupling spring";
+  input Real u1(unit = "N");
+  input Real u2(unit = "N");
+  output Real q1(unit = "m");
+  output Real q2(unit = "m");
+  Real x1(unit = "m", start = 0.01, fixed = true);
+  Real x2(unit = "m", start = 0.02, fixed = true);
+  Real v1(unit = "m/s", start = 0, fixed = true);
+  Real v2(unit = "m/s", start = 0, fixed = true);
+equation
+  der(x1) = v1;
+  der(x2) = v2;
+  m1*der(v1) + mc*der(v2) = u1 - d*v1 - kc*(x1 - x2);
+  mc*der(v1) + m2*der(v2) = u2 - d*v2 - kc*(x2 - x1);
+  q1 = x1;
+  q2 = x2;
+end Coupled2;
+'''
+COUPLED2_AXES = [{"input": "u1", "output": "q1"}, {"input": "u2", "output": "q2"}]
+CHEUNG_AXES = [{"input": f"u{k}", "output": f"q{k}"} for k in (1, 3, 5, 7)]
 PREROLL = 0.5            # s at the first reference before the recording starts (integrators settle)
 SUBSTEPS = 8
 
@@ -135,3 +161,43 @@ def write_bundle(folder: Path, plant_doc: dict, controller_doc: dict, effects: l
     atomic_write_texts({folder / "experiment.json": json.dumps(experiment, indent=1),
                         folder / "truth.json": json.dumps(truth, indent=1)})
     return truth
+
+
+def example(folder: Path, case: str, train_s: float, validation_s: float, ts: float = 5e-4) -> dict:
+    """Write one of the example bundles: ``coupled2_coulomb_q2`` (Coulomb friction 0.3 N on q2 of the coupled
+    two-carriage plant, start values m1 = 2.3 kg and d = 8 N.s/m against the true 2 and 10),
+    ``coupled2_params_only`` (the same without the friction) or ``cheung_coulomb_q5`` (Coulomb friction 0.5 N
+    on q5 of the CheungManipulator library class, c_v starting at 4 against the true 5)."""
+    if case.startswith("coupled2"):
+        controller = {"kind": "per_axis", "axes": [pid_document(ts, 2.0, 60.0), pid_document(ts, 3.0, 60.0)]}
+        plant = {"class": "Coupled2", "axes": COUPLED2_AXES, "parameters": {"m1": 2.3, "d": 8.0}}
+        effects = ([TrueEffect("coulomb_friction", "q2", {"coulomb_Fc": 0.3, "coulomb_v_eps": 1e-4})]
+                   if case == "coupled2_coulomb_q2" else [])
+        return write_bundle(folder, plant, controller, effects, train_s, validation_s, seed=3,
+                            plant_text=COUPLED2_TEXT)
+    if case == "cheung_coulomb_q5":
+        controller = {"kind": "per_axis", "axes": [pid_document(ts, 1.2, 40.0) for _ in CHEUNG_AXES]}
+        plant = {"class": "MotionTwin.Plants.CheungManipulator", "axes": CHEUNG_AXES, "parameters": {"c_v": 4.0}}
+        effect = TrueEffect("coulomb_friction", "q5", {"coulomb_Fc": 0.5, "coulomb_v_eps": 1e-4})
+        return write_bundle(folder, plant, controller, [effect], train_s, validation_s, seed=16)
+    raise ValueError(f"unknown example {case!r}; known: coupled2_coulomb_q2, coupled2_params_only, cheung_coulomb_q5")
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m motiontwin.ident.diagnosis.multiaxis_truth OUT CASE [--train S] [--validation S]``."""
+    import argparse
+
+    parser = argparse.ArgumentParser(description="Write a multi-axis example bundle with a CasADi truth.")
+    parser.add_argument("out", help="bundle folder to write")
+    parser.add_argument("case", choices=["coupled2_coulomb_q2", "coupled2_params_only", "cheung_coulomb_q5"])
+    parser.add_argument("--train", type=float, default=3.0, help="training length [s]")
+    parser.add_argument("--validation", type=float, default=1.5, help="validation length [s]")
+    args = parser.parse_args(argv)
+    example(Path(args.out), args.case, args.train, args.validation)
+    return 0
+
+
+if __name__ == "__main__":
+    import sys
+
+    sys.exit(main())

@@ -22,16 +22,6 @@ from motiontwin.ident.diagnosis import diagnose_bundle
 from motiontwin.ident.diagnosis import multiaxis_truth as truth
 
 TARGET_S = 300.0
-TS = 5e-4
-CHEUNG_AXES = [{"input": f"u{k}", "output": f"q{k}"} for k in (1, 3, 5, 7)]
-
-
-def cheung_bundle(folder: Path, train_s: float, validation_s: float) -> None:
-    """The default case: Coulomb friction on q5 of the CheungManipulator (library class), PID per axis."""
-    controller = {"kind": "per_axis", "axes": [truth.pid_document(TS, 1.2, 40.0) for _ in CHEUNG_AXES]}
-    plant = {"class": "MotionTwin.Plants.CheungManipulator", "axes": CHEUNG_AXES, "parameters": {"c_v": 4.0}}
-    effect = truth.TrueEffect("coulomb_friction", "q5", {"coulomb_Fc": 0.5, "coulomb_v_eps": 1e-4})
-    truth.write_bundle(folder, plant, controller, [effect], train_s, validation_s, seed=16, stroke=0.004)
 
 
 def cpu_seconds() -> float:
@@ -49,7 +39,7 @@ def main() -> None:
         folder = Path(args.bundle) if args.bundle else Path(tmp) / "cheung_coulomb_q5"
         if not args.bundle:
             t0 = time.perf_counter()
-            cheung_bundle(folder, args.train, args.train / 2)
+            truth.example(folder, "cheung_coulomb_q5", args.train, args.train / 2)
             print(f"generated {folder} in {time.perf_counter() - t0:.1f} s")
         out = Path(args.out) if args.out else Path(tmp) / "out"
         wall, cpu = time.perf_counter(), cpu_seconds()
