@@ -182,22 +182,3 @@ def example(folder: Path, case: str, train_s: float, validation_s: float, ts: fl
         return write_bundle(folder, plant, controller, [effect], train_s, validation_s, seed=16)
     raise ValueError(f"unknown example {case!r}; known: coupled2_coulomb_q2, coupled2_params_only, cheung_coulomb_q5")
 
-
-def main(argv: list[str] | None = None) -> int:
-    """``python -m motiontwin.ident.diagnosis.multiaxis_truth OUT CASE [--train S] [--validation S]``."""
-    import argparse
-
-    parser = argparse.ArgumentParser(description="Write a multi-axis example bundle with a CasADi truth.")
-    parser.add_argument("out", help="bundle folder to write")
-    parser.add_argument("case", choices=["coupled2_coulomb_q2", "coupled2_params_only", "cheung_coulomb_q5"])
-    parser.add_argument("--train", type=float, default=3.0, help="training length [s]")
-    parser.add_argument("--validation", type=float, default=1.5, help="validation length [s]")
-    args = parser.parse_args(argv)
-    example(Path(args.out), args.case, args.train, args.validation)
-    return 0
-
-
-if __name__ == "__main__":
-    import sys
-
-    sys.exit(main())
