@@ -25,7 +25,6 @@ import json
 import math
 import os
 import re
-import shutil
 import string
 import tempfile
 import time
