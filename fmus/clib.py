@@ -32,16 +32,16 @@ def cache_dir(folder: str) -> Path:
     return Path(base) / "motiontwin" / folder
 
 
-def cached_library(sources: dict[str, str], folder: str, prefix: str) -> Path:
+def cached_library(sources: dict[str, str], folder: str, prefix: str, flags: tuple[str, ...] = CFLAGS) -> Path:
     """Path of the shared library built from ``sources`` (file name -> C text), compiled once per
-    (sources, compiler, flags) into ``cache_dir(folder)/prefix-HASH.so``.
+    (sources, compiler, flags) into ``cache_dir(folder)/prefix-HASH.so`` (``flags``: the compiler flags).
 
     Raises CompileError when there is no compiler or it fails (nothing is left in the cache then).
     """
     cc = compiler()
     if cc is None:
         raise CompileError(f"no C compiler '{os.environ.get('CC', 'gcc')}' found (set CC)")
-    digest = hashlib.sha256("\0".join([cc, " ".join(CFLAGS)]).encode())
+    digest = hashlib.sha256("\0".join([cc, " ".join(flags)]).encode())
     for name in sorted(sources):
         digest.update(b"\0" + name.encode() + b"\0" + sources[name].encode())
     cache = cache_dir(folder)
@@ -55,7 +55,7 @@ def cached_library(sources: dict[str, str], folder: str, prefix: str) -> Path:
             (Path(tmp) / name).write_text(text)
             files.append(str(Path(tmp) / name))
         out = Path(tmp) / "lib.so"
-        proc = subprocess.run([cc, *CFLAGS, *files, "-o", str(out), "-lm"], capture_output=True, text=True)
+        proc = subprocess.run([cc, *flags, *files, "-o", str(out), "-lm"], capture_output=True, text=True)
         if proc.returncode != 0:
             raise CompileError(f"compiling {', '.join(sorted(sources))} failed:\n{proc.stderr[-2000:]}")
         os.replace(out, library)

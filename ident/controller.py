@@ -38,7 +38,8 @@ class ControllerError(ValueError):
 
 @dataclass
 class Controller:
-    """Sampled linear controller z+ = A z + B y, u = C z + D y with y = [r; q] (inputs reordered to r, q)."""
+    """Sampled linear controller z+ = A z + B y, u = C z + D y with y = [r; q] (inputs reordered to r, q);
+    a multi-axis one has y = [r_1..r_n, q_1..q_n] and u = [u_1..u_n]."""
 
     Ts: float
     A: np.ndarray
@@ -163,6 +164,49 @@ def read_named_controller(doc: dict, where: str) -> Controller:
     if not all(np.all(np.isfinite(m)) for m in mats):
         raise ControllerError(f"{where}: field 'parameters' gives a non-finite sampled law for {kind}")
     return Controller(float(ts), *mats)
+
+
+def block_diagonal(controllers: list[Controller]) -> Controller:
+    """One multivariable controller from one single-axis controller per axis: inputs
+    y = [r_1..r_n, q_1..q_n], outputs u_1..u_n, states stacked (all must share ``Ts``)."""
+    n = len(controllers)
+    sizes = [c.n_states for c in controllers]
+    nz = sum(sizes)
+    A, B, C, D = np.zeros((nz, nz)), np.zeros((nz, 2 * n)), np.zeros((n, nz)), np.zeros((n, 2 * n))
+    offset = 0
+    for k, c in enumerate(controllers):
+        block = slice(offset, offset + c.n_states)
+        A[block, block] = c.A
+        B[block, k], B[block, n + k] = c.B[:, 0], c.B[:, 1]
+        C[k, block] = c.C[0]
+        D[k, k], D[k, n + k] = c.D[0, 0], c.D[0, 1]
+        offset += c.n_states
+    return Controller(controllers[0].Ts, A, B, C, D)
+
+
+def read_multivariable(doc: dict, where: str, inputs: list[str], outputs: list[str]) -> Controller:
+    """A multivariable ``discrete_state_space`` controller of a multi-axis loop whose inputs are
+    ``r_<output>`` and ``<output>`` of every axis and whose outputs are the axes' plant inputs (in any
+    order); the matrices are reordered to y = [r_1..r_n, q_1..q_n], u = [u_1..u_n] in the axes' order."""
+    ts = field(doc, "Ts", where, (int, float))
+    if not (math.isfinite(ts) and ts > 0):
+        raise ControllerError(f"{where}: field 'Ts' must be a positive number of seconds, got {ts!r}")
+    expected_in = [f"r_{o}" for o in outputs] + list(outputs)
+    got_in = [str(v) for v in field(doc, "inputs", where, list)]
+    if sorted(got_in) != sorted(expected_in):
+        raise ControllerError(f"{where}: field 'inputs' must list {expected_in} (in any order), got {got_in!r}")
+    got_out = [str(v) for v in field(doc, "outputs", where, list)]
+    if sorted(got_out) != sorted(inputs):
+        raise ControllerError(f"{where}: field 'outputs' must list the axes' inputs {inputs} (in any order), "
+                              f"got {got_out!r}")
+    n = len(field(doc, "A", where, list))
+    A = _matrix(doc, "A", where, (n, n))
+    B = _matrix(doc, "B", where, (n, len(got_in)))
+    C = _matrix(doc, "C", where, (len(got_out), n))
+    D = _matrix(doc, "D", where, (len(got_out), len(got_in)))
+    cols = [got_in.index(name) for name in expected_in]
+    rows = [got_out.index(name) for name in inputs]
+    return Controller(float(ts), A, B[:, cols], C[rows], D[rows][:, cols])
 
 
 def load_controller(path: str | Path) -> Controller:

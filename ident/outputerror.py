@@ -60,6 +60,7 @@ __all__ = ["Signals", "Loop", "Weights", "Fit", "OutputErrorResult", "build_loop
 
 _LOG = logging.getLogger(__name__)
 JIT_OPTIONS = {"jit": True, "compiler": "shell", "jit_options": {"flags": ["-O2"]}}
+CALL_INSTRUCTIONS = 400     # plant right-hand sides above this many SX instructions are called, not inlined
 
 
 @dataclass(frozen=True)
@@ -71,6 +72,12 @@ class Signals:
     input: str = "u"
     reference: str = "r"
     disturbance: str = "u_ext"
+
+
+def axis_signals(input_name: str, output_name: str) -> Signals:
+    """Column names of one axis of a multi-axis recording: ``r_<output>``, ``<input>``, ``<output>`` and
+    ``u_ext_<input>`` (the plant's own input and output names are the recorded force and position)."""
+    return Signals(output_name, input_name, f"r_{output_name}", f"u_ext_{input_name}")
 
 
 @dataclass
@@ -91,10 +98,16 @@ class Loop:
     signals: Signals = field(default_factory=Signals)
     ts: float = 0.0                     # sample period [s]
     step: ca.Function | None = field(default=None, repr=False)  # (s, w, theta, pfix) -> (s_next, q, u), one sample
+    axes: tuple[Signals, ...] = ()      # multi-axis loop: one entry per axis (plant input/output = columns)
 
     @property
     def closed(self) -> bool:
         return self.controller is not None
+
+    @property
+    def channels(self) -> tuple[Signals, ...]:
+        """The axes' column names; a single-axis loop has one channel, ``signals``."""
+        return self.axes or (self.signals,)
 
     @property
     def fixed(self) -> list[str]:
@@ -111,7 +124,7 @@ class Loop:
         merged = dict(self.values)
         merged.update(values)
         return Loop(self.model, self.controller, self.position_state, self.free, merged, self.substeps,
-                    self.n_samples, self.sim, self.jac, self.tracking, self.signals, self.ts, self.step)
+                    self.n_samples, self.sim, self.jac, self.tracking, self.signals, self.ts, self.step, self.axes)
 
 
 def stable_substeps(model: symbolic.SymbolicModel, values: dict[str, float], ts: float,
@@ -202,7 +215,8 @@ def build_loop(model: symbolic.SymbolicModel, controller: Controller | None, pos
                values: dict[str, float], n_samples: int, substeps: int | None = None,
                tracking: dict[str, str] | None = None, with_jacobian: bool = True, min_substeps: int = 1,
                ts: float | None = None, input_name: str | None = None, signals: Signals = Signals(),
-               jit: bool = False, native: bool | None = None) -> Loop:
+               jit: bool = False, native: bool | None = None, axes: list[Signals] | None = None,
+               initial_sensitivity: bool = True) -> Loop:
     """Compile the free-run simulation of ``n_samples`` samples with the parameters ``free`` symbolic.
 
     controller: None for open loop (then ``ts`` [s] is required); position_state: the state or output
@@ -211,6 +225,14 @@ def build_loop(model: symbolic.SymbolicModel, controller: Controller | None, pos
     off on long recordings (the chain then runs at C speed, minus CasADi's per-call overhead); only used by
     the CasADi chain. native: chain the samples in compiled C (:mod:`ident.chain`); None = when a C
     compiler is available, False = CasADi ``mapaccum`` chain.
+
+    axes: a multi-axis loop (several inputs and outputs; :func:`axis_signals`): each entry's ``input`` and
+    ``output`` are plant names (and recording columns); ``position_state`` and ``input_name`` are then
+    ignored. The controller maps y = [r_1..r_n, q_1..q_n] to u = [u_1..u_n] (block-diagonal or
+    multivariable); w = [r (n); u_ext (n); measurement noise (n)] per sample, and the step returns q and u
+    with n entries each. initial_sensitivity: compile the sensitivities w.r.t. the initial state too (needed
+    to estimate initial states, ``fit(..., estimate_initial=...)``); without them the Jacobian step of a
+    large coupled plant is a fraction of the size (its d/ds0 blocks are then empty).
     """
     if ca.depends_on(model.dx, model.t):
         raise ValueError(f"{model.name}: time-varying plants are not supported by the output-error refit")
@@ -222,44 +244,55 @@ def build_loop(model: symbolic.SymbolicModel, controller: Controller | None, pos
     ts = float(controller.Ts if controller is not None else ts)
     names = [v.name for v in model.parameters]
     inputs = [v.name for v in model.inputs]
-    if input_name is None:
-        if len(inputs) != 1:
-            raise ValueError(f"{model.name} has inputs {inputs}; name the driven one (input_name)")
-        input_name = inputs[0]
-    if input_name not in inputs:
-        raise KeyError(f"{model.flat.source}: class {model.name} has no input {input_name!r}; inputs: {inputs}")
+    if axes:
+        driven, observed = [a.input for a in axes], [a.output for a in axes]
+    else:
+        if input_name is None:
+            if len(inputs) != 1:
+                raise ValueError(f"{model.name} has inputs {inputs}; name the driven one (input_name)")
+            input_name = inputs[0]
+        driven, observed = [input_name], [position_state]
+    for name in driven:
+        if name not in inputs:
+            raise KeyError(f"{model.flat.source}: class {model.name} has no input {name!r}; inputs: {inputs}")
+    n_ax = len(driven)
+    if controller is not None:
+        _check_controller_shape(controller, n_ax)
     values = {n: float(values.get(n, model.parameters[i].start)) for i, n in enumerate(names)}
     substeps = substeps or max(min_substeps, stable_substeps(model, values, ts))
     fixed = [n for n in names if n not in free]
-    theta = ca.SX.sym("theta", len(free))
-    pfix = ca.SX.sym("pfix", len(fixed))
-    p_full = ca.vertcat(*[theta[free.index(n)] if n in free else pfix[fixed.index(n)] for n in names])
     f = ca.Function("f", [model.x, model.u, model.p], [model.dx])
-    q_expr = _output_expression(model, position_state)
+    # a large right-hand side (a coupled mechanism's mass-matrix solve) is called, not inlined, in every RK4
+    # stage (MX graph): the step and its sensitivity step then compile from kilobytes instead of megabytes
+    sym = ca.MX if f.n_instructions() > CALL_INSTRUCTIONS else ca.SX
+    theta = sym.sym("theta", len(free))
+    pfix = sym.sym("pfix", len(fixed))
+    p_full = ca.vertcat(*[theta[free.index(n)] if n in free else pfix[fixed.index(n)] for n in names])
+    q_expr = ca.vertcat(*[_output_expression(model, name) for name in observed])
     h_out = ca.Function("h", [model.x, model.u, model.p], [q_expr])
     nx = model.x.numel()
     nz = controller.n_states if controller is not None else 0
-    s = ca.SX.sym("s", nx + nz)
-    w = ca.SX.sym("w", 3)  # closed loop: r, u_ext, measurement noise; open loop: -, input, -
+    s = sym.sym("s", nx + nz)
+    w = sym.sym("w", 3 * n_ax)  # per axis, closed loop: r, u_ext, measurement noise; open loop: -, input, -
     x, z = s[:nx], s[nx:]
     held = [0.0 if v.start is None or not isinstance(v.start, (int, float)) else float(v.start) for v in model.inputs]
-    k_in = inputs.index(input_name)
+    k_in = [inputs.index(name) for name in driven]
 
-    def plant_input(u_scalar: ca.SX) -> ca.SX:
-        return ca.vertcat(*[u_scalar if i == k_in else held[i] for i in range(len(inputs))])
+    def plant_input(u_vec: ca.SX) -> ca.SX:
+        return ca.vertcat(*[u_vec[k_in.index(i)] if i in k_in else held[i] for i in range(len(inputs))])
 
     if controller is None:
-        u = w[1]
+        u = w[n_ax:2 * n_ax]
         q = h_out(x, plant_input(u), p_full)
         z_next = z
     else:
         if ca.depends_on(q_expr, model.u):
-            raise ValueError(f"{model.name}: output {position_state!r} depends on the input directly; "
-                             "closing a sampled loop around it is an algebraic loop")
-        q = h_out(x, plant_input(0.0), p_full)
-        y = ca.vertcat(w[0], q + w[2])
+            raise ValueError(f"{model.name}: output {', '.join(map(repr, observed))} depends on the input "
+                             "directly; closing a sampled loop around it is an algebraic loop")
+        q = h_out(x, plant_input(sym.zeros(n_ax)), p_full)
+        y = ca.vertcat(w[:n_ax], q + w[2 * n_ax:])
         A, B, C, D = (ca.DM(m) for m in (controller.A, controller.B, controller.C, controller.D))
-        u = (C @ z if nz else 0) + D @ y + w[1]
+        u = (C @ z if nz else 0) + D @ y + w[n_ax:2 * n_ax]
         z_next = A @ z + B @ y if nz else z
     uvec = plant_input(u)
     h = ts / substeps
@@ -272,7 +305,15 @@ def build_loop(model: symbolic.SymbolicModel, controller: Controller | None, pos
         xk = xk + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
     s_next, out_k = ca.vertcat(xk, z_next), ca.vertcat(q, u)
     step = ca.Function("step", [s, w, theta, pfix], [ca.densify(s_next), ca.densify(q), ca.densify(u)])
-    aug, seed = _sensitivity_step(s, w, theta, pfix, s_next, out_k) if with_jacobian else (None, None)
+    if not with_jacobian:
+        aug, seed = None, None
+    elif sym is ca.SX:
+        aug, seed = _sensitivity_step(s, w, theta, pfix, s_next, out_k, initial_sensitivity)
+    else:
+        select_p = np.array([[1.0 if n == m else 0.0 for m in free] for n in names]).reshape(len(names), len(free))
+        select_u = np.array([[1.0 if i == k else 0.0 for k in k_in] for i in range(len(inputs))])
+        aug, seed = _called_sensitivity_step(model, observed, controller, plant_input, select_p, select_u, p_full,
+                                             s, w, theta, pfix, substeps, ts, initial_sensitivity)
     pair = None
     if native or (native is None and native_chain.available()):
         try:
@@ -282,25 +323,113 @@ def build_loop(model: symbolic.SymbolicModel, controller: Controller | None, pos
                 raise
             _LOG.warning("compiled chain unavailable, using CasADi's mapaccum chain: %s", exc)
     sim, jac = pair or _casadi_pair(step, aug, seed, n_samples, JIT_OPTIONS if jit else {})
-    return Loop(model, controller, position_state, list(free), values, substeps, n_samples, sim, jac,
-                dict(tracking or {}), signals, ts, step)
+    return Loop(model, controller, observed[0], list(free), values, substeps, n_samples, sim, jac,
+                dict(tracking or {}), signals if not axes else axes[0], ts, step, tuple(axes or ()))
+
+
+def _check_controller_shape(controller: Controller, n_axes: int) -> None:
+    """The controller must map [r_1..r_n, q_1..q_n] to n forces."""
+    nz = controller.n_states
+    shapes = {"B": (nz, 2 * n_axes), "C": (n_axes, nz), "D": (n_axes, 2 * n_axes)}
+    for name, shape in shapes.items():
+        got = np.shape(getattr(controller, name))
+        if got != shape and not (np.size(getattr(controller, name)) == 0 and 0 in shape):
+            raise ValueError(f"controller matrix {name} has shape {got}; a loop of {n_axes} axes needs {shape} "
+                             f"(inputs r_1..r_n, q_1..q_n; outputs u_1..u_n)")
 
 
 def _sensitivity_step(s: ca.SX, w: ca.SX, theta: ca.SX, pfix: ca.SX, s_next: ca.SX,
-                      out_k: ca.SX) -> tuple[ca.Function, np.ndarray]:
+                      out_k: ca.SX, initial: bool = True) -> tuple[ca.Function, np.ndarray]:
     """The step augmented with forward sensitivities w.r.t. [theta; s0], propagated sample by sample with
     the step's AD Jacobians (S+ = ds+/ds S + [ds+/dtheta, 0]), and the initial seed vec([0, I]): one pass
-    over the recording gives the whole residual Jacobian, at a cost of about (1 + n_theta + n_s) free runs."""
+    over the recording gives the whole residual Jacobian, at a cost of about (1 + n_theta + n_s) free runs.
+    Without ``initial`` only the theta columns are propagated (seed 0) and the d/ds0 outputs are omitted."""
     ns, nth = s.numel(), theta.numel()
-    sens = ca.SX.sym("S", ns, nth + ns)
-    pad = ca.SX.zeros(ns, ns)
+    n0 = ns if initial else 0
+    sens = ca.SX.sym("S", ns, nth + n0)
+    pad = ca.SX.zeros(ns, n0)
     s_sens = ca.jacobian(s_next, s) @ sens + ca.horzcat(ca.jacobian(s_next, theta), pad)
-    o_sens = ca.jacobian(out_k, s) @ sens + ca.horzcat(ca.jacobian(out_k, theta), ca.SX.zeros(2, ns))
-    outs = [ca.vertcat(s_next, ca.vec(s_sens)), o_sens[0, :nth].T, o_sens[1, :nth].T,
-            o_sens[0, nth:].T, o_sens[1, nth:].T]
+    n_out = out_k.numel() // 2      # q then u, one entry per axis
+    o_sens = ca.jacobian(out_k, s) @ sens + ca.horzcat(ca.jacobian(out_k, theta), ca.SX.zeros(2 * n_out, n0))
+    # per sample and channel: axis 0's row, then axis 1's, ... (see _channel_major)
+    outs = [ca.vertcat(s_next, ca.vec(s_sens)), ca.vec(o_sens[:n_out, :nth].T), ca.vec(o_sens[n_out:, :nth].T)]
+    if initial:
+        outs += [ca.vec(o_sens[:n_out, nth:].T), ca.vec(o_sens[n_out:, nth:].T)]
     aug = ca.Function("sstep", [ca.vertcat(s, ca.vec(sens)), w, theta, pfix], [ca.densify(o) for o in outs])
-    seed = np.hstack([np.zeros((ns, nth)), np.eye(ns)]).ravel(order="F")
+    seed = np.hstack([np.zeros((ns, nth)), np.eye(ns)[:, :n0]]).ravel(order="F")
     return aug, seed
+
+
+def _called_sensitivity_step(model: symbolic.SymbolicModel, observed: list[str], controller: Controller | None,
+                             plant_input: Callable, select_p: np.ndarray, select_u: np.ndarray, p_full: ca.MX,
+                             s: ca.MX, w: ca.MX, theta: ca.MX, pfix: ca.MX, substeps: int, ts: float,
+                             initial: bool) -> tuple[ca.Function, np.ndarray]:
+    """:func:`_sensitivity_step` for a large plant (MX graph): the variational equations of the same RK4
+    step written out, with the plant's Jacobians [df/dx, df/du, df/dp] and [dh/dx, dh/du, dh/dp] as one
+    called function each, so that the generated code holds each Jacobian once instead of one forward
+    derivative per sensitivity direction inlined in every stage."""
+    nx, ns, nth = model.x.numel(), s.numel(), theta.numel()
+    nz, n_ax = ns - nx, len(observed)
+    n0 = ns if initial else 0
+    na = nth + n0
+    dx_expr = model.dx
+    q_expr = ca.vertcat(*[_output_expression(model, name) for name in observed])
+    f_jac = ca.Function("f_jac", [model.x, model.u, model.p],
+                        [dx_expr] + [ca.jacobian(dx_expr, v) for v in (model.x, model.u, model.p)])
+    h_jac = ca.Function("h_jac", [model.x, model.u, model.p],
+                        [q_expr] + [ca.jacobian(q_expr, v) for v in (model.x, model.u, model.p)])
+    s_aug = ca.MX.sym("s_aug", ns * (1 + na))
+    x, z = s_aug[:nx], s_aug[nx:ns]
+    sens = ca.reshape(s_aug[ns:], ns, na)
+    sx, sz = sens[:nx, :], sens[nx:, :]
+    dp = ca.horzcat(ca.DM(select_p), ca.DM.zeros(select_p.shape[0], n0))      # d p / d [theta, s0]
+    p_val = p_full       # an expression of theta and pfix, inputs of the augmented step too
+    su = ca.DM(select_u)
+    if controller is None:
+        u, du = w[n_ax:2 * n_ax], ca.MX.zeros(n_ax, na)
+        q, hx, hu, hp = h_jac(x, plant_input(u), p_val)
+        dq = hx @ sx + hp @ dp
+        z_next, dz = z, sz
+    else:
+        q, hx, hu, hp = h_jac(x, plant_input(ca.MX.zeros(n_ax)), p_val)
+        dq = hx @ sx + hp @ dp
+        y = ca.vertcat(w[:n_ax], q + w[2 * n_ax:])
+        A, B, C, D = (ca.DM(m) for m in (controller.A, controller.B, controller.C, controller.D))
+        u = (C @ z if nz else 0) + D @ y + w[n_ax:2 * n_ax]
+        du = (C @ sz if nz else 0) + D[:, n_ax:] @ dq
+        z_next = A @ z + B @ y if nz else z
+        dz = A @ sz + B[:, n_ax:] @ dq if nz else sz
+    uvec = plant_input(u)
+    duvec = su @ du
+    h = ts / substeps
+    xk, sk = x, sx
+
+    def stage(xs: ca.MX, dxs: ca.MX) -> tuple[ca.MX, ca.MX]:
+        k, fx, fu, fp = f_jac(xs, uvec, p_val)
+        return k, fx @ dxs + fu @ duvec + fp @ dp
+
+    for _ in range(substeps):
+        k1, d1 = stage(xk, sk)
+        k2, d2 = stage(xk + h / 2 * k1, sk + h / 2 * d1)
+        k3, d3 = stage(xk + h / 2 * k2, sk + h / 2 * d2)
+        k4, d4 = stage(xk + h * k3, sk + h * d3)
+        xk = xk + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+        sk = sk + h / 6 * (d1 + 2 * d2 + 2 * d3 + d4)
+    s_sens = ca.vertcat(sk, dz)
+    outs = [ca.vertcat(xk, z_next, ca.vec(s_sens)), ca.vec(dq[:, :nth].T), ca.vec(du[:, :nth].T)]
+    if initial:
+        outs += [ca.vec(dq[:, nth:].T), ca.vec(du[:, nth:].T)]
+    aug = ca.Function("sstep", [s_aug, w, theta, pfix], [ca.densify(o) for o in outs])
+    seed = np.hstack([np.zeros((ns, nth)), np.eye(ns)[:, :n0]]).ravel(order="F")
+    return aug, seed
+
+
+def _with_initial_blocks(blocks: list) -> tuple:
+    """(dq, du, dq0, du0): empty d/ds0 blocks when the loop was compiled without them."""
+    if len(blocks) == 4:
+        return tuple(blocks)
+    dq, du = (np.asarray(b) for b in blocks)
+    return dq, du, np.zeros((dq.shape[0], 0)), np.zeros((du.shape[0], 0))
 
 
 def _native_pair(step: ca.Function, aug: ca.Function | None, seed: np.ndarray | None,
@@ -310,11 +439,10 @@ def _native_pair(step: ca.Function, aug: ca.Function | None, seed: np.ndarray | 
 
     def sim(s0, W, th, pf) -> tuple[np.ndarray, np.ndarray]:
         q, u = chains[0](s0, W, th, pf)
-        return q.reshape(1, -1), u.reshape(1, -1)
+        return q.T, u.T
 
     def jac(s0, W, th, pf) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        dq, du, dq0, du0 = chains[1](np.concatenate([np.asarray(s0, float).ravel(), seed]), W, th, pf)
-        return dq, du, dq0, du0
+        return _with_initial_blocks(chains[1](np.concatenate([np.asarray(s0, float).ravel(), seed]), W, th, pf))
 
     return sim, (jac if aug is not None else None)
 
@@ -334,8 +462,9 @@ def _casadi_pair(step: ca.Function, aug: ca.Function | None, seed: np.ndarray | 
         return sim, None
     if opts:
         aug = ca.Function("sstep", aug.sx_in(), aug.call(aug.sx_in()), opts)
-    _, dq, du, dq0, du0 = _chain(aug, n_samples, ca.vertcat(s0, ca.DM(seed)), W, th, pf)
-    return sim, ca.Function("simjac", [s0, W, th, pf], [dq.T, du.T, dq0.T, du0.T])
+    blocks = _chain(aug, n_samples, ca.vertcat(s0, ca.DM(seed)), W, th, pf)[1:]
+    simjac = ca.Function("simjac", [s0, W, th, pf], [b.T for b in blocks])
+    return sim, lambda *args: _with_initial_blocks([np.array(b) for b in simjac(*args)])
 
 
 def _chain(step: ca.Function, n_samples: int, s0: ca.MX, W: ca.MX, th: ca.MX, pf: ca.MX) -> list[ca.MX]:
@@ -357,65 +486,93 @@ def initial_state(loop: Loop, rec: Recording, values: dict[str, float] | None = 
     the state an output expression is affine in (an alias, gear ratio or offset) such that the output = q_0,
     other plant states at their start values, tracked states at that position or u_0, states in ``initial`` at those
     values, and in closed loop the controller state giving the recorded force u_0 (least-norm solution of
-    C z = u_0 - u_ext_0 - D y_0)."""
+    C z = u_0 - u_ext_0 - D y_0). Multi-axis: the same for every axis; a tracking signal may name its axis
+    by output (``"dq:q3"``, ``"q:q3"``, ``"u:q3"``; without it, the first axis)."""
     values = values or loop.values
-    model, ctrl, sig = loop.model, loop.controller, loop.signals
+    model, ctrl = loop.model, loop.controller
     p = np.array([values[v.name] for v in model.parameters])
     x0 = np.array(ca.Function("x0", [model.p], [model.x0()])(p)).ravel()
     names = [v.name for v in model.states]
-    q_rec = _column(rec, sig.output)
-    if loop.position_state in names:
-        x0[names.index(loop.position_state)] = q_rec[0]
-        position = q_rec[0]
-    else:
-        x0 = _state_for_output(model, loop.position_state, x0, p, q_rec[0])
-        i_pos = output_state(model, loop.position_state)
-        position = q_rec[0] if i_pos is None else x0[i_pos]
-    for state, signal in loop.tracking.items():
-        if signal == "dq":      # a velocity state: the slope of the first samples (a loop moving at t = 0)
-            slope = startvalues.first_samples(q_rec, float(np.median(np.diff(rec.time))))[1]
-            x0[names.index(state)] = slope / _output_gain(model, loop.position_state, x0, p)
+    positions: dict[str, float] = {}
+    for sig in loop.channels:
+        output = sig.output if loop.axes else loop.position_state
+        q_rec = _column(rec, sig.output)
+        if output in names:
+            x0[names.index(output)] = q_rec[0]
+            positions[sig.output] = q_rec[0]
         else:
-            x0[names.index(state)] = position if signal == "q" else _column(rec, sig.input)[0]
+            x0 = _state_for_output(model, output, x0, p, q_rec[0])
+            i_pos = output_state(model, output)
+            positions[sig.output] = q_rec[0] if i_pos is None else x0[i_pos]
+    by_output = {sig.output: sig for sig in loop.channels}
+    for state, tracked in loop.tracking.items():
+        signal, _, axis = tracked.partition(":")
+        sig = by_output[axis] if axis else loop.channels[0]
+        output = sig.output if loop.axes else loop.position_state
+        if signal == "dq":      # a velocity state: the slope of the first samples (a loop moving at t = 0)
+            slope = startvalues.first_samples(_column(rec, sig.output), float(np.median(np.diff(rec.time))))[1]
+            x0[names.index(state)] = slope / _output_gain(model, output, x0, p)
+        else:
+            x0[names.index(state)] = positions[sig.output] if signal == "q" else _column(rec, sig.input)[0]
     for state, value in (initial or {}).items():
         x0[names.index(state)] = value
     if ctrl is None or not ctrl.n_states:
         return np.concatenate([x0, np.zeros(ctrl.n_states if ctrl is not None else 0)])
-    if "dq" in loop.tracking.values():   # moving at t = 0: the controller state from its first outputs
-        count = min(q_rec.size, max(20, 4 * ctrl.n_states))
-        y = np.column_stack([_column(rec, sig.reference)[:count], q_rec[:count]])
-        u = _column(rec, sig.input)[:count] - _column(rec, sig.disturbance, True)[:count]
-        return np.concatenate([x0, startvalues.controller_state(ctrl.A, ctrl.B, ctrl.C, ctrl.D, y, u)])
-    y0 = np.array([_column(rec, sig.reference)[0], q_rec[0]])
-    target = _column(rec, sig.input)[0] - _column(rec, sig.disturbance, True)[0] - float((ctrl.D @ y0)[0])
+    refs = np.array([_column(rec, sig.reference) for sig in loop.channels])
+    meas = np.array([_column(rec, sig.output) for sig in loop.channels])
+    forces = np.array([_column(rec, sig.input) - _column(rec, sig.disturbance, True) for sig in loop.channels])
+    if any(t.partition(":")[0] == "dq" for t in loop.tracking.values()):   # moving at t = 0: the controller
+        count = min(rec.time.size, max(20, 4 * ctrl.n_states))            # state from its first outputs
+        y = np.vstack([refs[:, :count], meas[:, :count]]).T
+        return np.concatenate([x0, startvalues.controller_state(ctrl.A, ctrl.B, ctrl.C, ctrl.D, y,
+                                                                forces[:, :count].T)])
+    y0 = np.concatenate([refs[:, 0], meas[:, 0]])
+    target = forces[:, 0] - ctrl.D @ y0
     z0 = np.linalg.pinv(ctrl.C) @ np.atleast_1d(target)
     return np.concatenate([x0, z0])
 
 
-def drive(rec: Recording, noise: np.ndarray | None = None, signals: Signals = Signals(),
+def drive(rec: Recording, noise: np.ndarray | None = None, signals: Signals | tuple[Signals, ...] = Signals(),
           closed: bool = True) -> np.ndarray:
-    """The 3 x N input matrix of a recording: closed loop [r; u_ext; measurement noise], open loop
-    [0; input; 0]."""
+    """The 3n x N input matrix of a recording (n axes, ``signals`` one per axis): closed loop
+    [r; u_ext; measurement noise], open loop [0; input; 0], each block one row per axis."""
+    channels = (signals,) if isinstance(signals, Signals) else tuple(signals)
     n = rec.time.size
-    zeros = np.zeros(n)
+    zeros = np.zeros((len(channels), n))
+    if noise is not None:
+        noise = np.asarray(noise, float).reshape(len(channels), n)
     if not closed:
-        return np.vstack([zeros, _column(rec, signals.input), zeros])
-    return np.vstack([_column(rec, signals.reference), _column(rec, signals.disturbance, True),
+        return np.vstack([zeros, [_column(rec, sig.input) for sig in channels], zeros])
+    return np.vstack([[_column(rec, sig.reference) for sig in channels],
+                      [_column(rec, sig.disturbance, True) for sig in channels],
                       zeros if noise is None else noise])
+
+
+def _shaped(loop: Loop, values: np.ndarray) -> np.ndarray:
+    """Simulated outputs (axes x N) as the caller sees them: 1-D for a single-axis loop."""
+    values = np.asarray(values, float).reshape(len(loop.channels), -1)
+    return values if loop.axes else values.ravel()
+
+
+def measured(loop: Loop, rec: Recording, kind: str) -> np.ndarray:
+    """The recorded outputs (``kind="output"``) or forces (``"input"``) of the loop's axes, shaped as
+    :func:`simulate` returns them."""
+    return _shaped(loop, np.array([_column(rec, getattr(sig, kind)) for sig in loop.channels]))
 
 
 def simulate(loop: Loop, rec: Recording, values: dict[str, float] | None = None,
              noise: np.ndarray | None = None,
              initial: dict[str, float] | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Free-run simulation along ``rec`` (plant states in ``initial`` start there); returns simulated
-    (output, input) at the sample instants."""
+    (output, input) at the sample instants: 1-D arrays, or (axes x samples) for a multi-axis loop (whose
+    ``noise`` is axes x samples too)."""
     values = {**loop.values, **(values or {})}
     if rec.time.size != loop.n_samples:
         raise ValueError(f"loop compiled for {loop.n_samples} samples, recording has {rec.time.size}")
     pf = np.array([values[n] for n in loop.fixed])
-    q, u = loop.sim(initial_state(loop, rec, values, initial), drive(rec, noise, loop.signals, loop.closed),
+    q, u = loop.sim(initial_state(loop, rec, values, initial), drive(rec, noise, loop.channels, loop.closed),
                     loop.theta(values), pf)
-    return np.array(q).ravel(), np.array(u).ravel()
+    return _shaped(loop, np.array(q)), _shaped(loop, np.array(u))
 
 
 @dataclass
@@ -438,10 +595,31 @@ class Fit:
 @dataclass
 class Weights:
     """Noise levels used to weight the residual channels: sigma_q [output unit], sigma_u [N]
-    (sigma_u is unused in open loop, where the input is given)."""
+    (sigma_u is unused in open loop, where the input is given); a multi-axis loop takes one level per axis
+    (arrays), so each axis's output and force channel is weighted by its own noise."""
 
-    sigma_q: float
-    sigma_u: float = 1.0
+    sigma_q: float | np.ndarray
+    sigma_u: float | np.ndarray = 1.0
+
+
+def _weighted(meas: np.ndarray, sim: np.ndarray, sigma: float | np.ndarray) -> np.ndarray:
+    """(meas - sim) / sigma, channel-major (axis 0's samples, then axis 1's, ...)."""
+    diff = np.asarray(meas) - np.asarray(sim)
+    if diff.ndim == 2:
+        diff = diff / np.reshape(np.asarray(sigma, float), (-1, 1))
+        return diff.ravel()
+    return diff / sigma
+
+
+def _channel_major(sens: np.ndarray, n_axes: int) -> np.ndarray:
+    """Chained sensitivities (samples x (axes * columns)) as rows channel-major: (axes * samples) x columns."""
+    sens = np.asarray(sens)
+    if n_axes == 1:
+        return sens
+    n = sens.shape[0]
+    if sens.shape[1] == 0:
+        return np.zeros((n_axes * n, 0))
+    return sens.reshape(n, n_axes, -1).transpose(1, 0, 2).reshape(n_axes * n, -1)
 
 
 def residuals(loop: Loop, rec: Recording, values: dict[str, float], weights: Weights,
@@ -451,11 +629,11 @@ def residuals(loop: Loop, rec: Recording, values: dict[str, float], weights: Wei
     """Weighted residual vector [(q_meas - q_sim)/sigma_q; (u_meas - u_sim)/sigma_u (closed loop only)] and
     the simulation."""
     q, u = simulate(loop, rec, values, noise, initial)
-    qm = _column(rec, loop.signals.output) if q_meas is None else q_meas
+    qm = measured(loop, rec, "output") if q_meas is None else q_meas
     if not loop.closed:
-        return (qm - q) / weights.sigma_q, q, u
-    um = _column(rec, loop.signals.input) if u_meas is None else u_meas
-    return np.concatenate([(qm - q) / weights.sigma_q, (um - u) / weights.sigma_u]), q, u
+        return _weighted(qm, q, weights.sigma_q), q, u
+    um = measured(loop, rec, "input") if u_meas is None else u_meas
+    return np.concatenate([_weighted(qm, q, weights.sigma_q), _weighted(um, u, weights.sigma_u)]), q, u
 
 
 def _interior(theta: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
@@ -491,10 +669,16 @@ def state_indices(loop: Loop, names: list[str] | tuple[str, ...]) -> list[int]:
 def weighted_jacobian(loop: Loop, s0: np.ndarray, W: np.ndarray, theta: np.ndarray, pf: np.ndarray,
                       idx: list[int], weights: Weights) -> np.ndarray:
     """Jacobian of the weighted residual of the free run from ``s0`` w.r.t. [theta, s0[idx]]."""
-    jq, ju, jq0, ju0 = loop.jac(s0, W, theta, pf)
-    j = -np.hstack([np.array(jq), np.array(jq0)[:, idx]]) / weights.sigma_q
+    n_ax = len(loop.channels)
+    jq, ju, jq0, ju0 = (_channel_major(m, n_ax) for m in loop.jac(s0, W, theta, pf))
+    rows = loop.n_samples
+
+    def scaled(block: np.ndarray, sigma: float | np.ndarray) -> np.ndarray:
+        return block / np.repeat(np.broadcast_to(np.asarray(sigma, float), (n_ax,)), rows)[:, None]
+
+    j = -scaled(np.hstack([jq, jq0[:, idx]]), weights.sigma_q)
     if loop.closed:
-        j = np.vstack([j, -np.hstack([np.array(ju), np.array(ju0)[:, idx]]) / weights.sigma_u])
+        j = np.vstack([j, -scaled(np.hstack([ju, ju0[:, idx]]), weights.sigma_u)])
     return j
 
 
@@ -520,10 +704,9 @@ def fit(loop: Loop, rec: Recording, weights: Weights, bounds: dict[str, tuple[fl
     lo_all = np.concatenate([lo, np.full(len(idx), -np.inf)])
     hi_all = np.concatenate([hi, np.full(len(idx), np.inf)])
     s0_cache: dict[bytes, np.ndarray] = {}
-    sig = loop.signals
-    qm = _column(rec, sig.output) if q_meas is None else q_meas
-    um = (_column(rec, sig.input) if u_meas is None else u_meas) if loop.closed else None
-    W = drive(rec, signals=sig, closed=loop.closed)
+    qm = measured(loop, rec, "output") if q_meas is None else q_meas
+    um = (measured(loop, rec, "input") if u_meas is None else u_meas) if loop.closed else None
+    W = drive(rec, signals=loop.channels, closed=loop.closed)
     pf = np.array([values[n] for n in loop.fixed])
 
     def split(xs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -541,9 +724,9 @@ def fit(loop: Loop, rec: Recording, weights: Weights, bounds: dict[str, tuple[fl
     def res(xs: np.ndarray) -> np.ndarray:
         theta, x_init = split(xs)
         q, u = loop.sim(state(theta, x_init), W, theta, pf)
-        r = (qm - np.array(q).ravel()) / weights.sigma_q
+        r = _weighted(qm, _shaped(loop, np.array(q)), weights.sigma_q)
         if loop.closed:
-            r = np.concatenate([r, (um - np.array(u).ravel()) / weights.sigma_u])
+            r = np.concatenate([r, _weighted(um, _shaped(loop, np.array(u)), weights.sigma_u)])
         return np.where(np.isfinite(r), r, 1e12)
 
     def jac(xs: np.ndarray) -> np.ndarray:

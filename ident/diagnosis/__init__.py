@@ -28,13 +28,15 @@ def run(bundle: str, out: str, quiet: bool = False) -> int:
     from motiontwin.ident.diagnosis.report import unexplained_text
 
     unexplained = doc.get("unexplained")
-    names = ", ".join(e["name"] for e in doc["effects"]) or ("none" if unexplained else
-                                                             "none (only parameters were off)")
+    names = ", ".join(e["name"] + (f" on {e['axis']}" if "axis" in e else "") for e in doc["effects"]) \
+        or ("none" if unexplained else "none (only parameters were off)")
     if unexplained:
         names += f"; {unexplained_text(unexplained)}"
     val = doc["validation"]
-    print(f"effects: {names}; validation RMS {_metres(val['nominal_rms'])} -> {_metres(val['augmented_rms'])}; "
-          f"report: {out}/report.md")
+    per_axis = "".join(f"; {axis} {_metres(v['nominal_rms'])} -> {_metres(v['augmented_rms'])}"
+                       for axis, v in val.get("per_axis", {}).items())
+    print(f"effects: {names}; validation RMS {_metres(val['nominal_rms'])} -> {_metres(val['augmented_rms'])}"
+          f"{per_axis}; report: {out}/report.md")
     return 0
 
 

@@ -13,6 +13,12 @@ The plant is ``{"modelica": FILE, "class": NAME, "input": "u", "output": "q"}`` 
 names ``"position"`` and ``"velocity"``; without them both are found from the derivative chain of the output
 (:mod:`ident.diagnosis.plant_roles`).
 
+A multi-axis bundle's plant has ``"axes": [{"input": "u1", "output": "q1"}, ...]`` instead of ``input``/``output``
+(each axis may name its ``position``/``velocity`` states), its controller is ``{"kind": "per_axis", "axes":
+[one single-axis controller per axis, same Ts]}`` or one multivariable ``discrete_state_space`` with inputs
+``r_<output>`` and ``<output>`` of every axis and outputs the axes' inputs, and its recordings have the
+columns ``time`` and, per axis, ``r_<output>``, ``<input>``, ``<output>`` and optionally ``u_ext_<input>``.
+
 Every problem raises :class:`BundleError` whose message names the file and the field or column at fault.
 Units: time [s], positions [m], forces [N].
 """
@@ -78,6 +84,7 @@ class PlantInfo:
     roles: PlantRoles            # the above, the held inputs and how they were found
     parameters: dict[str, float] = dataclass_field(default_factory=dict)   # plant.parameters: user start values
     pole_pitch: float | None = None   # plant.pole_pitch [m]: magnet pole pitch, fixes the cogging period
+    axes: list[PlantRoles] = dataclass_field(default_factory=list)   # multi-axis plant: the roles of each axis
 
 
 @dataclass
@@ -90,10 +97,16 @@ class Bundle:
     validation: Recording
     start: dict[str, float] = dataclass_field(default_factory=dict)   # nominal start values (set by the pipeline)
     cache: Any = None            # the compiled loops of the diagnosis running on this bundle (set by the pipeline)
+    nominal_free: tuple = ()     # multi-axis: (free nominal parameters, their bounds) (set by the diagnosis)
 
     def recording_path(self, part: str) -> Path:
         """Path of the ``train`` or ``validation`` recording."""
         return self.directory / self.experiment["recordings"][part]
+
+    @property
+    def multi_axis(self) -> bool:
+        """True for a bundle with ``plant.axes`` (several inputs and outputs)."""
+        return bool(self.plant.axes)
 
 
 def _field(doc: dict, key: str, where: str, kind: type | tuple[type, ...]) -> Any:
@@ -138,6 +151,18 @@ def check_pole_pitch(value: Any, where: str) -> float | None:
     return float(value)
 
 
+def library_source(class_name: str, where: str, example: str) -> tuple[Path, str]:
+    """The file of a MotionTwin library class and its source without the ``within`` clause."""
+    from motiontwin.fmus.build import MODELICA_DIR
+
+    path = MODELICA_DIR.joinpath(*class_name.split(".")).with_suffix(".mo")
+    if not class_name.startswith("MotionTwin.") or not path.is_file():
+        raise BundleError(f"{where}: field 'class' names {class_name!r}, which is not a class of the MotionTwin "
+                          f"library (without field 'modelica', 'class' must be one, e.g. {example})")
+    lines = path.read_text(encoding="utf-8").splitlines()
+    return path, "\n".join(line for line in lines if not line.lstrip().startswith("within ")) + "\n"
+
+
 def library_plant(class_name: str, input_name: str = "u", output_name: str = "q", parameters: Any = None,
                   where: str = "plant", position: str | None = None, velocity: str | None = None) -> PlantInfo:
     """A plant class of the MotionTwin library by its full name (e.g. ``MotionTwin.Plants.LinearMotorJoint``).
@@ -145,15 +170,7 @@ def library_plant(class_name: str, input_name: str = "u", output_name: str = "q"
     self-contained: a class that uses other library classes is refused with a message saying so."""
     import tempfile
 
-    from motiontwin.fmus.build import MODELICA_DIR
-
-    path = MODELICA_DIR.joinpath(*class_name.split(".")).with_suffix(".mo")
-    if not class_name.startswith("MotionTwin.") or not path.is_file():
-        raise BundleError(f"{where}: field 'class' names {class_name!r}, which is not a class of the MotionTwin "
-                          f"library (without field 'modelica', 'class' must be one, e.g. "
-                          f"MotionTwin.Plants.LinearMotorJoint)")
-    lines = path.read_text(encoding="utf-8").splitlines()
-    text = "\n".join(line for line in lines if not line.lstrip().startswith("within ")) + "\n"
+    path, text = library_source(class_name, where, "MotionTwin.Plants.LinearMotorJoint")
     if "MotionTwin." in text:
         raise BundleError(f"{where}: library class {class_name} uses other library classes; give it as a flat "
                           f"Modelica file (field 'modelica')")
@@ -182,6 +199,19 @@ def load_plant(path: Path, class_name: str, input_name: str = "u", output_name: 
                           f"(field 'plant.input' of {where}); it has inputs {inputs}")
     if model.sampled:
         raise BundleError(f"{path}: class {class_name} is a sampled model; the plant must be continuous")
+    parameters = _start_parameters(model, path, class_name, parameters, where)
+    text = path.read_text(encoding="utf-8")
+    try:
+        roles = find_roles(model, text, path, input_name, output_name, position, velocity)
+    except PlantFormError as exc:
+        raise BundleError(str(exc)) from None
+    return PlantInfo(path, class_name, text, model, input_name, output_name, roles.position, roles.velocity, roles,
+                     parameters)
+
+
+def _start_parameters(model: symbolic.SymbolicModel, path: Path, class_name: str, parameters: Any,
+                      where: str) -> dict[str, float]:
+    """``plant.parameters`` checked: numbers, known parameters, inside the Modelica min/max."""
     if not model.parameters:
         raise BundleError(f"{path}: class {class_name} has no parameters to refit")
     parameters = {} if parameters is None else parameters
@@ -192,24 +222,119 @@ def load_plant(path: Path, class_name: str, input_name: str = "u", output_name: 
         startvalues.check_parameters(model, parameters, f"{where}.parameters")
     except startvalues.StartValueError as exc:
         raise BundleError(str(exc).replace("field 'parameters.", "field 'plant.parameters.")) from None
-    text = path.read_text(encoding="utf-8")
+    return parameters
+
+
+def read_axes_plant(doc: dict, bundle_dir: Path, where: str) -> PlantInfo:
+    """A multi-axis plant (``plant.axes``): a Modelica file or a library class (which may use other library
+    classes: the MotionTwin library is on the front end's path), every axis's input an input of the class,
+    its output an output, and its position/velocity states found as for one axis."""
+    from motiontwin.fmus.build import MODELICA_DIR
+
+    for key in ("input", "output", "position", "velocity"):
+        if key in doc:
+            raise BundleError(f"{where}: field 'plant.{key}' cannot be combined with 'plant.axes' (give it per "
+                              f"axis, e.g. 'plant.axes[0].{key}')")
+    class_name = _field(doc, "class", where, str)
+    if "modelica" in doc:
+        file_name = _field(doc, "modelica", where, str)
+        path = bundle_dir / Path(file_name).expanduser()
+        if not path.is_file():
+            raise BundleError(f"{where}: field 'modelica' names {file_name!r}, but {path} does not exist")
+        text = path.read_text(encoding="utf-8")
+    else:
+        path, text = library_source(class_name, where, "MotionTwin.Plants.CheungManipulator")
+        class_name = class_name.rsplit(".", 1)[-1]
     try:
-        roles = find_roles(model, text, path, input_name, output_name, position, velocity)
-    except PlantFormError as exc:
+        if "modelica" in doc:
+            model = symbolic.build(frontend.load(path, class_name, (MODELICA_DIR,)))
+        else:
+            model = symbolic.build(frontend.load(MODELICA_DIR, _field(doc, "class", where, str)))
+    except frontend.ModelicaError as exc:
         raise BundleError(str(exc)) from None
-    return PlantInfo(path, class_name, text, model, input_name, output_name, roles.position, roles.velocity, roles,
-                     parameters)
+    if model.sampled:
+        raise BundleError(f"{path}: class {class_name} is a sampled model; the plant must be continuous")
+    inputs = [v.name for v in model.inputs]
+    outputs = model.state_outputs + [c.var.name for c in model.computed if c.causality == "output"]
+    axes = _field(doc, "axes", where, list)
+    if not axes:
+        raise BundleError(f"{where}: field 'plant.axes' is empty; list one {{\"input\", \"output\"}} per axis")
+    roles: list[PlantRoles] = []
+    for k, axis in enumerate(axes):
+        at = f"field 'plant.axes[{k}]"
+        for key, names, what in (("input", inputs, "inputs"), ("output", outputs, "outputs")):
+            name = axis.get(key) if isinstance(axis, dict) else None
+            if not isinstance(name, str):
+                raise BundleError(f"{where}: {at}.{key}' is required (a string)")
+            if name not in names:
+                raise BundleError(f"{where}: {at}.{key}' names {name!r}, which is not an {key} of class "
+                                  f"{class_name} ({what}: {', '.join(names)})")
+        try:
+            found = find_roles(model, text, path, axis["input"], axis["output"], axis.get("position"),
+                               axis.get("velocity"))
+        except PlantFormError as exc:
+            raise BundleError(f"{where}: {at}': {exc}") from None
+        roles.append(found)
+    for key in ("input", "output", "position"):
+        names = [getattr(r, key) for r in roles]
+        twice = sorted({n for n in names if names.count(n) > 1})
+        if twice:
+            raise BundleError(f"{where}: field 'plant.axes': {key} {twice[0]!r} belongs to two axes")
+    driven = {r.input for r in roles}
+    held = {v.name: float(v.start) if isinstance(v.start, (int, float)) else 0.0
+            for v in model.inputs if v.name not in driven}
+    roles = [PlantRoles(r.input, r.output, r.position, r.velocity, r.source, held) for r in roles]
+    parameters = _start_parameters(model, path, class_name, doc.get("parameters", {}), where)
+    first = roles[0]
+    return PlantInfo(path, class_name, text, model, first.input, first.output, first.position, first.velocity,
+                     first, parameters, roles)
 
 
-def _to_si(rec: Recording, source: str) -> None:
+def read_axes_controller(doc: dict, where: str, axes: list[PlantRoles]) -> Controller:
+    """The controller of a multi-axis bundle: ``per_axis`` (one single-axis controller per axis, same Ts,
+    combined block-diagonally) or one multivariable ``discrete_state_space``."""
+    kind = _field(doc, "kind", where, str)
+    try:
+        if kind == "per_axis":
+            entries = _field(doc, "axes", where, list)
+            if len(entries) != len(axes):
+                raise BundleError(f"{where}: field 'axes' has {len(entries)} controllers, but plant.axes has "
+                                  f"{len(axes)} axes ({', '.join(a.output for a in axes)}); give one per axis")
+            parts = [controller.read_controller(entry, f"{where}: field 'axes[{k}]'")
+                     for k, entry in enumerate(entries)]
+            for k, part in enumerate(parts[1:], 1):
+                if abs(part.Ts - parts[0].Ts) > 1e-12 * parts[0].Ts:
+                    raise BundleError(f"{where}: field 'axes[{k}].Ts' is {part.Ts} s, but axes[0] has Ts = "
+                                      f"{parts[0].Ts} s; every axis's controller must share one sample period")
+            return controller.block_diagonal(parts)
+        if kind == "discrete_state_space":
+            return controller.read_multivariable(doc, where, [a.input for a in axes], [a.output for a in axes])
+    except controller.ControllerError as exc:
+        raise BundleError(str(exc)) from None
+    raise BundleError(f"{where}: field 'kind' is {kind!r}; a multi-axis bundle needs 'per_axis' (one controller "
+                      f"per axis) or a multivariable 'discrete_state_space'")
+
+
+def axis_columns(axes: list[PlantRoles]) -> list[str]:
+    """Required recording columns of a multi-axis bundle: per axis r_<output>, <input>, <output>."""
+    return [c for a in axes for c in (f"r_{a.output}", a.input, a.output)]
+
+
+def _to_si(rec: Recording, source: str, axes: list[PlantRoles] | None = None) -> None:
     """Read the declared units as ``identify joint`` does (ident.units): positions r, q and forces u, u_ext
-    converted to SI (mm, deg, kN ... with a note in the recording's metadata 'unit_notes'), a unit of the
-    wrong kind refused, and q's motion checked for plausibility (mm declared as m); UnitError names the column."""
-    quantities = {"r": "position", "q": "position", "u": "force"}
-    if "u_ext" in rec.columns:
-        quantities["u_ext"] = "force"
+    (multi-axis: per axis) converted to SI (mm, deg, kN ... with a note in the recording's metadata
+    'unit_notes'), a unit of the wrong kind refused, and q's motion checked for plausibility (mm declared as m);
+    UnitError names the column."""
+    pairs = [(a.input, a.output) for a in axes] if axes else [("u", "q")]
+    quantities: dict[str, str] = {}
+    for force, position in pairs:
+        reference, disturbance = ("r", "u_ext") if not axes else (f"r_{position}", f"u_ext_{force}")
+        quantities.update({reference: "position", position: "position", force: "force"})
+        if disturbance in rec.columns:
+            quantities[disturbance] = "force"
     columns = units.checked_columns(rec, quantities, source=source)
-    units.check_motion(columns, "q", source=source)
+    for _, position in pairs:
+        units.check_motion(columns, position, source=source)
     rec.time = columns.time
     rec.columns.update(columns.values)
     rec.units.update({"time": "s", **columns.units})
@@ -217,26 +342,29 @@ def _to_si(rec: Recording, source: str) -> None:
         rec.meta.setdefault("metadata", {})["unit_notes"] = columns.notes
 
 
-def _recording(doc: dict, key: str, bundle_dir: Path, where: str, ts: float) -> Recording:
+def _recording(doc: dict, key: str, bundle_dir: Path, where: str, ts: float,
+               axes: list[PlantRoles] | None = None) -> Recording:
     name = _field(doc, key, where, str)
     path = bundle_dir / name
     if not path.is_file():
         raise BundleError(f"{where}: field 'recordings.{key}' names {name!r}, but {path} does not exist")
     try:
-        rec = read_recording(path, REQUIRED_COLUMNS)
-        _to_si(rec, str(path))
+        rec = read_recording(path, ("time", *axis_columns(axes)) if axes else REQUIRED_COLUMNS)
+        _to_si(rec, str(path), axes)
     except RecordingError as exc:
         raise BundleError(str(exc)) from None
-    return check_recording(rec, path, ts)
+    return check_recording(rec, path, ts, axes)
 
 
-def check_recording(rec: Recording, path: Path | str, ts: float) -> Recording:
-    """A recording fit for the diagnosis: columns time, r, u, q (u_ext added as zeros when absent), at least
-    20 samples, finite values, time steps of the controller's ``ts``; errors name ``path``, row and column."""
-    missing = [c for c in REQUIRED_COLUMNS[1:] if c not in rec.columns]
+def check_recording(rec: Recording, path: Path | str, ts: float, axes: list[PlantRoles] | None = None) -> Recording:
+    """A recording fit for the diagnosis: columns time, r, u, q (multi-axis: per axis r_<output>, <input>,
+    <output>; u_ext or u_ext_<input> added as zeros when absent), at least 20 samples, finite values, time
+    steps of the controller's ``ts``; errors name ``path``, row and column."""
+    required = tuple(axis_columns(axes)) if axes else REQUIRED_COLUMNS[1:]
+    missing = [c for c in required if c not in rec.columns]
     if missing:
         raise BundleError(f"{path}: required column {missing[0]!r} missing (columns: {', '.join(rec.columns)})")
-    for name in ("time",) + REQUIRED_COLUMNS[1:]:
+    for name in ("time",) + required:
         values = rec.time if name == "time" else rec[name]
         bad = np.flatnonzero(~np.isfinite(values))
         if bad.size:
@@ -249,8 +377,9 @@ def check_recording(rec: Recording, path: Path | str, ts: float) -> Recording:
         i = int(bad[0])
         raise BundleError(f"{path}, row {i + 3}, column 'time': step {steps[i]!r} s differs from the controller "
                           f"sample time Ts = {ts} s (samples must be taken at the controller's sample instants)")
-    if "u_ext" not in rec.columns:
-        rec.columns["u_ext"] = np.zeros_like(rec.time)
+    for disturbance in ([f"u_ext_{a.input}" for a in axes] if axes else ["u_ext"]):
+        if disturbance not in rec.columns:
+            rec.columns[disturbance] = np.zeros_like(rec.time)
     return rec
 
 
@@ -267,21 +396,36 @@ def read_bundle(bundle_dir: str | Path) -> Bundle:
     if not isinstance(experiment, dict):
         raise BundleError(f"{exp_path}: must hold a JSON object")
     validate_experiment(experiment, exp_path)
-    controller = read_controller(_field(experiment, "controller", str(exp_path), dict), f"{exp_path}: controller")
-    plant = read_plant(_field(experiment, "plant", str(exp_path), dict), bundle_dir, f"{exp_path}: plant")
+    plant_doc = _field(experiment, "plant", str(exp_path), dict)
+    controller_doc = _field(experiment, "controller", str(exp_path), dict)
+    if "axes" in plant_doc:
+        plant = read_axes_plant(plant_doc, bundle_dir, f"{exp_path}: plant")
+        controller = read_axes_controller(controller_doc, f"{exp_path}: controller", plant.axes)
+    else:
+        controller = read_controller(controller_doc, f"{exp_path}: controller")
+        plant = read_plant(plant_doc, bundle_dir, f"{exp_path}: plant")
     recs = _field(experiment, "recordings", str(exp_path), dict)
     where = f"{exp_path}: recordings"
-    train = _recording(recs, "train", bundle_dir, where, controller.Ts)
-    validation = _recording(recs, "validation", bundle_dir, where, controller.Ts)
+    train = _recording(recs, "train", bundle_dir, where, controller.Ts, plant.axes)
+    validation = _recording(recs, "validation", bundle_dir, where, controller.Ts, plant.axes)
     return Bundle(bundle_dir, experiment, plant, controller, train, validation)
 
 
 IN_MEMORY = Path("(in memory)")
 
 
+def _is_file(text: str) -> bool:
+    """True when ``text`` names an existing file (a Modelica source longer than a file name is not one)."""
+    try:
+        return Path(text).is_file()
+    except OSError:
+        return False
+
+
 def make_bundle(plant: str | Path, controller: Controller | dict, train: Recording, validation: Recording,
                 plant_class: str | None = None, parameters: dict[str, float] | None = None,
-                input_name: str = "u", output_name: str = "q", pole_pitch: float | None = None) -> Bundle:
+                input_name: str = "u", output_name: str = "q", pole_pitch: float | None = None,
+                axes: list[dict] | None = None) -> Bundle:
     """A bundle from in-memory objects, checked as :func:`read_bundle` checks a folder.
 
     Parameters
@@ -293,6 +437,9 @@ def make_bundle(plant: str | Path, controller: Controller | dict, train: Recordi
     parameters : start values of plant parameters (as ``plant.parameters`` of experiment.json).
     input_name, output_name : the plant's force input and position output.
     pole_pitch : the motor's magnet pole pitch [m] (as ``plant.pole_pitch``), or None.
+    axes : a multi-axis plant, ``[{"input": "u1", "output": "q1"}, ...]`` as ``plant.axes`` of experiment.json
+        (then the controller is a per_axis or multivariable object, or a :class:`Controller` mapping
+        [r_1..r_n, q_1..q_n] to [u_1..u_n], and the recordings have the per-axis columns).
 
     Returns
     -------
@@ -302,10 +449,8 @@ def make_bundle(plant: str | Path, controller: Controller | dict, train: Recordi
     import re
     import tempfile
 
-    if not isinstance(controller, Controller):
-        controller = read_controller(dict(controller), "controller")
     text = str(plant)
-    is_text = isinstance(plant, str) and ("\n" in text or ";" in text) and not Path(text).is_file()
+    is_text = isinstance(plant, str) and ("\n" in text or ";" in text) and not _is_file(text)
     if not is_text and not Path(plant).is_file():
         raise BundleError(f"plant: {plant!r} is neither a Modelica file nor Modelica source text")
     source = text if is_text else Path(plant).read_text(encoding="utf-8")
@@ -318,8 +463,16 @@ def make_bundle(plant: str | Path, controller: Controller | dict, train: Recordi
         path = Path(tmp) / "plant.mo" if is_text else Path(plant)
         if is_text:
             path.write_text(source, encoding="utf-8")
-        info = load_plant(path, plant_class, input_name, output_name, parameters, "plant")
+        if axes:
+            info = read_axes_plant({"modelica": str(path), "class": plant_class, "axes": list(axes),
+                                    "parameters": parameters or {}}, path.parent, "plant")
+        else:
+            info = load_plant(path, plant_class, input_name, output_name, parameters, "plant")
     info.pole_pitch = check_pole_pitch(pole_pitch, "plant")
-    checked = [check_recording(rec, name, controller.Ts) for rec, name in ((train, "train"), (validation, "validation"))]
+    if not isinstance(controller, Controller):
+        controller = (read_axes_controller(dict(controller), "controller", info.axes) if axes
+                      else read_controller(dict(controller), "controller"))
+    checked = [check_recording(rec, name, controller.Ts, info.axes)
+               for rec, name in ((train, "train"), (validation, "validation"))]
     experiment = {"recordings": {"train": "train", "validation": "validation"}}
     return Bundle(IN_MEMORY, experiment, info, controller, *checked)

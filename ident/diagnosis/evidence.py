@@ -134,13 +134,17 @@ def locate(residual: np.ndarray, v: np.ndarray, x: np.ndarray, ts: float) -> dic
 
 def bootstrap_residuals(simulate_noisy, q_model: np.ndarray, u_model: np.ndarray, sigma_q: float,
                         sigma_u: float, n: int, count: int, seed: int = 0) -> np.ndarray:
-    """``count`` weighted residual vectors of the fitted model re-simulated with white measurement noise."""
+    """``count`` weighted residual vectors of the fitted model re-simulated with white measurement noise
+    (a multi-axis loop: one noise level per axis, arrays ``sigma_q``/``sigma_u``; rows channel-major)."""
     rng = np.random.default_rng(seed)
     out = []
+    per_axis = np.ndim(sigma_q) > 0
+    s_q = np.reshape(sigma_q, (-1, 1)) if per_axis else sigma_q
+    s_u = np.reshape(sigma_u, (-1, 1)) if per_axis else sigma_u
     for _ in range(count):
-        noise = rng.normal(0.0, sigma_q, n)
+        noise = rng.normal(0.0, 1.0, (np.size(sigma_q), n)) * s_q if per_axis else rng.normal(0.0, sigma_q, n)
         q, u = simulate_noisy(noise)
-        out.append(np.concatenate([(q + noise - q_model) / sigma_q, (u - u_model) / sigma_u]))
+        out.append(np.concatenate([((q + noise - q_model) / s_q).ravel(), ((u - u_model) / s_u).ravel()]))
     return np.array(out)
 
 

@@ -201,6 +201,22 @@ def write_structure(bundle: Bundle, effects: list[effect_models.Effect], values:
                           AUGMENTED_CLASS, bundle.plant.roles)
 
 
+def structure_parameters(model, effects: list[effect_models.Effect], free: list[str],
+                         bounds: dict[str, tuple[float, float]], values: dict[str, float]
+                         ) -> tuple[list[str], dict[str, tuple[float, float]], dict[str, float]]:
+    """Free parameters and bounds of a structure (the nominal ones, then each effect's fitted ones) and the
+    values of every parameter of its ``model`` (``values`` over the Modelica start values)."""
+    free, bounds = list(free), dict(bounds)
+    for effect in effects:
+        for p in effect.params:
+            if p.fitted:
+                free.append(p.name)
+                bounds[p.name] = p.bounds
+    all_values = {v.name: float(v.start) for v in model.parameters}
+    all_values.update({k: v for k, v in values.items() if k in all_values})
+    return free, bounds, all_values
+
+
 def build_structure(bundle: Bundle, effects: list[effect_models.Effect], values: dict[str, float], folder: Path,
                     n_samples: int, with_jacobian: bool = True, min_substeps: int = 1,
                     substeps: int | None = None) -> tuple[outputerror.Loop, dict[str, tuple[float, float]]]:
@@ -214,14 +230,7 @@ def build_structure(bundle: Bundle, effects: list[effect_models.Effect], values:
     if model is None:
         write_structure(bundle, effects, values, folder)
         model = cache.models[names] = effect_models.load_augmented(folder, AUGMENTED_CLASS)
-    free, bounds = _nominal_bounds(bundle, "plant.")
-    for effect in effects:
-        for p in effect.params:
-            if p.fitted:
-                free.append(p.name)
-                bounds[p.name] = p.bounds
-    all_values = {v.name: float(v.start) for v in model.parameters}
-    all_values.update({k: v for k, v in values.items() if k in all_values})
+    free, bounds, all_values = structure_parameters(model, effects, *_nominal_bounds(bundle, "plant."), values)
     tracking = {s: "q" for e in effects for s in e.tracks_position} | _moving_start(bundle, "plant.")
     tracking.update({s: "u" for e in effects for s in e.tracks_force})
     min_substeps = max([min_substeps] + [e.min_substeps for e in effects])
@@ -495,18 +504,17 @@ def explain_remainder(bundle: Bundle, final: ModelFit, weights: outputerror.Weig
 #: one diagnosis at a time per process: CasADi's symbolic layer is not thread-safe (see :func:`diagnose`)
 _CASADI_LOCK = threading.Lock()
 
-#: screening jobs by token, (bundle, current, ctx, weights, folder): forked workers inherit the table and are
-#: sent only (token, name); every call adds its own token and removes it, so concurrent diagnoses do not collide
+#: screening jobs by token (the function fitting one candidate by name): forked workers inherit the table and
+#: are sent only (token, name); every call adds its own token and removes it, so concurrent diagnoses do not collide
 _SCREEN_JOBS: dict[int, tuple] = {}
 
 
 def _screen_one(token: int, name: str) -> tuple[str, outputerror.Fit | None, int, float, str]:
     """Cheap fit of the current structure plus the effect ``name`` (run in a worker or in-process)."""
-    bundle, current, ctx, weights, folder = _SCREEN_JOBS[token]
+    fit_one = _SCREEN_JOBS[token]
     t0 = time.perf_counter()
     try:
-        trial = fit_structure(bundle, current, effect_models.VOCABULARY[name](ctx), ctx, weights, folder / name,
-                              SCREEN_NFEV)
+        trial = fit_one(name)
     except (RuntimeError, ValueError, np.linalg.LinAlgError) as exc:
         return name, None, 0, time.perf_counter() - t0, str(exc)
     return name, trial.fit, trial.loop.substeps, time.perf_counter() - t0, ""
@@ -524,11 +532,18 @@ def screen_workers() -> int:
 
 
 def screen(bundle: Bundle, current: ModelFit, names: list[str], ctx: effect_models.Context,
-           weights: outputerror.Weights, folder: Path, progress=None) -> dict[str, tuple[outputerror.Fit, int]]:
+           weights: outputerror.Weights, folder: Path, progress=None,
+           fit_one: Callable[[str], ModelFit] | None = None) -> dict[str, tuple[outputerror.Fit, int]]:
     """Screen every candidate effect with a few Gauss-Newton steps, in parallel processes (forked, so
-    they share the bundle and the current fit): name -> (fit, RK4 substeps of its loop)."""
+    they share the bundle and the current fit): name -> (fit, RK4 substeps of its loop). ``fit_one``: the
+    cheap fit of one candidate by name (default: :func:`fit_structure` with ``SCREEN_NFEV``; the multi-axis
+    diagnosis places the effect on its located axis)."""
+    if fit_one is None:
+        def fit_one(name: str) -> ModelFit:
+            return fit_structure(bundle, current, effect_models.VOCABULARY[name](ctx), ctx, weights, folder / name,
+                                 SCREEN_NFEV)
     token = next(_TOKENS)
-    _SCREEN_JOBS[token] = (bundle, current, ctx, weights, folder)
+    _SCREEN_JOBS[token] = fit_one
     workers = min(screen_workers(), len(names))
     try:
         if workers > 1:
@@ -561,10 +576,17 @@ def _close_richer(ranked: list[str], screened: dict, cost: float) -> list[str]:
             and cost - screened[rich][0].cost >= NESTED_SCREEN_SHARE * (cost - screened[simple][0].cost) > 0]
 
 
-def _simplest(name: str, trials: dict, null: np.ndarray, bundle: Bundle, work: Path, progress) -> str:
+def _validation_rms(bundle: Bundle, structure: ModelFit, folder: Path) -> float:
+    validate(bundle, structure, folder)
+    return structure.val_rms
+
+
+def _simplest(name: str, trials: dict, null: np.ndarray, bundle: Bundle, work: Path, progress,
+              check: Callable[[Bundle, ModelFit, Path], float] = _validation_rms) -> str:
     """Prefer the nested simpler effect (``NESTED``: coulomb in the richer frictions, resonance in backlash)
     unless the extra parameters beat their own null reference and improve the validation fit by the same
-    margin as any effect."""
+    margin as any effect (``check``: validates a structure and returns the validation RMS that decides, e.g.
+    one axis's)."""
     simple = effect_models.NESTED.get(name)
     if simple not in trials or trials[simple][1] <= trials[simple][2]:
         return name
@@ -576,11 +598,11 @@ def _simplest(name: str, trials: dict, null: np.ndarray, bundle: Bundle, work: P
     threshold = evidence.null_threshold(null_extra, dof)
     if extra <= threshold:
         return simple
-    validate(bundle, rich[0], work / f"n_{name}")
-    validate(bundle, small[0], work / f"n_{simple}")
+    rich_rms = check(bundle, rich[0], work / f"n_{name}")
+    small_rms = check(bundle, small[0], work / f"n_{simple}")
     _log(progress, f"  {name} vs {simple}: extra -{extra:.4g}, null {threshold:.4g}, validation "
-                   f"{rich[0].val_rms:.4g} vs {small[0].val_rms:.4g}")
-    return name if rich[0].val_rms < VALIDATION_GAIN * small[0].val_rms else simple
+                   f"{rich_rms:.4g} vs {small_rms:.4g}")
+    return name if rich_rms < VALIDATION_GAIN * small_rms else simple
 
 
 def _fitted_count(structure: ModelFit) -> int:
@@ -636,21 +658,26 @@ def _effect_values(structure: ModelFit, effect: effect_models.Effect) -> dict[st
     return {p.name: structure.fit.values[p.name] for p in effect.params}
 
 
-def validation_floor(loop: outputerror.Loop, bundle: Bundle, values: dict[str, float], sigma_q: float,
-                     count: int = FLOOR_REPLICATES) -> float:
+def validation_floor(loop: outputerror.Loop, bundle: Bundle, values: dict[str, float], sigma_q: float | np.ndarray,
+                     count: int = FLOOR_REPLICATES) -> float | np.ndarray:
     """RMS of measured minus free-run q that the fitted model itself leaves on the validation excitation
     [m]: the model is re-simulated with white encoder noise of the estimated level fed back through the
     controller (the noise and its closed-loop echo, which no free-run simulation can predict). No model
-    can bring the validation RMS below this floor, so the improvement is also reported above it."""
+    can bring the validation RMS below this floor, so the improvement is also reported above it.
+    A multi-axis loop takes one noise level per axis and returns one floor per axis."""
     rec = bundle.validation
     q_free, _ = outputerror.simulate(loop, rec, values)
     rng = np.random.default_rng(0)
     power = []
+    per_axis = np.ndim(sigma_q) > 0
     for _ in range(count):
-        noise = rng.normal(0.0, sigma_q, rec.time.size)
+        if per_axis:
+            noise = rng.normal(0.0, 1.0, (np.size(sigma_q), rec.time.size)) * np.reshape(sigma_q, (-1, 1))
+        else:
+            noise = rng.normal(0.0, sigma_q, rec.time.size)
         q_noisy, _ = outputerror.simulate(loop, rec, values, noise=noise)
-        power.append(np.mean((q_noisy + noise - q_free) ** 2))
-    return float(np.sqrt(np.mean(power)))
+        power.append(np.mean((q_noisy + noise - q_free) ** 2, axis=-1))
+    return np.sqrt(np.mean(power, axis=0)) if per_axis else float(np.sqrt(np.mean(power)))
 
 
 def check_plant_form(bundle: Bundle, folder: Path) -> None:
@@ -757,7 +784,8 @@ class Diagnosis:
 
 def diagnose(plant: str | Path, controller: Controller | dict, train: Recording, validation: Recording, *,
              plant_class: str | None = None, parameters: dict[str, float] | None = None,
-             pole_pitch: float | None = None, progress: Callable[[str], None] | None = None) -> Diagnosis:
+             pole_pitch: float | None = None, progress: Callable[[str], None] | None = None,
+             axes: list[dict] | None = None) -> Diagnosis:
     """Diagnose the mismatch between a nominal plant and two closed-loop recordings (in memory).
 
     Parameters
@@ -769,6 +797,8 @@ def diagnose(plant: str | Path, controller: Controller | dict, train: Recording,
     parameters : start values of plant parameters (default: Modelica values and inverse dynamics).
     pole_pitch : the motor's magnet pole pitch [m] (enables the ``cogging`` candidate), or None.
     progress : called with one line per step.
+    axes : a multi-axis plant (``[{"input": "u1", "output": "q1"}, ...]``, see :func:`bundle.make_bundle`);
+        the result then names each effect's axis and the validation RMS per axis.
 
     Returns
     -------
@@ -780,12 +810,18 @@ def diagnose(plant: str | Path, controller: Controller | dict, train: Recording,
     symbolic layer shares reference-counted constants between expressions and is not thread-safe (parallel
     diagnoses belong in separate processes).
     """
-    bundle = make_bundle(plant, controller, train, validation, plant_class, parameters, pole_pitch=pole_pitch)
+    bundle = make_bundle(plant, controller, train, validation, plant_class, parameters, pole_pitch=pole_pitch,
+                         axes=axes)
     return diagnose_bundle_object(bundle, progress)
 
 
 def diagnose_bundle_object(bundle: Bundle, progress: Callable[[str], None] | None = None) -> Diagnosis:
-    """:func:`diagnose` of an already read :class:`Bundle` (working files in a temporary folder)."""
+    """:func:`diagnose` of an already read :class:`Bundle` (working files in a temporary folder); a
+    multi-axis bundle goes to :mod:`ident.diagnosis.multiaxis`."""
+    if bundle.multi_axis:
+        from motiontwin.ident.diagnosis import multiaxis
+
+        return multiaxis.diagnose_bundle_object(bundle, progress)
     with _CASADI_LOCK, tempfile.TemporaryDirectory(prefix="motiontwin-diagnosis-") as tmp:
         return Diagnosis.from_result(run(bundle, Path(tmp), progress))
 

@@ -1,0 +1,184 @@
+"""Cheap multi-axis bundles whose truth is simulated by CasADi: the diagnosis' own augmented model with the
+true effects on their axes (the ``MotionTwin.Effects`` force laws through the project's front end), RK4
+with 8 substeps per sample, white encoder noise fed back through the controller, no quantisation. The
+multi-axis counterpart of ``benchmark.casadi_truth``, for the decision tests and the budget benchmark until
+the FMU-truth generator exists. Units: SI (s, m, N).
+"""
+from __future__ import annotations
+
+import json
+import math
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import casadi as ca
+import numpy as np
+
+from motiontwin.harness.recording import atomic_write_texts, make_recording, write_recording
+from motiontwin.ident import outputerror
+from motiontwin.ident.controller import Controller
+from motiontwin.ident.diagnosis import effects as effect_models
+from motiontwin.ident.diagnosis import multiaxis
+from motiontwin.ident.diagnosis.bundle import read_axes_controller, read_axes_plant
+
+#: a small coupled plant for tests and examples: two carriages with inertial (mc) and elastic (kc) coupling
+COUPLED2_TEXT = '''model Coupled2 "Two carriages with inertial and elastic coupling"
+  parameter Real m1(unit = "kg", min = 1e-6) = 2.0 "Mass of carriage 1";
+  parameter Real m2(unit = "kg", min = 1e-6) = 3.0 "Mass of carriage 2";
+  parameter Real mc(unit = "kg", min = 0) = 0.6 "Inertial coupling";
+  parameter Real d(unit = "N.s/m", min = 0) = 10 "Viscous damping of each carriage";
+  parameter Real kc(unit = "N/m", min = 0) = 2000 "Coupling spring";
+  input Real u1(unit = "N");
+  input Real u2(unit = "N");
+  output Real q1(unit = "m");
+  output Real q2(unit = "m");
+  Real x1(unit = "m", start = 0.01, fixed = true);
+  Real x2(unit = "m", start = 0.02, fixed = true);
+  Real v1(unit = "m/s", start = 0, fixed = true);
+  Real v2(unit = "m/s", start = 0, fixed = true);
+equation
+  der(x1) = v1;
+  der(x2) = v2;
+  m1*der(v1) + mc*der(v2) = u1 - d*v1 - kc*(x1 - x2);
+  mc*der(v1) + m2*der(v2) = u2 - d*v2 - kc*(x2 - x1);
+  q1 = x1;
+  q2 = x2;
+end Coupled2;
+'''
+COUPLED2_AXES = [{"input": "u1", "output": "q1"}, {"input": "u2", "output": "q2"}]
+CHEUNG_AXES = [{"input": f"u{k}", "output": f"q{k}"} for k in (1, 3, 5, 7)]
+PREROLL = 0.5            # s at the first reference before the recording starts (integrators settle)
+SUBSTEPS = 8
+
+
+@dataclass
+class TrueEffect:
+    """An effect of the truth: vocabulary name, axis (output name), parameters (the effect's own names)."""
+
+    name: str
+    axis: str
+    parameters: dict[str, float]
+
+
+def pid_document(ts: float, mass: float, bandwidth: float) -> dict:
+    """A single-axis PID (filtered derivative, Tustin) as its experiment.json object, tuned for ``mass``."""
+    import scipy.signal as sps
+
+    wc = 2 * math.pi * bandwidth
+    kp, ti, td, n = mass * wc ** 2 / 3, 4 / wc, 1.5 / wc, 8.0
+    num = [kp * ti * td * (1 + 1 / n), kp * (ti + td / n), kp]
+    den = [ti * td / n, ti, 0.0]
+    a, b, c, d, _ = sps.cont2discrete(sps.tf2ss(num, den), ts, method="bilinear")
+    return {"kind": "discrete_state_space", "Ts": ts, "inputs": ["r", "q"], "outputs": ["u"],
+            "A": np.atleast_2d(a).tolist(), "B": np.hstack([b, -b]).tolist(), "C": np.atleast_2d(c).tolist(),
+            "D": np.hstack([d, -d]).tolist()}
+
+
+def references(outputs: list[str], centres: dict[str, float], duration: float, ts: float, stroke: float,
+               rng: np.random.Generator) -> np.ndarray:
+    """Smooth point-to-point moves of every axis (cosine profiles, independent targets and durations), so
+    that each axis moves in both directions at several speeds: axes x samples."""
+    n = int(round(duration / ts))
+    out = np.zeros((len(outputs), n))
+    for k, name in enumerate(outputs):
+        pos, now = centres[name], 0.1
+        r = np.full(n, pos)
+        while now < duration - 0.3:
+            target = centres[name] + stroke * rng.uniform(-0.5, 0.5)
+            dur = min(rng.uniform(0.15, 0.6), duration - 0.1 - now)
+            i0, i1 = int(now / ts), int((now + dur) / ts)
+            s = (1 - np.cos(np.pi * np.linspace(0, 1, max(i1 - i0, 1)))) / 2
+            r[i0:i1] = pos + (target - pos) * s
+            r[i1:] = target
+            pos = target
+            now += dur + rng.uniform(0.05, 0.2)
+        out[k] = r
+    return out
+
+
+def write_bundle(folder: Path, plant_doc: dict, controller_doc: dict, effects: list[TrueEffect],
+                 train_s: float, validation_s: float, seed: int, noise_std: float = 1e-8,
+                 stroke: float = 0.004, plant_text: str | None = None,
+                 true_parameters: dict[str, float] | None = None) -> dict:
+    """Write a multi-axis bundle (experiment.json, train.csv, validation.csv, truth.json) into ``folder``;
+    returns the truth document. ``plant_doc``: experiment.json's plant object (with ``axes``; its
+    ``parameters`` are the diagnosis' start values, not the truth's); with ``plant_text`` it is written as
+    plant.mo. ``true_parameters``: the truth's plant parameters (default: the Modelica values)."""
+    folder.mkdir(parents=True, exist_ok=True)
+    if plant_text is not None:
+        (folder / "plant.mo").write_text(plant_text, encoding="utf-8")
+        plant_doc = {**plant_doc, "modelica": "plant.mo"}
+    plant = read_axes_plant(plant_doc, folder, "truth plant")
+    ctrl: Controller = read_axes_controller(controller_doc, "truth controller", plant.axes)
+    ts = ctrl.Ts
+    values = {"plant." + v.name: float(v.start) for v in plant.model.parameters}
+    values.update({"plant." + k: float(v) for k, v in (true_parameters or {}).items()})
+    p = np.array([values["plant." + v.name] for v in plant.model.parameters])
+    x0 = np.array(ca.Function("x0", [plant.model.p], [plant.model.x0()])(p)).ravel()
+    names = [s.name for s in plant.model.states]
+    centres = {a.output: float(x0[names.index(a.position)]) for a in plant.axes}
+    placed = []
+    ctx = effect_models.Context(ts, -1.0, 1.0, 0.2, 1.0)
+    for true in effects:
+        roles = next(a for a in plant.axes if a.output == true.axis)
+        effect = multiaxis.on_axis(effect_models.VOCABULARY[true.name](ctx), roles)
+        placed.append((true.axis, effect))
+        values.update({p.name: float(np.mean(p.bounds)) for p in effect.params})
+        values.update({multiaxis._prefix(true.axis) + k: float(v) for k, v in true.parameters.items()})
+    rng = np.random.default_rng(seed)
+    outputs = [a.output for a in plant.axes]
+    with tempfile.TemporaryDirectory(prefix="mt-truth-") as tmp:
+        multiaxis.write_structure(plant, placed, values, Path(tmp))
+        model = multiaxis.load_structure(Path(tmp))
+    signals = multiaxis.axes_signals(plant)
+    pre = int(round(PREROLL / ts))
+    parts = {}
+    for part, duration in (("train", train_s), ("validation", validation_s)):
+        r = references(outputs, centres, duration, ts, stroke, rng)
+        r = np.hstack([np.repeat(r[:, :1], pre, axis=1), r])
+        n = r.shape[1]
+        columns = {}
+        for k, sig in enumerate(signals):
+            columns.update({sig.reference: r[k], sig.input: np.zeros(n), sig.output: np.full(n, r[k, 0])})
+        rec = make_recording(np.arange(n) * ts, columns)
+        loop = outputerror.build_loop(model, ctrl, outputs[0], [], values, n, substeps=SUBSTEPS,
+                                      with_jacobian=False, axes=signals)
+        noise = rng.normal(0.0, noise_std, (len(outputs), n))
+        q, u = outputerror.simulate(loop, rec, values, noise=noise)
+        data = {}
+        for k, sig in enumerate(signals):
+            data.update({sig.reference: r[k, pre:], sig.input: u[k, pre:], sig.output: q[k, pre:] + noise[k, pre:]})
+        parts[part] = make_recording(np.arange(n - pre) * ts, data, {c: ("N" if c.startswith("u") else "m")
+                                                                     for c in data})
+    for part, rec in parts.items():
+        write_recording(folder / f"{part}.csv", rec)
+    experiment = {"plant": plant_doc, "controller": controller_doc,
+                  "recordings": {"train": "train.csv", "validation": "validation.csv"}}
+    truth = {"effects": [{"name": e.name, "axis": e.axis, "parameters": e.parameters} for e in effects],
+             "plant_parameters": {k[len("plant."):]: v for k, v in values.items() if k.startswith("plant.")},
+             "noise_std": noise_std, "seed": seed}
+    atomic_write_texts({folder / "experiment.json": json.dumps(experiment, indent=1),
+                        folder / "truth.json": json.dumps(truth, indent=1)})
+    return truth
+
+
+def example(folder: Path, case: str, train_s: float, validation_s: float, ts: float = 5e-4) -> dict:
+    """Write one of the example bundles: ``coupled2_coulomb_q2`` (Coulomb friction 0.3 N on q2 of the coupled
+    two-carriage plant, start values m1 = 2.3 kg and d = 8 N.s/m against the true 2 and 10),
+    ``coupled2_params_only`` (the same without the friction) or ``cheung_coulomb_q5`` (Coulomb friction 0.5 N
+    on q5 of the CheungManipulator library class, c_v starting at 4 against the true 5)."""
+    if case.startswith("coupled2"):
+        controller = {"kind": "per_axis", "axes": [pid_document(ts, 2.0, 60.0), pid_document(ts, 3.0, 60.0)]}
+        plant = {"class": "Coupled2", "axes": COUPLED2_AXES, "parameters": {"m1": 2.3, "d": 8.0}}
+        effects = ([TrueEffect("coulomb_friction", "q2", {"coulomb_Fc": 0.3, "coulomb_v_eps": 1e-4})]
+                   if case == "coupled2_coulomb_q2" else [])
+        return write_bundle(folder, plant, controller, effects, train_s, validation_s, seed=3,
+                            plant_text=COUPLED2_TEXT)
+    if case == "cheung_coulomb_q5":
+        controller = {"kind": "per_axis", "axes": [pid_document(ts, 1.2, 40.0) for _ in CHEUNG_AXES]}
+        plant = {"class": "MotionTwin.Plants.CheungManipulator", "axes": CHEUNG_AXES, "parameters": {"c_v": 4.0}}
+        effect = TrueEffect("coulomb_friction", "q5", {"coulomb_Fc": 0.5, "coulomb_v_eps": 1e-4})
+        return write_bundle(folder, plant, controller, [effect], train_s, validation_s, seed=16)
+    raise ValueError(f"unknown example {case!r}; known: coupled2_coulomb_q2, coupled2_params_only, cheung_coulomb_q5")
+

@@ -1,0 +1,61 @@
+"""Benchmark (not a test): multi-axis `motiontwin diagnose` runtime against the issue-16 budget of 300 s for a
+4-DOF CheungManipulator bundle of 10 s training at 2 kHz (plus validation) on this 2-core machine.
+
+Without a bundle folder it writes one with the CasADi truth (:mod:`ident.diagnosis.multiaxis_truth`:
+Coulomb friction of 0.5 N concealed on axis q5, encoder noise 10 nm, PID per axis, 10 s + 5 s at 2 kHz);
+with a folder (e.g. one of the FMU-truth generator's bundles) it diagnoses that. Prints what was found
+against ``truth.json`` (or ``<case>.truth.json``) when present, the per-axis validation RMS, the wall and CPU
+time, the ratio to the target and the 1-minute load average.
+
+Run: .venv/bin/python tests/benchmarks/bench_diagnosis_multiaxis.py [BUNDLE_DIR] [--out OUT] [--train 10]
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import tempfile
+import time
+from pathlib import Path
+
+from motiontwin.ident.diagnosis import diagnose_bundle
+from motiontwin.ident.diagnosis import multiaxis_truth as truth
+
+TARGET_S = 300.0
+
+
+def cpu_seconds() -> float:
+    t = os.times()
+    return t.user + t.system + t.children_user + t.children_system
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("bundle", nargs="?", help="bundle folder (default: generate the Cheung case)")
+    parser.add_argument("--out", help="diagnosis output folder (default: a temporary one)")
+    parser.add_argument("--train", type=float, default=10.0, help="generated training length [s]")
+    args = parser.parse_args()
+    with tempfile.TemporaryDirectory(prefix="bench-multiaxis-") as tmp:
+        folder = Path(args.bundle) if args.bundle else Path(tmp) / "cheung_coulomb_q5"
+        if not args.bundle:
+            t0 = time.perf_counter()
+            truth.example(folder, "cheung_coulomb_q5", args.train, args.train / 2)
+            print(f"generated {folder} in {time.perf_counter() - t0:.1f} s")
+        out = Path(args.out) if args.out else Path(tmp) / "out"
+        wall, cpu = time.perf_counter(), cpu_seconds()
+        doc = diagnose_bundle(folder, out, progress=lambda m: print(m, flush=True))
+        wall, cpu = time.perf_counter() - wall, cpu_seconds() - cpu
+        truths = list(folder.glob("*truth.json")) or list(folder.parent.glob(f"{folder.name}.truth.json"))
+        if truths:
+            expected = json.loads(truths[0].read_text())["effects"]
+            print("truth:", ", ".join(f"{e['name']} on {e['axis']} {e['parameters']}" for e in expected) or "-")
+        print("found:", ", ".join(f"{e['name']} on {e['axis']} {e['parameters']}" for e in doc["effects"]) or "-")
+        for axis, v in doc["validation"]["per_axis"].items():
+            print(f"  {axis}: validation RMS {v['nominal_rms']:.3g} -> {v['augmented_rms']:.3g} m "
+                  f"(noise floor {v['noise_floor_rms']:.3g} m)")
+        print(f"wall {wall:.1f} s, CPU {cpu:.1f} s, target {TARGET_S:.0f} s: ratio {wall / TARGET_S:.2f} (wall), "
+              f"{cpu / TARGET_S:.2f} (CPU); load average {os.getloadavg()[0]:.2f}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,267 @@
+"""Multi-axis diagnosis (issue 16, part C) on a coupled two-carriage plant (inertial and elastic coupling, so
+an effect on one axis moves both): the MIMO output-error loop against an exact discrete-time reference, the
+bundle errors, and the decisions on CasADi-truth bundles (the augmented model with the true effect on one axis,
+white encoder noise fed back through the loop): Coulomb friction on q2 -> exactly that effect on q2; a
+parameters-only bundle -> no effect."""
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+import scipy.linalg
+
+from motiontwin.fmus import frontend, symbolic
+from motiontwin.harness.recording import make_recording
+from motiontwin.ident import outputerror
+from motiontwin.ident.controller import Controller, block_diagonal
+from motiontwin.ident.diagnosis import diagnose_bundle, multiaxis, read_bundle
+from motiontwin.ident.diagnosis import multiaxis_truth as truth
+from motiontwin.ident.diagnosis.bundle import BundleError
+
+TS = 5e-4
+PLANT = truth.COUPLED2_TEXT
+AXES = truth.COUPLED2_AXES
+CONTROLLER = {"kind": "per_axis", "axes": [truth.pid_document(TS, 2.0, 60.0), truth.pid_document(TS, 3.0, 60.0)]}
+START = {"m1": 2.3, "d": 8.0}          # the nominal model is off: the refit must move these, not name an effect
+FC_TRUE = 0.3
+
+
+def _bundle(folder: Path, effects: list[truth.TrueEffect], seed: int) -> Path:
+    plant = {"class": "Coupled2", "axes": AXES, "parameters": START}
+    truth.write_bundle(folder, plant, CONTROLLER, effects, 2.0, 1.0, seed=seed, plant_text=PLANT)
+    return folder
+
+
+@pytest.fixture(scope="module")
+def coulomb_q2(tmp_path_factory) -> tuple[dict, Path]:
+    folder = _bundle(tmp_path_factory.mktemp("coulomb") / "bundle",
+                     [truth.TrueEffect("coulomb_friction", "q2", {"coulomb_Fc": FC_TRUE, "coulomb_v_eps": 1e-4})], 3)
+    out = folder.parent / "out"
+    return diagnose_bundle(folder, out), out
+
+
+def test_mimo_loop_matches_exact_discrete_closed_loop(tmp_path):
+    """The two-axis closed loop of build_loop (RK4) against the exact ZOH discretisation of the linear coupled
+    plant (scipy matrix exponential) closed by the block-diagonal PID, stepped in numpy."""
+    (tmp_path / "plant.mo").write_text(PLANT)
+    model = symbolic.build(frontend.load(tmp_path / "plant.mo", "Coupled2"))
+    ctrl = block_diagonal([_pid(2.0), _pid(3.0)])
+    n = 800
+    rng = np.random.default_rng(0)
+    r = np.vstack([0.01 + 1e-3 * np.sin(np.arange(n) * TS * 2 * np.pi * 3), 0.02 + 5e-4 * np.sign(
+        np.sin(np.arange(n) * TS * 2 * np.pi * 5))])
+    u_ext = rng.normal(0, 0.5, (2, n))
+    signals = [outputerror.axis_signals("u1", "q1"), outputerror.axis_signals("u2", "q2")]
+    cols = {}
+    for k, s in enumerate(signals):
+        cols.update({s.reference: r[k], s.input: np.zeros(n), s.output: np.full(n, r[k, 0]), s.disturbance: u_ext[k]})
+    rec = make_recording(np.arange(n) * TS, cols)
+    values = {v.name: float(v.start) for v in model.parameters}
+    loop = outputerror.build_loop(model, ctrl, "q1", [], values, n, substeps=8, with_jacobian=False, axes=signals)
+    q, u = outputerror.simulate(loop, rec)
+    # reference: x = [x1, x2, v1, v2], M dv = u - d v - K x
+    m = np.array([[2.0, 0.6], [0.6, 3.0]])
+    k_mat = 2000 * np.array([[1, -1], [-1, 1]])
+    a_c = np.block([[np.zeros((2, 2)), np.eye(2)], [-np.linalg.solve(m, k_mat), -10 * np.linalg.inv(m)]])
+    b_c = np.vstack([np.zeros((2, 2)), np.linalg.inv(m)])
+    big = scipy.linalg.expm(np.block([[a_c, b_c], [np.zeros((2, 6))]]) * TS)
+    ad, bd = big[:4, :4], big[:4, 4:]
+    x = np.array([0.01, 0.02, 0.0, 0.0])
+    y0 = np.concatenate([r[:, 0], x[:2]])
+    z = np.linalg.pinv(ctrl.C) @ (np.zeros(2) - u_ext[:, 0] - ctrl.D @ y0)   # recorded u_0 (= 0) reproduced
+    q_ref, u_ref = np.zeros((2, n)), np.zeros((2, n))
+    for i in range(n):
+        y = np.concatenate([r[:, i], x[:2]])
+        force = ctrl.C @ z + ctrl.D @ y + u_ext[:, i]
+        q_ref[:, i], u_ref[:, i] = x[:2], force
+        z = ctrl.A @ z + ctrl.B @ y
+        x = ad @ x + bd @ force
+    assert q.shape == (2, n)
+    assert np.max(np.abs(q - q_ref)) < 1e-6 * np.ptp(q_ref)
+    assert np.max(np.abs(u - u_ref)) < 1e-6 * np.ptp(u_ref)
+    assert np.ptp(q_ref[1]) > 1e-4              # the loop really moves both axes
+
+
+def _pid(mass: float) -> Controller:
+    from motiontwin.ident.controller import read_controller
+
+    return read_controller(truth.pid_document(TS, mass, 60.0), "pid")
+
+
+def _coupled_case(tmp_path: Path, n: int, disturbance: float) -> tuple:
+    """The coupled plant, its block-diagonal PID, the axes' columns and a recording of sine references."""
+    (tmp_path / "plant.mo").write_text(PLANT)
+    model = symbolic.build(frontend.load(tmp_path / "plant.mo", "Coupled2"))
+    signals = [outputerror.axis_signals("u1", "q1"), outputerror.axis_signals("u2", "q2")]
+    t = np.arange(n) * TS
+    cols = {}
+    for k, s in enumerate(signals):
+        cols.update({s.reference: 0.01 * (k + 1) + 1e-3 * np.sin(2 * np.pi * (k + 2) * t), s.input: np.zeros(n),
+                     s.output: np.full(n, 0.01 * (k + 1)), s.disturbance: disturbance * np.sin(2 * np.pi * 40 * t)})
+    values = {v.name: float(v.start) for v in model.parameters}
+    return model, block_diagonal([_pid(2.0), _pid(3.0)]), signals, make_recording(t, cols), values
+
+
+def test_mimo_jacobian_matches_finite_differences(tmp_path):
+    """The chained AD sensitivities of a two-axis loop (channel-major rows) against central differences."""
+    n = 300
+    model, ctrl, signals, rec, values = _coupled_case(tmp_path, n, 0.0)
+    free = ["m1", "kc"]
+    loop = outputerror.build_loop(model, ctrl, "q1", free, values, n, substeps=4, axes=signals)
+    weights = outputerror.Weights(np.array([1e-6, 2e-6]), np.array([0.1, 0.3]))
+    s0 = outputerror.initial_state(loop, rec)
+    W = outputerror.drive(rec, signals=loop.channels)
+    pf = loop.pfix()
+    jac = outputerror.weighted_jacobian(loop, s0, W, loop.theta(), pf, [], weights)
+    for j, name in enumerate(free):
+        h = 1e-6 * values[name]
+        res = [outputerror.residuals(loop, rec, {**values, name: values[name] + sign * h}, weights)[0]
+               for sign in (1, -1)]
+        numeric = (res[0] - res[1]) / (2 * h)
+        assert np.max(np.abs(jac[:, j] - numeric)) < 1e-4 * np.max(np.abs(numeric))
+
+
+def test_called_rhs_loop_equals_inlined_loop(tmp_path, monkeypatch):
+    """The large-plant form of the loop (right-hand side and its Jacobians called in an MX graph, variational
+    RK4 written out) against the inlined SX loop with CasADi's own AD: same free run and same Jacobian."""
+    n = 400
+    model, ctrl, signals, rec, values = _coupled_case(tmp_path, n, 0.2)
+    tracking = {"v2": "dq:q2"}
+    loops = []
+    for limit in (10 ** 9, 0):          # inlined SX, then called MX
+        monkeypatch.setattr(outputerror, "CALL_INSTRUCTIONS", limit)
+        loops.append(outputerror.build_loop(model, ctrl, "q1", ["m1", "kc", "d"], values, n, substeps=2,
+                                            axes=signals, tracking=tracking))
+    s0 = outputerror.initial_state(loops[0], rec)
+    W = outputerror.drive(rec, signals=loops[0].channels)
+    args = (s0, W, loops[0].theta(), loops[0].pfix())
+    for inlined, called in zip(loops[0].sim(*args), loops[1].sim(*args)):
+        assert np.max(np.abs(np.array(inlined) - np.array(called))) <= 1e-12 * np.max(np.abs(inlined))
+    for inlined, called in zip(loops[0].jac(*args), loops[1].jac(*args)):
+        assert np.max(np.abs(np.array(inlined) - np.array(called))) <= 1e-9 * np.max(np.abs(inlined))
+
+
+def test_coulomb_on_one_axis_found_on_that_axis(coulomb_q2):
+    """Coulomb friction concealed on q2 of the coupled plant: located on q2 (its force residual), exactly
+    coulomb_friction on q2, Fc within 3 %, q2's validation RMS at the noise floor (within 20 %)."""
+    doc, out = coulomb_q2
+    assert [(e["name"], e["axis"]) for e in doc["effects"]] == [("coulomb_friction", "q2")]
+    assert doc["effects"][0]["parameters"]["Fc"] == pytest.approx(FC_TRUE, rel=0.03)
+    first = doc["location"][0]["scores"]
+    assert max(first, key=first.get) == "q2"
+    q2 = doc["validation"]["per_axis"]["q2"]
+    assert q2["augmented_rms"] < 0.2 * q2["nominal_rms"]
+    assert q2["augmented_rms"] < 1.2 * q2["noise_floor_rms"]
+    assert doc["augmented_parameters"]["m1"] == pytest.approx(2.0, rel=0.01)   # the start was 2.3
+    model = (out / "augmented_model" / "Augmented.mo").read_text()
+    assert "plant.u2 = u2 - (MotionTwin.Effects.CoulombFriction(plant.v2, q2_coulomb_Fc" in model
+    assert "plant.u1 = u1;" in model
+    assert "coulomb_friction on axis q2" in (out / "report.md").read_text()
+    assert {entry["round"] for entry in doc["candidates"]} == {1}     # no axis left above 1.5x its noise level
+    assert max(doc["location"][1]["scores"].values()) < 1.5
+
+
+def test_parameters_only_bundle_gives_no_effect(tmp_path):
+    """Only the nominal parameters are off (m1 2.3 vs 2.0, d 8 vs 10): no effect on any axis, the refit
+    reaches the true mass, and the validation RMS of every axis is at its noise floor."""
+    doc = diagnose_bundle(_bundle(tmp_path / "bundle", [], 5), tmp_path / "out")
+    assert doc["effects"] == []
+    assert doc["nominal_parameters"]["m1"] == pytest.approx(2.0, rel=0.01)
+    for v in doc["validation"]["per_axis"].values():
+        assert v["nominal_rms"] < 1.2 * v["noise_floor_rms"]
+    assert all(entry["cost_reduction"] < entry["null_threshold"] for entry in doc["candidates"])
+    assert not any("validation_rms_after" in entry for entry in doc["candidates"])   # never validated
+
+
+@pytest.fixture(scope="module")
+def small_bundle(tmp_path_factory) -> Path:
+    return _bundle(tmp_path_factory.mktemp("errors") / "bundle", [], 7)
+
+
+def _edited(small_bundle: Path, tmp_path: Path, edit) -> Path:
+    folder = tmp_path / "bad"
+    shutil.copytree(small_bundle, folder)
+    doc = json.loads((folder / "experiment.json").read_text())
+    edit(doc, folder)
+    (folder / "experiment.json").write_text(json.dumps(doc))
+    return folder
+
+
+def _drop_column(folder: Path, name: str) -> None:
+    lines = (folder / "train.csv").read_text().splitlines()
+    header = lines[0].split(",")
+    keep = [i for i, h in enumerate(header) if h != name]
+    (folder / "train.csv").write_text("\n".join(",".join(row.split(",")[i] for i in keep) for row in lines) + "\n")
+    (folder / "train.json").unlink(missing_ok=True)
+
+
+@pytest.mark.parametrize("edit, message", [
+    (lambda d, f: _drop_column(f, "u2"), "train.csv, row 1: required column 'u2' missing"),
+    (lambda d, f: d["plant"]["axes"][1].update(input="u9"),
+     "field 'plant.axes[1].input' names 'u9', which is not an input of class Coupled2"),
+    (lambda d, f: d["controller"]["axes"][1].update(Ts=1e-3),
+     "field 'axes[1].Ts' is 0.001 s, but axes[0] has Ts = 0.0005 s"),
+    (lambda d, f: d["controller"]["axes"].pop(), "field 'axes' has 1 controllers, but plant.axes has 2 axes"),
+    (lambda d, f: d["plant"].update(input="u1"), "field 'plant.input' cannot be combined with 'plant.axes'"),
+    (lambda d, f: d["controller"].update(kind="MotionTwin.Controllers.RobustJointController"),
+     "a multi-axis bundle needs 'per_axis'"),
+])
+def test_bundle_errors_name_file_and_field(small_bundle, tmp_path, edit, message):
+    with pytest.raises(BundleError) as info:
+        read_bundle(_edited(small_bundle, tmp_path, edit))
+    assert message in str(info.value)
+
+
+def test_multivariable_controller_reads_as_block_diagonal(small_bundle, tmp_path):
+    """One multivariable discrete_state_space (inputs r_q1, r_q2, q1, q2 in any order) equals the per-axis
+    controllers combined block-diagonally."""
+    per_axis = read_bundle(small_bundle).controller
+
+    def edit(doc, folder):
+        order_in = ["q2", "r_q1", "q1", "r_q2"]
+        canonical = ["r_q1", "r_q2", "q1", "q2"]
+        cols = [canonical.index(n) for n in order_in]
+        doc["controller"] = {"kind": "discrete_state_space", "Ts": TS, "inputs": order_in, "outputs": ["u2", "u1"],
+                             "A": per_axis.A.tolist(), "B": per_axis.B[:, cols].tolist(),
+                             "C": per_axis.C[[1, 0]].tolist(), "D": per_axis.D[[1, 0]][:, cols].tolist()}
+    multi = read_bundle(_edited(small_bundle, tmp_path, edit)).controller
+    for name in "ABCD":
+        np.testing.assert_array_equal(getattr(multi, name), getattr(per_axis, name))
+
+
+def test_effect_on_axis_renames_parameters_and_states():
+    """An effect placed on an axis uses that axis's states and prefixed parameters; the contract reads them."""
+    from motiontwin.ident.diagnosis import effects as effect_models
+    from motiontwin.ident.diagnosis.plant_roles import PlantRoles
+
+    ctx = effect_models.Context(TS, 0.0, 0.1, 0.1, 1.0)
+    roles = PlantRoles("u3", "q3", "d3", "v3")
+    placed = multiaxis.on_axis(effect_models.VOCABULARY["coulomb_friction"](ctx), roles)
+    assert placed.force == "MotionTwin.Effects.CoulombFriction(plant.v3, q3_coulomb_Fc, q3_coulomb_v_eps)"
+    assert [p.name for p in placed.params] == ["q3_coulomb_Fc", "q3_coulomb_v_eps"]
+    assert placed.contract({"q3_coulomb_Fc": 0.7}, ctx) == {"Fc": 0.7}
+    delay = multiaxis.on_axis(effect_models.VOCABULARY["resonance"](ctx), roles)
+    assert "der(q3_resonance_x2) = q3_resonance_v2" in delay.equations
+
+
+def test_in_memory_multi_axis_bundle_equals_folder(small_bundle):
+    """make_bundle(axes=...) (the Python diagnose) reads the same plant axes, controller and recordings."""
+    from motiontwin.harness.recording import read_recording
+    from motiontwin.ident.diagnosis import make_bundle
+
+    folder = read_bundle(small_bundle)
+    doc = json.loads((small_bundle / "experiment.json").read_text())
+    memory = make_bundle(PLANT, doc["controller"], read_recording(small_bundle / "train.csv"),
+                         read_recording(small_bundle / "validation.csv"), "Coupled2", START, axes=AXES)
+    assert memory.multi_axis and [a.as_dict() for a in memory.plant.axes] == [a.as_dict() for a in folder.plant.axes]
+    for name in "ABCD":
+        np.testing.assert_array_equal(getattr(memory.controller, name), getattr(folder.controller, name))
+    np.testing.assert_array_equal(memory.train["u_ext_u2"], np.zeros(memory.train.time.size))
+    with pytest.raises(BundleError, match="required column 'q2' missing"):
+        rec = read_recording(small_bundle / "train.csv")
+        del rec.columns["q2"]
+        make_bundle(PLANT, doc["controller"], rec, read_recording(small_bundle / "validation.csv"), "Coupled2",
+                    axes=AXES)
