@@ -292,7 +292,8 @@ def axis_context(bundle: Bundle, current: Structure, k: int, force: np.ndarray) 
     _, g = fn(x[:, 0], np.zeros(model.u.numel()), p)
     mass = float(np.linalg.inv(np.array(g))[k, k])
     ctx = effect_models.Context(ts, float(q_all.min()), float(q_all.max()), float(np.max(np.abs(vel))) or 1e-3,
-                                mass, position_gain=gain)
+                                mass, position_gain=gain, u=bundle.train[roles.input],
+                                duration=float(bundle.train.time[-1] - bundle.train.time[0]))
     ctx.x, ctx.v, ctx.a, ctx.force = pos, vel, acc[k], force
     ctx.udot = np.gradient(forces[k], ts)
     q_sim = current.fit.q_sim[k]
@@ -415,8 +416,8 @@ def _bootstrap(bundle: Bundle, current: Structure, weights: outputerror.Weights,
 
 def candidates(ctx: effect_models.Context, used: set[str]) -> list[str]:
     """The vocabulary's effects offered on an axis (one per family and axis)."""
-    return [n for n, factory in effect_models.VOCABULARY.items()
-            if n not in PER_AXIS_EXCLUDED and factory(ctx).family not in used]
+    offered = {n: factory(ctx) for n, factory in effect_models.VOCABULARY.items() if n not in PER_AXIS_EXCLUDED}
+    return [n for n, e in offered.items() if e.applicable and e.family not in used]
 
 
 def select(bundle: Bundle, nominal: Structure, weights: outputerror.Weights, work: Path,
