@@ -287,7 +287,7 @@ def read_axes_plant(doc: dict, bundle_dir: Path, where: str) -> PlantInfo:
     parameters = _start_parameters(model, path, class_name, doc.get("parameters", {}), where)
     first = roles[0]
     return PlantInfo(path, class_name, text, model, first.input, first.output, first.position, first.velocity,
-                     first, parameters, roles)
+                     first, parameters, axes=roles)
 
 
 def read_axes_controller(doc: dict, where: str, axes: list[PlantRoles]) -> Controller:
