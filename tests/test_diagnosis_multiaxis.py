@@ -164,6 +164,26 @@ def test_coulomb_on_one_axis_found_on_that_axis(coulomb_q2):
     assert max(doc["location"][1]["scores"].values()) < 1.5
 
 
+def test_written_fmu_is_self_contained_and_carries_the_fit(coulomb_q2):
+    """The augmented model is written with the MotionTwin library beside it (it loads without the project's
+    library path) and built into an FMI 2.0 FMU whose start values are the fitted parameters; fmpy validates
+    the FMU and simulates it from those defaults."""
+    import fmpy
+    from fmpy.validation import validate_fmu
+
+    doc, out = coulomb_q2
+    fmu = Path(doc["augmented_fmu"])
+    assert fmu.is_file() and fmu.parent.parent == out / "fmu"
+    assert (out / "augmented_model" / "MotionTwin" / "Effects" / "CoulombFriction.mo").is_file()
+    symbolic.build(frontend.load(out / "augmented_model", "Augmented"))     # no library path given
+    assert validate_fmu(str(fmu)) == []
+    starts = {v.name: v.start for v in fmpy.read_model_description(str(fmu)).modelVariables}
+    assert float(starts["q2_coulomb_Fc"]) == pytest.approx(doc["effects"][0]["parameters"]["Fc"], rel=1e-12)
+    assert float(starts["plant.m1"]) == pytest.approx(doc["augmented_parameters"]["m1"], rel=1e-12)
+    res = fmpy.simulate_fmu(str(fmu), stop_time=0.05, output=["q1", "q2"], fmi_type="ModelExchange")
+    assert np.all(np.isfinite(res["q1"])) and np.all(np.isfinite(res["q2"]))
+
+
 def test_parameters_only_bundle_gives_no_effect(tmp_path):
     """Only the nominal parameters are off (m1 2.3 vs 2.0, d 8 vs 10): no effect on any axis, the refit
     reaches the true mass, and the validation RMS of every axis is at its noise floor."""

@@ -159,3 +159,26 @@ def test_refit_drops_terms_the_output_error_fit_leaves_small():
     kept = empirical.refitted(law, values, signals)
     assert kept.names == ["v*|v|", "1"]
     np.testing.assert_allclose(kept.coefficients, [values["empirical_c1"], 0.2])
+
+
+def test_coefficients_are_reported_in_the_measured_output_units():
+    """On a gear-ratio plant (measured x = g * state x) the reported coefficients are those of the same force
+    written in the measured output: the law evaluated on the state signals with the fitted (state)
+    coefficients equals the law evaluated on the measured signals with the reported ones."""
+    from motiontwin.ident.diagnosis import effects as effect_models
+
+    gain, v_eps = 0.002, 2.0
+    library = {t.name: t for t in empirical.default_library()}
+    names = ["v*|v|", "x*sign(v)", "sign(v)", "x^2", "v^3"]
+    state = np.array([3.0, -1.5, 0.2, 40.0, 0.7])
+    law = empirical.EmpiricalForce([library[n] for n in names], state, 0.1, 1.0, 2.0, v_eps)
+    ctx = effect_models.Context(5e-4, -10.0, 10.0, 5.0, 2.0, position_gain=gain)
+    effect = empirical.as_effect(law, ctx)
+    values = {f"empirical_c{k}": c for k, c in enumerate(state, 1)}
+    reported = effect.contract(values, ctx)
+    rng = np.random.default_rng(4)
+    s = {"x": rng.uniform(-10, 10, 50), "v": rng.uniform(-5, 5, 50), "a": np.zeros(50), "u": np.zeros(50)}
+    measured = {k: gain * s[k] for k in s}
+    measured_law = empirical.EmpiricalForce(law.terms, np.array([reported[n] for n in names]), 0.1, 1.0, 2.0,
+                                            gain * v_eps)
+    np.testing.assert_allclose(measured_law.evaluate(measured), law.evaluate(s), rtol=1e-12)

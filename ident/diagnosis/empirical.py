@@ -39,11 +39,14 @@ class Term:
     """One library function: its name, numpy form and Modelica form.
 
     The Modelica text uses the placeholders {x}, {v}, {a}, {u} and {v_eps} for the model's own names.
+    ``degree``: the power of the motion (x, v, a together) in the term, so that its coefficient in the plant's
+    state coordinates is ``position_gain**degree`` times the one in the measured output's metres.
     """
 
     name: str
     evaluate: Callable[[dict[str, np.ndarray], float], np.ndarray]
     modelica: str
+    degree: int = 0
 
 
 def default_library() -> list[Term]:
@@ -53,19 +56,19 @@ def default_library() -> list[Term]:
     sign = "tanh({v}/{v_eps})"
     return [
         Term("1", lambda s, e: np.ones_like(s["v"]), "1"),
-        Term("x", lambda s, e: s["x"], "{x}"),
-        Term("x^2", lambda s, e: s["x"] ** 2, "{x}^2"),
-        Term("v", lambda s, e: s["v"], "{v}"),
-        Term("v*|v|", lambda s, e: s["v"] * np.abs(s["v"]), "{v}*abs({v})"),
-        Term("v^3", lambda s, e: s["v"] ** 3, "{v}^3"),
-        Term("a", lambda s, e: s["a"], "{a}"),
+        Term("x", lambda s, e: s["x"], "{x}", 1),
+        Term("x^2", lambda s, e: s["x"] ** 2, "{x}^2", 2),
+        Term("v", lambda s, e: s["v"], "{v}", 1),
+        Term("v*|v|", lambda s, e: s["v"] * np.abs(s["v"]), "{v}*abs({v})", 2),
+        Term("v^3", lambda s, e: s["v"] ** 3, "{v}^3", 3),
+        Term("a", lambda s, e: s["a"], "{a}", 1),
         Term("u", lambda s, e: s["u"], "{u}"),
         Term("sign(v)", lambda s, e: np.tanh(s["v"] / e), sign),
         Term("sign(v)*exp(-|v|/v_eps)", lambda s, e: np.tanh(s["v"] / e) * np.exp(-np.abs(s["v"]) / (10 * e)),
              f"{sign}*exp(-abs({{v}})/(10*{{v_eps}}))"),
-        Term("x*sign(v)", lambda s, e: s["x"] * np.tanh(s["v"] / e), f"{{x}}*{sign}"),
+        Term("x*sign(v)", lambda s, e: s["x"] * np.tanh(s["v"] / e), f"{{x}}*{sign}", 1),
         Term("|u|*sign(v)", lambda s, e: np.abs(s["u"]) * np.tanh(s["v"] / e), f"abs({{u}})*{sign}"),
-        Term("x*v", lambda s, e: s["x"] * s["v"], "{x}*{v}"),
+        Term("x*v", lambda s, e: s["x"] * s["v"], "{x}*{v}", 2),
     ]
 
 
@@ -279,10 +282,12 @@ def as_effect(law: EmpiricalForce, ctx: effect_models.Context) -> effect_models.
     start = {f"empirical_c{k}": float(c) for k, c in enumerate(law.coefficients, 1)}
     if uses_sign:
         start["empirical_v_eps"] = float(law.v_eps)
-    term_names = law.names
+    terms = list(law.terms)
 
     def contract(values: dict[str, float], c: effect_models.Context) -> dict[str, float]:
-        return {name: float(values[f"empirical_c{k}"]) for k, name in enumerate(term_names, 1)}
+        """Coefficients in the measured output's units (a gear ratio or sensor gain converted)."""
+        return {t.name: float(values[f"empirical_c{k}"]) / c.position_gain ** t.degree
+                for k, t in enumerate(terms, 1)}
 
     return effect_models.Effect(EMPIRICAL, EMPIRICAL, params, declaration, "empirical_F",
                                 [f"empirical_F = {law_text}"], [], lambda c: [dict(start)], contract,

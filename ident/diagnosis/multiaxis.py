@@ -25,6 +25,7 @@ import json
 import math
 import os
 import re
+import shutil
 import string
 import tempfile
 import time
@@ -141,6 +142,22 @@ def write_structure(plant: PlantInfo, effects: list[tuple[str, effect_models.Eff
     path = folder / f"{AUGMENTED_CLASS}.mo"
     path.write_text(modelica_text(plant, effects, values, plant_values), encoding="utf-8")
     return path
+
+
+def write_product(plant: PlantInfo, final: "Structure", staging: Path) -> Path:
+    """Write the final augmented model into ``staging/augmented_model`` with the MotionTwin library copied
+    beside it (self-contained: it loads without the project's library path), and its FMI 2.0 FMU (ME + CS)
+    with the fitted start values into ``staging/fmu``; returns the FMU's path relative to ``staging``."""
+    from motiontwin.fmus.build import build_fmu
+
+    folder = staging / "augmented_model"
+    write_structure(plant, final.placed, final.fit.values, folder)
+    shutil.copytree(MODELICA_DIR / "MotionTwin", folder / "MotionTwin", ignore=shutil.ignore_patterns("__pycache__"))
+    model = symbolic.build(frontend.load(folder, AUGMENTED_CLASS))
+    known = {v.name for v in model.parameters}
+    built = build_fmu(model, staging / "fmu", "2.0",
+                      start_values={k: v for k, v in final.fit.values.items() if k in known})
+    return built.path.relative_to(staging)
 
 
 def load_structure(folder: Path) -> symbolic.SymbolicModel:
@@ -638,7 +655,7 @@ class MultiAxisDiagnosis:
         doc = self.document(out)
         with tempfile.TemporaryDirectory(dir=out.parent, prefix=f".{out.name}.work-") as tmp:
             staging = Path(tmp) / "out"
-            write_structure(bundle.plant, result["final"].placed, result["final"].fit.values, staging / "augmented_model")
+            doc["augmented_fmu"] = str(out / write_product(bundle.plant, result["final"], staging))
             rec = bundle.validation
             names = [a.output for a in bundle.plant.axes]
             table = np.column_stack([rec.time] + [np.column_stack([rec[n], result["nominal"].val_q[k],
@@ -679,8 +696,9 @@ def report_markdown(doc: dict, bundle: Bundle) -> str:
     for name, value in doc["augmented_parameters"].items():
         nominal = doc["nominal_parameters"].get(name)
         lines.append(f"| {name} | {'' if nominal is None else f'{nominal:.6g}'} | {value:.6g} |")
-    lines += ["", f"Augmented Modelica model: `{doc['augmented_model']}` (loads with the MotionTwin library on the "
-              f"path). Runtime {doc['runtime_s']} s.", ""]
+    lines += ["", f"Augmented Modelica model: `{doc['augmented_model']}` (self-contained: the MotionTwin library "
+              f"is copied beside it); its FMU (FMI 2.0, ME + CS, the fitted start values): `{doc['augmented_fmu']}`. "
+              f"Runtime {doc['runtime_s']} s.", ""]
     return "\n".join(lines)
 
 

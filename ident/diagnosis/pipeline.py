@@ -482,7 +482,8 @@ def explain_remainder(bundle: Bundle, final: ModelFit, weights: outputerror.Weig
                                        bundle.controller.Ts)
     term = {"terms": law.names, "coefficients": effect.contract(trial.fit.values, ctx),
             "units": {name: empirical.TERM_UNITS.get(name, "") for name in law.names},
-            "v_eps": trial.fit.values.get("empirical_v_eps"),
+            "v_eps": (None if "empirical_v_eps" not in trial.fit.values
+                      else trial.fit.values["empirical_v_eps"] * abs(gain)),
             "regression": {"terms": regression.names, "coefficients": [float(c) for c in regression.coefficients],
                            "threshold": regression.threshold, "cv_rms": regression.cv_rms,
                            "cv_rms_without": regression.cv_rms_zero},
