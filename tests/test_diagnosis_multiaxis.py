@@ -228,6 +228,8 @@ def _drop_column(folder: Path, name: str) -> None:
     (lambda d, f: d["plant"].update(input="u1"), "field 'plant.input' cannot be combined with 'plant.axes'"),
     (lambda d, f: d["controller"].update(kind="MotionTwin.Controllers.RobustJointController"),
      "a multi-axis bundle needs 'per_axis'"),
+    (lambda d, f: d["plant"].update(free=["m1", "mass2"]),
+     "field 'free' names 'mass2', which is not a parameter of the plant"),
 ])
 def test_bundle_errors_name_file_and_field(small_bundle, tmp_path, edit, message):
     with pytest.raises(BundleError) as info:
@@ -285,3 +287,14 @@ def test_in_memory_multi_axis_bundle_equals_folder(small_bundle):
         del rec.columns["q2"]
         make_bundle(PLANT, doc["controller"], rec, read_recording(small_bundle / "validation.csv"), "Coupled2",
                     axes=AXES)
+
+
+def test_free_restricts_the_nominal_refit(small_bundle, tmp_path):
+    """plant.free names the parameters the nominal refit moves; without it every non-zero one moves."""
+    from motiontwin.ident.diagnosis import pipeline
+
+    everything, _ = pipeline._nominal_bounds(read_bundle(small_bundle), "plant.")
+    assert len(everything) > 1 and "plant.m1" in everything
+    bundle = read_bundle(_edited(small_bundle, tmp_path, lambda d, f: d["plant"].update(free=["m1"])))
+    free, bounds = pipeline._nominal_bounds(bundle, "plant.")
+    assert free == ["plant.m1"] and list(bounds) == ["plant.m1"]

@@ -249,7 +249,7 @@ def write_bundle(folder: Path, case: str, seed: int, scale: float, axes: list[st
     experiment = {
         "plant": {"class": plant.library_class,
                   "axes": [{"input": i, "output": o, "position": x, "velocity": v} for i, o, x, v in plant.axes],
-                  "parameters": guess},
+                  "parameters": guess, "free": sorted(guess)},
         "controller": {"kind": "per_axis", "axes": [single.controller_json(c) for c in ctrls]},
         "recordings": {"train": "train.csv", "validation": "validation.csv"},
     }

@@ -84,6 +84,7 @@ class PlantInfo:
     roles: PlantRoles            # the above, the held inputs and how they were found
     parameters: dict[str, float] = dataclass_field(default_factory=dict)   # plant.parameters: user start values
     pole_pitch: float | None = None   # plant.pole_pitch [m]: magnet pole pitch, fixes the cogging period
+    free: list[str] | None = None     # plant.free: the parameters the nominal refit moves (None: every non-zero one)
     axes: list[PlantRoles] = dataclass_field(default_factory=list)   # multi-axis plant: the roles of each axis
 
 
@@ -139,6 +140,24 @@ def read_plant(doc: dict, bundle_dir: Path, where: str) -> PlantInfo:
                           doc.get("position"), doc.get("velocity"))
     info.pole_pitch = pole_pitch
     return info
+
+
+def check_free(value: Any, model: symbolic.SymbolicModel, where: str) -> list[str] | None:
+    """``plant.free``: absent (None: the nominal refit moves every non-zero parameter) or a list of the plant's
+    parameter names, the ones the user does not know (as ``identify oe --free``); the others keep their values.
+    A coupled mechanism has parameters the recordings cannot separate (link masses against gravity): fixing
+    the known ones keeps the refit from trading them against the missing physics."""
+    if value is None:
+        return None
+    known = [v.name for v in model.parameters]
+    if not isinstance(value, list) or not value or not all(isinstance(n, str) for n in value):
+        raise BundleError(f"{where}: field 'free' must be a non-empty list of parameter names, got {value!r}")
+    unknown = [n for n in value if n not in known]
+    if unknown:
+        raise BundleError(f"{where}: field 'free' names {', '.join(map(repr, unknown))}, which "
+                          f"{'is not a parameter' if len(unknown) == 1 else 'are not parameters'} of the plant; "
+                          f"parameters: {', '.join(known)}")
+    return list(value)
 
 
 def check_pole_pitch(value: Any, where: str) -> float | None:
@@ -404,6 +423,7 @@ def read_bundle(bundle_dir: str | Path) -> Bundle:
     else:
         controller = read_controller(controller_doc, f"{exp_path}: controller")
         plant = read_plant(plant_doc, bundle_dir, f"{exp_path}: plant")
+    plant.free = check_free(plant_doc.get("free"), plant.model, f"{exp_path}: plant")
     recs = _field(experiment, "recordings", str(exp_path), dict)
     where = f"{exp_path}: recordings"
     train = _recording(recs, "train", bundle_dir, where, controller.Ts, plant.axes)

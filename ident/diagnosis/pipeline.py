@@ -64,10 +64,12 @@ class ModelFit:
 
 
 def _nominal_bounds(bundle: Bundle, prefix: str = "") -> tuple[list[str], dict[str, tuple[float, float]]]:
+    """The nominal parameters the refit moves (``plant.free``, else every non-zero one), within a factor 5
+    of their start and their Modelica min/max."""
     free, bounds = [], {}
     for var in bundle.plant.model.parameters:
         value = float(bundle.start.get(var.name, var.start))
-        if value == 0:
+        if value == 0 or (bundle.plant.free is not None and var.name not in bundle.plant.free):
             continue
         lo, hi = sorted((value / 5, value * 5))
         lo, hi = max(lo, var.min), min(hi, var.max)
