@@ -270,21 +270,27 @@ def force_residuals(bundle: Bundle, rec: Recording, values: dict[str, float]) ->
 
 
 def locate(bundle: Bundle, current: Structure, weights: outputerror.Weights, seed: int) -> list[AxisEvidence]:
-    """Every axis's force residual and its ratio to the level that the fitted model re-simulated with white
-    encoder noise leaves (same filters, same noise level per axis), best first."""
+    """Every axis's force residual beyond the one the fitted model's own noise-free free run leaves through the
+    same filters (the derivative filter's error on a fast excitation, common to model and data), and its
+    ratio to the level that the fitted model re-simulated with white encoder noise leaves (same filters,
+    same noise level per axis), best first."""
     rec = bundle.train
-    residual = force_residuals(bundle, rec, current.fit.values)
+
+    def simulated(noise: np.ndarray | None) -> np.ndarray:
+        q, u = outputerror.simulate(current.loop, rec, current.fit.values, noise=noise)
+        columns = dict(rec.columns)
+        for k, a in enumerate(bundle.plant.axes):
+            columns[a.output], columns[a.input] = q[k] + (0.0 if noise is None else noise[k]), u[k]
+        return force_residuals(bundle, Recording(rec.time, columns, rec.units, rec.meta), current.fit.values)
+
+    model_own = simulated(None)
+    residual = force_residuals(bundle, rec, current.fit.values) - model_own
     rng = np.random.default_rng(seed)
     reference = np.zeros(len(bundle.plant.axes))
     sigma = np.reshape(np.asarray(weights.sigma_q, float), (-1, 1))
     for _ in range(LOCATE_REPLICATES):
         noise = rng.normal(0.0, 1.0, residual.shape) * sigma
-        q, u = outputerror.simulate(current.loop, rec, current.fit.values, noise=noise)
-        columns = dict(rec.columns)
-        for k, a in enumerate(bundle.plant.axes):
-            columns[a.output], columns[a.input] = q[k] + noise[k], u[k]
-        synthetic = Recording(rec.time, columns, rec.units, rec.meta)
-        reference += np.mean(force_residuals(bundle, synthetic, current.fit.values) ** 2, axis=1)
+        reference += np.mean((simulated(noise) - model_own) ** 2, axis=1)
     reference = np.sqrt(reference / LOCATE_REPLICATES)
     found = []
     for k, a in enumerate(bundle.plant.axes):
