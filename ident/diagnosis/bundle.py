@@ -132,14 +132,20 @@ def read_plant(doc: dict, bundle_dir: Path, where: str) -> PlantInfo:
         info = library_plant(class_name, input_name, output_name, doc.get("parameters", {}), where,
                              doc.get("position"), doc.get("velocity"))
     else:
-        file_name = _field(doc, "modelica", where, str)
-        path = bundle_dir / Path(file_name).expanduser()
-        if not path.is_file():
-            raise BundleError(f"{where}: field 'modelica' names {file_name!r}, but {path} does not exist")
+        path = _modelica_path(doc, bundle_dir, where)
         info = load_plant(path, class_name, input_name, output_name, doc.get("parameters", {}), where,
                           doc.get("position"), doc.get("velocity"))
     info.pole_pitch = pole_pitch
     return info
+
+
+def _modelica_path(doc: dict, bundle_dir: Path, where: str) -> Path:
+    """The plant's Modelica file (field ``modelica``, relative to the bundle or absolute); it must exist."""
+    file_name = _field(doc, "modelica", where, str)
+    path = bundle_dir / Path(file_name).expanduser()
+    if not path.is_file():
+        raise BundleError(f"{where}: field 'modelica' names {file_name!r}, but {path} does not exist")
+    return path
 
 
 def check_free(value: Any, model: symbolic.SymbolicModel, where: str) -> list[str] | None:
@@ -256,10 +262,7 @@ def read_axes_plant(doc: dict, bundle_dir: Path, where: str) -> PlantInfo:
                               f"axis, e.g. 'plant.axes[0].{key}')")
     class_name = _field(doc, "class", where, str)
     if "modelica" in doc:
-        file_name = _field(doc, "modelica", where, str)
-        path = bundle_dir / Path(file_name).expanduser()
-        if not path.is_file():
-            raise BundleError(f"{where}: field 'modelica' names {file_name!r}, but {path} does not exist")
+        path = _modelica_path(doc, bundle_dir, where)
         text = path.read_text(encoding="utf-8")
     else:
         path, text = library_source(class_name, where, "MotionTwin.Plants.CheungManipulator")

@@ -476,11 +476,7 @@ def select(bundle: Bundle, nominal: Structure, weights: outputerror.Weights, wor
         screened = {name: placed_structure(bundle, current, name, axis, ctx, fit, substeps, work / f"r{rounds}_{name}")
                     for name, (fit, substeps) in fits.items()}
         order = sorted(screened, key=lambda n: screened[n].fit.cost)
-        ranked = order[:pipeline.FULL_FITS]
-        for name in list(ranked):
-            simple = effect_models.NESTED.get(name)
-            if simple in screened and simple not in ranked:
-                ranked.append(simple)
+        ranked = pipeline.ranked_with_nested(order, screened)
         trials: dict[str, tuple[Structure, float, float, np.ndarray]] = {}
         for name in ranked:
             trial = refine(bundle, screened[name], weights)

@@ -7,7 +7,6 @@ the FMU-truth generator exists. Units: SI (s, m, N).
 from __future__ import annotations
 
 import json
-import math
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
@@ -18,6 +17,7 @@ import numpy as np
 from motiontwin.harness.recording import atomic_write_texts, make_recording, write_recording
 from motiontwin.ident import outputerror
 from motiontwin.ident.controller import Controller
+from motiontwin.ident.diagnosis import benchmark
 from motiontwin.ident.diagnosis import effects as effect_models
 from motiontwin.ident.diagnosis import multiaxis
 from motiontwin.ident.diagnosis.bundle import read_axes_controller, read_axes_plant
@@ -62,17 +62,8 @@ class TrueEffect:
 
 
 def pid_document(ts: float, mass: float, bandwidth: float) -> dict:
-    """A single-axis PID (filtered derivative, Tustin) as its experiment.json object, tuned for ``mass``."""
-    import scipy.signal as sps
-
-    wc = 2 * math.pi * bandwidth
-    kp, ti, td, n = mass * wc ** 2 / 3, 4 / wc, 1.5 / wc, 8.0
-    num = [kp * ti * td * (1 + 1 / n), kp * (ti + td / n), kp]
-    den = [ti * td / n, ti, 0.0]
-    a, b, c, d, _ = sps.cont2discrete(sps.tf2ss(num, den), ts, method="bilinear")
-    return {"kind": "discrete_state_space", "Ts": ts, "inputs": ["r", "q"], "outputs": ["u"],
-            "A": np.atleast_2d(a).tolist(), "B": np.hstack([b, -b]).tolist(), "C": np.atleast_2d(c).tolist(),
-            "D": np.hstack([d, -d]).tolist()}
+    """The single-axis benchmark's PID (:func:`benchmark.pid_controller`) as its experiment.json object."""
+    return benchmark.controller_json(benchmark.pid_controller(ts, mass, bandwidth))
 
 
 def references(outputs: list[str], centres: dict[str, float], duration: float, ts: float, stroke: float,

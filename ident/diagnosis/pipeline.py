@@ -320,10 +320,7 @@ def select(bundle: Bundle, nominal: ModelFit, weights: outputerror.Weights, ctx:
         screened = screen(bundle, current, names, ctx, weights, work / f"r{rounds}", progress)
         order = sorted(screened, key=lambda n: screened[n][0].cost)
         shortlist = order[:FULL_FITS + 2]     # later rounds screen only the effects that ranked high here
-        ranked = order[:FULL_FITS]
-        for name in list(ranked):
-            if effect_models.NESTED.get(name) in screened and effect_models.NESTED[name] not in ranked:
-                ranked.append(effect_models.NESTED[name])
+        ranked = ranked_with_nested(order, screened)
         ranked += _close_richer(ranked, screened, current.fit.cost)
         trials: dict[str, tuple[ModelFit, float, float, np.ndarray]] = {}
         for name in ranked:
@@ -565,6 +562,17 @@ def screen(bundle: Bundle, current: ModelFit, names: list[str], ctx: effect_mode
         out[name] = (result, substeps)
         _log(progress, f"  screen {name}: cost -{current.fit.cost - result.cost:.4g} ({seconds:.1f} s)")
     return out
+
+
+def ranked_with_nested(order: list[str], screened: dict) -> list[str]:
+    """The FULL_FITS best-screened effects and the screened simpler effect each nests (``NESTED``), so that
+    the parsimony rule can compare them."""
+    ranked = order[:FULL_FITS]
+    for name in list(ranked):
+        simple = effect_models.NESTED.get(name)
+        if simple in screened and simple not in ranked:
+            ranked.append(simple)
+    return ranked
 
 
 NESTED_SCREEN_SHARE = 0.9   # a richer effect screened within 10 % of its ranked simpler one's gain is fitted too
