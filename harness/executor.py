@@ -6,11 +6,13 @@ order of ``items`` whichever executor runs them; with the same items (seeds, inp
 the results are identical, because every run starts from the same reset/initial state and FMUs
 are deterministic. ``fn`` must be picklable (a module-level function or a functools.partial of one)
 for the process pool and Dask. ``executor.imap(fn, items, retries)`` yields ``(index, result)`` as runs
-finish (a failed run as a :class:`RunFailed`), so a caller can commit each result at once; the process pool
-restarts itself when a worker dies and retries the runs it lost, at most ``retries`` times.
+finish (a failed run as a :class:`RunFailed`, plain data holding the error's message), so a caller can commit
+each result at once; a run lost with a dead worker process is retried, at most ``retries`` times.
 
 * ``InProcessExecutor`` (default): a plain loop in this process.
-* ``ProcessPoolExecutor``: ``concurrent.futures`` with ``spawn``ed workers on this machine.
+* ``ProcessPoolExecutor``: ``spawn``ed worker processes on this machine, each with private pipes, so a
+  worker killed at any instant cannot block the others or the caller (the standard library's pool shares a
+  result queue whose lock a killed worker can take with it).
 * ``DaskExecutor``: a ``dask.distributed`` scheduler at ``scheduler`` ("tcp://host:8786"), or a
   ``LocalCluster`` of single-threaded worker processes when no address is given.
 
@@ -24,19 +26,21 @@ reset between runs.
 
 from __future__ import annotations
 
-import concurrent.futures
-from concurrent.futures.process import BrokenProcessPool
+import collections
 import functools
 import multiprocessing
+import multiprocessing.connection
 import os
+import pickle
 import signal
+import struct
 import threading
+from multiprocessing.connection import Connection
 from pathlib import Path
 from typing import Any, Callable, Iterable, Iterator, Mapping, Protocol, Sequence
 
 import numpy as np
 
-from .master import master_for
 from .system import System, load_system
 
 EXECUTORS = ("inprocess", "process", "dask")
@@ -55,6 +59,10 @@ class RunFailed:
 
 def _failure(exc: BaseException, attempts: int = 1) -> RunFailed:
     return RunFailed(f"{type(exc).__name__}: {exc}", attempts)
+
+
+class RunError(RuntimeError):
+    """A run of :meth:`ProcessPoolExecutor.map` failed (the message holds its error)."""
 
 
 class Executor(Protocol):
@@ -96,90 +104,207 @@ class InProcessExecutor(_Closing):
 
 
 def _ignore_interrupt() -> None:
-    """Worker initializer: Ctrl-C reaches the whole process group; the parent alone handles it (commits what
-    finished, shuts the pool down), so the workers do not each print a KeyboardInterrupt traceback."""
+    """Ctrl-C reaches the whole process group; the parent alone handles it (commits what finished, stops the
+    pool), so the workers do not each print a KeyboardInterrupt traceback."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
+def _returning_failures(fn: Callable[[Any], Any], item: Any) -> Any:
+    """``fn(item)``, or the error it raised as a :class:`RunFailed`: plain data that crosses any process
+    boundary, whatever the exception class (an exception that cannot be unpickled would break the pool)."""
+    try:
+        return fn(item)
+    except Exception as exc:
+        return _failure(exc)
+
+
+def _unreadable(exc: BaseException) -> RunFailed:
+    return RunFailed(f"the worker process cannot read the run: {_failure(exc).error}")
+
+
+_HEADER = struct.Struct("!Q")   # length of the pickled reply that follows, on a worker's private result pipe
+
+
+def _serve(tasks: Connection, results: Connection) -> None:
+    """A worker process: read ``(fn, item)`` from its private task pipe, run it, write the reply (result or
+    :class:`RunFailed`) to its private result pipe; stop at None or when the parent is gone. Nothing is shared
+    with another worker, so a worker killed at any instant breaks only its own pipes."""
+    _ignore_interrupt()
+    out = results.fileno()
+    while True:
+        try:
+            payload = tasks.recv_bytes()
+        except (EOFError, OSError):
+            return
+        try:
+            message = pickle.loads(payload)
+        except Exception as exc:
+            message = (_unreadable, exc)
+        if message is None:
+            return
+        reply = _returning_failures(*message)
+        try:
+            data = pickle.dumps(reply, pickle.HIGHEST_PROTOCOL)
+        except Exception as exc:
+            data = pickle.dumps(RunFailed(f"its result cannot be sent to the parent process: {_failure(exc).error}"))
+        view = memoryview(_HEADER.pack(len(data)) + data)
+        while view:
+            view = view[os.write(out, view):]
+
+
+class _Worker:
+    """One spawned worker process and the parent's ends of its two private pipes; the result pipe is read
+    without blocking, a piece at a time, so the parent never waits on one worker."""
+
+    def __init__(self, context: Any):
+        task_end, self.tasks = context.Pipe(duplex=False)
+        self.results, result_end = context.Pipe(duplex=False)
+        self.process = context.Process(target=_serve, args=(task_end, result_end), daemon=True)
+        self.process.start()
+        task_end.close()      # the worker holds the only other ends: its death is EOF / EPIPE here
+        result_end.close()
+        os.set_blocking(self.results.fileno(), False)
+        self.buffer = bytearray()
+
+    def submit(self, payload: bytes) -> None:
+        self.tasks.send_bytes(payload)
+
+    def reply(self) -> tuple[bool, Any]:
+        """``(True, reply)`` once a whole reply has arrived, ``(False, None)`` while it has not; EOFError when
+        the worker is gone before sending it."""
+        while True:
+            size = _HEADER.unpack_from(self.buffer)[0] if len(self.buffer) >= _HEADER.size else None
+            if size is not None and len(self.buffer) >= _HEADER.size + size:
+                data = bytes(self.buffer[_HEADER.size:_HEADER.size + size])
+                del self.buffer[:_HEADER.size + size]
+                try:
+                    return True, pickle.loads(data)
+                except Exception as exc:
+                    return True, RunFailed(f"its result cannot be read: {_failure(exc).error}")
+            try:
+                chunk = os.read(self.results.fileno(), 1 << 20)
+            except BlockingIOError:
+                return False, None
+            if not chunk:
+                raise EOFError
+            self.buffer += chunk
+
+    def death(self) -> str:
+        """How the worker process ended (after it was found gone)."""
+        self.process.join(timeout=5)
+        code = self.process.exitcode
+        if code is None:
+            return "it stopped answering"
+        if code < 0:
+            return f"killed by {signal.Signals(-code).name}" if -code in signal.valid_signals() else f"signal {-code}"
+        return f"exit code {code}"
+
+    def stop(self, wait: float) -> None:
+        """Ask the worker to finish (it is idle), then end it if it has not within ``wait`` seconds."""
+        try:
+            self.tasks.send_bytes(pickle.dumps(None))
+        except OSError:
+            pass
+        self.process.join(timeout=wait)
+        if self.process.exitcode is None:
+            self.process.kill()
+            self.process.join(timeout=5)
+        self.tasks.close()
+        self.results.close()
+
+
 class ProcessPoolExecutor(_Closing):
-    """A pool of ``workers`` spawned processes on this machine (default: one per CPU)."""
+    """A pool of ``workers`` spawned processes on this machine (default: one per CPU), each with its own
+    task and result pipes (no queue or lock shared between workers: a worker killed at any instant, even
+    in the middle of sending a result, loses only its own run). Every wait is bounded (``watchdog`` seconds)
+    and followed by a check of each busy worker, so a dead worker is always noticed. Workers live until
+    :meth:`close` and keep their :func:`harness.master.master_for` cache between runs."""
 
-    def __init__(self, workers: int | None = None):
+    def __init__(self, workers: int | None = None, watchdog: float = 1.0):
         self.workers = workers or os.cpu_count() or 1
-        self._pool = self._new_pool()
+        self.watchdog = watchdog
+        self._context = multiprocessing.get_context("spawn")
+        self._idle = [self._spawn() for _ in range(self.workers)]
 
-    def _new_pool(self) -> concurrent.futures.ProcessPoolExecutor:
-        """A pool whose workers are all started now, with SIGINT ignored: a spawned interpreter inherits the
-        ignored disposition across exec, so a Ctrl-C while a worker is still importing cannot end it with a
-        traceback (its initializer would come too late); the parent's handler is back once they are forked."""
-        pool = concurrent.futures.ProcessPoolExecutor(max_workers=self.workers, initializer=_ignore_interrupt,
-                                                      mp_context=multiprocessing.get_context("spawn"))
+    def _spawn(self) -> _Worker:
+        """A new worker with SIGINT ignored from its start: a spawned interpreter inherits the ignored
+        disposition across exec, so a Ctrl-C while it is still importing cannot end it with a traceback."""
         if threading.current_thread() is not threading.main_thread():
-            return pool
+            return _Worker(self._context)
         previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
         try:
-            for _ in range(self.workers):   # each submit without an idle worker spawns one
-                pool.submit(int)
+            return _Worker(self._context)
         finally:
             signal.signal(signal.SIGINT, previous)
-        return pool
 
     def imap(self, fn: Callable[[Any], Any], items: Sequence[Any], retries: int = 2) -> Iterator[tuple[int, Any]]:
-        """Each run as it finishes. At most ``workers`` runs are in the pool at a time, so when a worker
-        process dies (killed, out of memory, a crash in an FMU) the runs that were lost with the pool are the
-        ones that were running: the pool is restarted and each of them is tried again, at most ``retries``
-        more times, then reported as a :class:`RunFailed`. A run that raises is not retried."""
+        """Each run as it finishes. When a worker process dies (killed, out of memory, a crash in an FMU) its
+        run is tried again in a fresh worker, at most ``retries`` more times, then reported as a
+        :class:`RunFailed` naming how the worker ended. A run that raises is not retried."""
         attempts = [0] * len(items)
-        queue = list(range(len(items)))[::-1]
-        pending: dict[concurrent.futures.Future, int] = {}
-        while queue or pending:
-            broken = False
-            while queue and len(pending) < self.workers:
-                try:
-                    future = self._pool.submit(fn, items[queue[-1]])
-                except BrokenProcessPool:  # a worker died since the last run finished
-                    broken = True
-                    break
-                index = queue.pop()
-                attempts[index] += 1
-                pending[future] = index
-            lost: list[int] = []
-            done = set() if broken else concurrent.futures.wait(
-                pending, return_when=concurrent.futures.FIRST_COMPLETED).done
-            for future in done:
-                index = pending.pop(future)
-                try:
-                    result = future.result()
-                except BrokenProcessPool:
-                    lost.append(index)
-                    continue
-                except Exception as exc:
-                    result = _failure(exc, attempts[index])
-                yield index, result
-            if not lost and not broken:
-                continue
-            for future in concurrent.futures.wait(pending).done:  # the broken pool fails the other runs too
-                index = pending.pop(future)
-                error = future.exception()
-                if isinstance(error, BrokenProcessPool):
-                    lost.append(index)
-                else:
-                    yield index, future.result() if error is None else _failure(error, attempts[index])
-            self._pool.shutdown(wait=False, cancel_futures=True)
-            self._pool = self._new_pool()
-            for index in sorted(lost, reverse=True):
-                if attempts[index] > retries:
-                    yield index, RunFailed(f"its worker process died {attempts[index]} times", attempts[index])
-                else:
-                    queue.append(index)
+        queue = collections.deque(range(len(items)))
+        busy: dict[_Worker, int] = {}
+        try:
+            while queue or busy:
+                while queue and len(busy) < self.workers:
+                    index = queue.popleft()
+                    attempts[index] += 1
+                    try:
+                        payload = pickle.dumps((fn, items[index]), pickle.HIGHEST_PROTOCOL)
+                    except Exception as exc:
+                        yield index, _failure(exc, attempts[index])
+                        continue
+                    worker = self._idle.pop() if self._idle else self._spawn()
+                    busy[worker] = index
+                    try:
+                        worker.submit(payload)
+                    except OSError:   # it died while idle: found below like any other death
+                        pass
+                multiprocessing.connection.wait([w.results for w in busy] + [w.process.sentinel for w in busy],
+                                                timeout=self.watchdog)
+                for worker, index in list(busy.items()):
+                    try:
+                        done, result = worker.reply()
+                        if not done and worker.process.is_alive():
+                            continue
+                        if not done:
+                            done, result = worker.reply()   # it may have finished writing just before it ended
+                        if not done:
+                            raise EOFError
+                    except EOFError:
+                        del busy[worker]
+                        how = worker.death()
+                        worker.stop(0)
+                        if attempts[index] > retries:
+                            times = "once" if attempts[index] == 1 else f"{attempts[index]} times"
+                            yield index, RunFailed(f"its worker process died {times} (last: {how})",
+                                                   attempts[index])
+                        else:
+                            queue.appendleft(index)
+                        continue
+                    del busy[worker]
+                    self._idle.append(worker)
+                    if isinstance(result, RunFailed):
+                        result.attempts = attempts[index]
+                    yield index, result
+        finally:
+            for worker in busy:   # runs abandoned (the caller stopped early): their workers are ended
+                worker.stop(0)
 
     def map(self, fn: Callable[[Any], Any], items: Iterable[Any]) -> list[Any]:
+        """The results in item order; a run that fails raises :class:`RunError` with its error."""
         items = list(items)
-        chunk = max(1, len(items) // (4 * self.workers))
-        return list(self._pool.map(fn, items, chunksize=chunk))
+        results: list[Any] = [None] * len(items)
+        for index, result in self.imap(fn, items):
+            if isinstance(result, RunFailed):
+                raise RunError(f"run {index} failed: {result.error}")
+            results[index] = result
+        return results
 
     def close(self) -> None:
-        self._pool.shutdown(wait=True, cancel_futures=True)
+        for worker in self._idle:
+            worker.stop(5)
+        self._idle = []
 
 
 class DaskExecutor(_Closing):
@@ -205,7 +330,7 @@ class DaskExecutor(_Closing):
         ``allowed-failures``), a run it gives up on or that raises is a :class:`RunFailed`."""
         from dask.distributed import as_completed
 
-        futures = self._client.map(fn, list(items), pure=False)
+        futures = self._client.map(functools.partial(_returning_failures, fn), list(items), pure=False)
         index = {future.key: i for i, future in enumerate(futures)}
         for future in as_completed(futures):
             try:
@@ -242,6 +367,8 @@ def run_case(system: System, case: Mapping[str, Any]) -> dict[str, np.ndarray]:
     unknown = set(case) - allowed
     if unknown:
         raise ValueError(f"sweep case has unknown keys {sorted(unknown)}; allowed: {sorted(allowed)}")
+    from .master import master_for   # here, so a worker process starts without loading fmpy
+
     return master_for(system).run(**case, progress=False)
 
 

@@ -49,6 +49,10 @@ class FMUCallError(RuntimeError):
         self.time = time
         self.messages = messages
 
+    def __reduce__(self) -> tuple[type, tuple[str, str, int, float, list[str]]]:
+        """Rebuilt from its fields, so it crosses process boundaries (a Dask or process-pool worker)."""
+        return FMUCallError, (self.instance, self.function, self.status, self.time, self.messages)
+
 
 # ---------------------------------------------------------------------------------------------
 # extraction cache (once per process)

@@ -560,7 +560,7 @@ class Master:
         except FMICallException as exc:
             name, _ = self._current
             error = FMUCallError(name, exc.function, exc.status, self._time, list(self.instances[name].messages))
-            if exc.status >= 4:  # fatal: the instance cannot be used any more, make a fresh one
+            if exc.status >= 3:  # Error or Fatal: the instance takes no further run, make a fresh one
                 self._reinstantiate(name)
             raise error from None
 
@@ -670,7 +670,8 @@ class Master:
         return ticks
 
     def _reinstantiate(self, name: str) -> None:
-        """After a fatal error only freeInstance is allowed: free and make a fresh instance."""
+        """After an Error or Fatal status the FMI state machine allows little more than freeInstance (a
+        reused instance would refuse every later run): free it and make a fresh instance."""
         self.instances[name].free(terminate=False)
         self.instances[name] = FMUInstance(name, self.system.fmus[name].path, self.debug_logging)
         self._fast_paths()

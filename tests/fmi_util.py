@@ -22,7 +22,7 @@ def gemseo_fmu_folder(folder: Path) -> Path:
     folder.mkdir(parents=True, exist_ok=True)
     if not (folder / "add.fmu").is_file():
         subprocess.run([sys.executable, "-m", "pip", "download", GEMSEO_FMU_WHEEL, "--no-deps",
-                        "--quiet", "-d", str(folder)], check=True)
+                        "--quiet", "-d", str(folder)], check=True, timeout=600)
         wheel = next(folder.glob("gemseo_fmu-*.whl"))
         prefix = "gemseo_fmu/problems/fmu_files/linux/"
         with zipfile.ZipFile(wheel) as zf:

@@ -37,7 +37,8 @@ def test_fmpy_validate_has_no_problems(built_fmus, version):
 def test_fmutool_check_has_no_errors(built_fmus):
     fmutool = Path(sys.executable).with_name("fmutool")
     for (name, version), path in built_fmus.items():
-        proc = subprocess.run([str(fmutool), "-input", str(path), "-check"], capture_output=True, text=True)
+        proc = subprocess.run([str(fmutool), "-input", str(path), "-check"], capture_output=True, text=True,
+                              timeout=300)
         assert proc.returncode == 0, f"{name} FMI {version}: {proc.stdout}\n{proc.stderr}"
 
 
@@ -163,7 +164,8 @@ def test_source_fmu_recompiles_with_fmpy(built_fmus, tmp_path, version):
             if not item.filename.startswith("binaries/"):
                 zout.writestr(item, zin.read(item))
     fmpy_cli = Path(sys.executable).with_name("fmpy")
-    proc = subprocess.run([str(fmpy_cli), "compile", str(copy)], capture_output=True, text=True, cwd=tmp_path)
+    proc = subprocess.run([str(fmpy_cli), "compile", str(copy)], capture_output=True, text=True, cwd=tmp_path,
+                          timeout=300)
     assert proc.returncode == 0, proc.stdout + proc.stderr
     result = fmpy.simulate_fmu(str(copy), stop_time=0.5, output_interval=1e-3, start_values={"u": 3.0},
                                output=["q"])

@@ -23,7 +23,7 @@ def cycle_driver(tmp_path_factory: pytest.TempPathFactory) -> Path:
     exe = tmp_path_factory.mktemp("driver") / "fmi_cycle"
     headers = Path(fmpy.__file__).parent / "c-code"
     subprocess.run(["gcc", "-g", "-O0", "-std=c99", "-D_DEFAULT_SOURCE", f"-I{headers}", str(C_DRIVER), "-o",
-                    str(exe), "-ldl"], check=True)
+                    str(exe), "-ldl"], check=True, timeout=300)
     return exe
 
 

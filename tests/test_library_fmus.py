@@ -31,7 +31,8 @@ def test_library_fmus_validate(library_fmus):
     fmutool = Path(sys.executable).with_name("fmutool")
     for fmu in library_fmus:
         assert validate_fmu(str(fmu.path)) == [], fmu.path
-        proc = subprocess.run([str(fmutool), "-input", str(fmu.path), "-check"], capture_output=True, text=True)
+        proc = subprocess.run([str(fmutool), "-input", str(fmu.path), "-check"], capture_output=True, text=True,
+                              timeout=300)
         assert proc.returncode == 0, f"{fmu.path}: {proc.stdout}"
 
 

@@ -61,7 +61,7 @@ def test_rodas4_converges_with_order_four(tmp_path):
     """Fixed-step RODAS4 on x' = -2 t x^2 (x = 1/(1+t^2)): the error drops by 2^4 per halving of h."""
     lib = tmp_path / "libsolver.so"
     subprocess.run(["gcc", "-shared", "-fPIC", "-O2", "-std=c99", "-o", str(lib), str(RUNTIME / "mt_solver.c"), "-lm"],
-                   check=True)
+                   check=True, timeout=300)
     so = ctypes.CDLL(str(lib))
     dbl = ctypes.POINTER(ctypes.c_double)
     rhs_t = ctypes.CFUNCTYPE(ctypes.c_int, ctypes.c_void_p, ctypes.c_double, dbl, dbl)
@@ -98,7 +98,7 @@ def test_dense_lu_with_pivoting_solves_like_numpy(tmp_path):
     """mt_lu_factor/mt_lu_solve on random systems up to 12 x 12 (pivoting happens) vs numpy.linalg.solve."""
     lib = tmp_path / "liblu.so"
     subprocess.run(["gcc", "-shared", "-fPIC", "-O2", "-std=c99", "-o", str(lib), str(RUNTIME / "mt_solver.c"), "-lm"],
-                   check=True)
+                   check=True, timeout=300)
     so = ctypes.CDLL(str(lib))
     rng = np.random.default_rng(3)
     for n in range(1, 13):

@@ -169,7 +169,7 @@ def test_killed_worker_is_retried_and_every_run_is_committed(sweep_file: Path, t
     out = tmp_path / "out"
     killer = _kill_a_worker_once_runs_complete(out, len(direct))
     code = main(["sweep", str(sweep_file), "--executor", "process", "--workers", "2", "--out", str(out)])
-    killer.join()
+    killer.join(timeout=150)
     assert code == 0
     _assert_folder_holds(out, direct)
 
@@ -184,7 +184,7 @@ def test_killed_worker_without_retries_fails_its_runs_by_name_and_keeps_the_othe
     killer = _kill_a_worker_once_runs_complete(out, len(plan.cases))
     with make_executor("process", 2) as executor:
         outcome = sweep.run_to_folder(plan, out, executor, retries=0, log=lambda line: None)
-    killer.join()
+    killer.join(timeout=150)
     manifest = json.loads((out / sweep.MANIFEST).read_text())
     assert 1 <= len(outcome.failed) <= 2   # the runs in the two workers when one died
     assert sorted(outcome.completed + list(outcome.failed)) == sorted(c.name for c in plan.cases)

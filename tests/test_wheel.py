@@ -45,7 +45,7 @@ def _run(command: list[str], cwd: Path, env: dict[str, str], timeout: float) -> 
 def _tracked_package_files() -> list[str]:
     """The files git tracks in the folders that make up the installed package (checkout-relative)."""
     listing = subprocess.run(["git", "ls-files", *INSTALLED_AS], cwd=ROOT, capture_output=True, text=True,
-                             check=True).stdout
+                             check=True, timeout=300).stdout
     return [name for name in listing.splitlines() if not NOT_SHIPPED.match(name)]
 
 
@@ -60,7 +60,7 @@ def wheel(tmp_path_factory: pytest.TempPathFactory) -> Path:
     ignored): setuptools builds in the source tree, and a stale ``build/lib`` there would end up in it."""
     source = tmp_path_factory.mktemp("source")
     listing = subprocess.run(["git", "ls-files", "-z", "--cached", "--others", "--exclude-standard"], cwd=ROOT,
-                             capture_output=True, text=True, check=True).stdout
+                             capture_output=True, text=True, check=True, timeout=300).stdout
     for name in filter(None, listing.split("\0")):
         if (ROOT / name).is_file():
             (source / name).parent.mkdir(parents=True, exist_ok=True)
@@ -78,7 +78,7 @@ def installed(wheel: Path, tmp_path_factory: pytest.TempPathFactory) -> tuple[Pa
     """(venv bin folder, environment, working folder outside the checkout) with the wheel installed."""
     venv = tmp_path_factory.mktemp("venv")
     start = time.perf_counter()
-    subprocess.run([sys.executable, "-m", "venv", "--without-pip", "--clear", str(venv)], check=True)
+    subprocess.run([sys.executable, "-m", "venv", "--without-pip", "--clear", str(venv)], check=True, timeout=300)
     python = venv / "bin" / "python"
     pip = [sys.executable, "-m", "pip", "--python", str(python)]
     env = {key: value for key, value in os.environ.items() if key not in ("PYTHONPATH", "VIRTUAL_ENV")}
