@@ -311,3 +311,38 @@ def test_ctrl_c_on_a_process_pool_sweep_is_exit_130_one_line_and_resumable(sweep
                                                                                  for e in ("csv", "json")])
     assert main(["sweep", str(sweep_file), "--resume", "--out", str(out)]) == 0
     _assert_folder_holds(out, _direct_runs(sweep_file))
+
+
+BELOW_MIN = [-1.0, 1.0, -2.0, 1.3, -3.0, 0.7, -4.0, 1.1]   # plant.d has min = 0: four runs the FMU refuses
+
+
+@pytest.mark.parametrize("executor", ["inprocess", "process", "dask"])
+def test_a_run_the_fmu_refuses_is_named_with_its_message_and_spares_the_others(sweep_file: Path, tmp_path: Path,
+                                                                              capsys, executor: str) -> None:
+    """A grid with four damping values below the FMU's minimum: on every executor the four valid runs are
+    committed, equal to direct runs on a fresh master, and the four invalid ones are named with the FMU's
+    own message, in sweep.json and on the console (the instance that entered Error is made anew)."""
+    sweep_file.write_text(SWEEP.replace('"plant.m" = [1.5, 2.5]', f'"plant.d" = {BELOW_MIN}')
+                          .replace("count = 3", "count = 1"))
+    plan = sweep.load_sweep(sweep_file)
+    valid = {c.name: c for c in plan.cases if c.parameters["plant.d"] >= 0}
+    invalid = {c.name: c.parameters["plant.d"] for c in plan.cases if c.parameters["plant.d"] < 0}
+    assert len(valid) == len(invalid) == 4
+    direct = {}
+    for name, case in valid.items():
+        with Master(plan.system) as master:
+            direct[name] = master.run(**case.run_arguments(plan.stop_time))["log"]["plant.q"]
+    out = tmp_path / "out"
+    assert main(["sweep", str(sweep_file), "--executor", executor, "--workers", "2", "--out", str(out)]) == 1
+    captured = capsys.readouterr()
+    manifest = json.loads((out / sweep.MANIFEST).read_text())
+    assert manifest["status"] == "failed"
+    assert [row["case"] for row in manifest["cases"]] == list(valid)
+    assert {row["case"] for row in manifest["failed"]} == set(invalid)
+    for row in manifest["failed"]:
+        message = f"parameter d = {invalid[row['case']]:g} is below its minimum 0"
+        assert message in row["error"], row
+        assert f"run {row['case']} failed: " in captured.out and message in captured.out
+    for name, q in direct.items():
+        np.testing.assert_allclose(read_recording(out / f"{name}.csv")["plant.q"], q, rtol=1e-15, atol=0)
+    assert {p.stem for p in out.glob("*.csv")} == set(valid)
