@@ -148,8 +148,11 @@ def _serve(tasks: Connection, results: Connection) -> None:
         except Exception as exc:
             data = pickle.dumps(RunFailed(f"its result cannot be sent to the parent process: {_failure(exc).error}"))
         view = memoryview(_HEADER.pack(len(data)) + data)
-        while view:
-            view = view[os.write(out, view):]
+        try:
+            while view:
+                view = view[os.write(out, view):]
+        except OSError:   # the parent is gone or gave the run up
+            return
 
 
 class _Worker:

@@ -577,8 +577,10 @@ class Master:
     def _loop(self, n_steps: int, ext: np.ndarray, logs: list, base: float, t0: float,
               multiples: Mapping[str, int], progress: bool | None) -> None:
         show = self.progress if progress is None else progress
-        bar = tqdm(total=n_steps, unit="step", delay=3.0, disable=(show is False), leave=False,
-                   desc="co-simulation")
+        # no bar at all when it is off: a tqdm creates a multiprocessing lock, which a process-pool worker
+        # killed mid-run would leave for the resource tracker to report as leaked
+        bar = None if show is False else tqdm(total=n_steps, unit="step", delay=3.0, leave=False,
+                                              desc="co-simulation")
         chunk = max(1000, n_steps // 100)
         run_ticks = self._native_ticks if self.uses_native else self._python_ticks
         try:
@@ -586,7 +588,8 @@ class Master:
             for k_start in range(0, n_steps, chunk):
                 k_end = min(k_start + chunk, n_steps)
                 ticks(k_start, k_end)
-                bar.update(k_end - k_start)
+                if bar is not None:
+                    bar.update(k_end - k_start)
             # final point: inputs as they would be set at t_N, no step
             elo, ehi = self._ext_range
             self.values[elo:ehi] = ext[n_steps]
@@ -598,7 +601,8 @@ class Master:
                     data[n_steps // m, pre_cols] = self.values[pre]
                     data[n_steps // m, post_cols] = self.values[post]
         finally:
-            bar.close()
+            if bar is not None:
+                bar.close()
 
     @property
     def uses_native(self) -> bool:

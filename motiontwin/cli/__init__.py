@@ -6,8 +6,12 @@ Each module of this package parses its subcommands' arguments and calls the libr
 from __future__ import annotations
 
 import argparse
+import contextlib
+import os
+import signal
 import sys
-from typing import Callable
+import threading
+from typing import Callable, Iterator
 
 from motiontwin.cli import (build, compare, demo, diagnose, identify, labdata, simulate, tune, validate,
                             writeback)
@@ -24,6 +28,49 @@ def parser() -> argparse.ArgumentParser:
     return top
 
 
+class Terminated(KeyboardInterrupt):
+    """SIGTERM (what ``timeout``, systemd and batch schedulers send), raised where the program is, so the same
+    cleanup as Ctrl-C's runs: ``finally`` blocks and context managers remove temporary files and folders,
+    a sweep records "interrupted"."""
+
+
+def _terminate(signum: int, frame: object) -> None:
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)   # a second SIGTERM must not cut the cleanup short
+    raise Terminated
+
+
+_ACTIVE = False   # a subcommand runs in this process: its forked children leave the signals to it
+
+
+def _quiet_child() -> None:
+    """In a forked worker of a running subcommand: Ctrl-C is the parent's to handle (it stops the pool, a
+    worker would print a KeyboardInterrupt traceback), SIGTERM ends the worker without Python cleanup."""
+    if _ACTIVE:
+        with contextlib.suppress(ValueError):
+            signal.signal(signal.SIGINT, signal.SIG_IGN)
+            signal.signal(signal.SIGTERM, signal.SIG_DFL)
+
+
+os.register_at_fork(after_in_child=_quiet_child)
+
+
+@contextlib.contextmanager
+def _signals() -> Iterator[None]:
+    """SIGTERM raises :class:`Terminated` while a subcommand runs (main thread only: Python delivers signals
+    there); the previous handlers are back afterwards."""
+    global _ACTIVE
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGTERM, _terminate)
+    _ACTIVE = True
+    try:
+        yield
+    finally:
+        _ACTIVE = False
+        signal.signal(signal.SIGTERM, previous)
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run one subcommand; every expected failure is one line on stderr.
 
@@ -31,8 +78,9 @@ def main(argv: list[str] | None = None) -> int:
     -------
     int
         0 on success, 1 on an error (bad input, a path that cannot be read or written, a failing FMU or
-        build), 130 when interrupted (Ctrl-C). The writers are atomic, so an error or an interruption leaves
-        earlier results untouched and no half-written file.
+        build), 130 when interrupted (Ctrl-C), 143 when terminated (SIGTERM). The writers are atomic and
+        temporary folders are context managers, so an error or an interruption leaves earlier results
+        untouched and no half-written file or temporary folder.
     """
     import zipfile
 
@@ -47,13 +95,15 @@ def main(argv: list[str] | None = None) -> int:
     func: Callable[[argparse.Namespace], int] = args.func
     prefix = f"motiontwin {args.command}"
     try:
-        preflight(args)
-        return func(args)
-    except KeyboardInterrupt:
+        with _signals():
+            preflight(args)
+            return func(args)
+    except KeyboardInterrupt as exc:
         again = "add --resume to continue" if args.command == "sweep" else "run the command again"
-        print(f"{prefix}: interrupted; finished outputs are complete, nothing half-written was kept ({again})",
+        what = "terminated (SIGTERM)" if isinstance(exc, Terminated) else "interrupted"
+        print(f"{prefix}: {what}; finished outputs are complete, nothing half-written was kept ({again})",
               file=sys.stderr)
-        return 130
+        return 143 if isinstance(exc, Terminated) else 130
     except OSError as exc:
         print(f"{prefix}: {os_error_message(exc)}", file=sys.stderr)
         return 1
