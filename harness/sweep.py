@@ -32,10 +32,12 @@ names: characters other than letters, digits and ``._=+-`` are replaced by ``_``
 Output folder (:func:`run_to_folder`): one recording ``CASE.csv`` + ``CASE.json`` per run, each written
 atomically as soon as its run finishes, and the manifest ``sweep.json`` (format ``motiontwin-sweep``) rewritten
 atomically as runs complete: ``status`` (running, interrupted, complete, failed), ``cases`` (the finished
-runs in case order), ``failed`` (case and error). A run whose worker process dies is retried (bounded), a run
-that fails for good is reported by name while the others complete. A folder holding a sweep is refused unless
-``resume`` (continue the same sweep: finished runs are kept, the others run) or ``overwrite`` (the runs the
-manifest lists are removed first); a folder holding other files is always refused.
+runs in case order, each with the size and sha256 of its two files), ``failed`` (case and error: the FMU's own
+message for a value it refuses). A run whose worker process dies is retried (bounded), a run that fails is
+reported by name while the others complete. A folder holding a sweep is refused unless ``resume`` (continue the
+same sweep: finished runs whose files still have their committed size and checksum are kept, the others run)
+or ``overwrite`` (the runs the manifest lists are removed first); both remove the temporary files a killed
+sweep left. A folder holding other files is always refused.
 """
 from __future__ import annotations
 
@@ -262,17 +264,71 @@ def _read_manifest(out: Path) -> dict[str, Any] | None:
     return doc
 
 
-def _prepare_folder(sweep: Sweep, out: Path, fingerprint: str, resume: bool,
-                    overwrite: bool) -> dict[str, dict[str, Any]]:
-    """Check ``out`` against resume/overwrite; remove stale runs if overwriting; return the rows kept."""
+_STALE = re.compile(r"^\..+\.[0-9a-f]{32}\.(tmp|bak)$")   # atomic_write_texts' temporaries and backups
+
+
+def _digest(data: bytes) -> dict[str, Any]:
+    return {"bytes": len(data), "sha256": hashlib.sha256(data).hexdigest()}
+
+
+def _file_records(texts: dict[Path, str | bytes]) -> dict[str, dict[str, Any]]:
+    """File name -> size and sha256 of the bytes :func:`atomic_write_texts` writes for ``texts``."""
+    return {path.name: _digest(text if isinstance(text, bytes) else text.encode("utf-8"))
+            for path, text in texts.items()}
+
+
+def _damage(out: Path, row: dict[str, Any]) -> str | None:
+    """Why a run the manifest lists as finished cannot be kept (None if its files are as committed)."""
+    files = row.get("files")
+    if not isinstance(files, dict) or not files:
+        return "the manifest holds no size and checksum for its files"
+    for name, expected in files.items():
+        path = _inside(out, name)
+        if not path.is_file():
+            return f"{name} is missing"
+        data = path.read_bytes()
+        if len(data) != expected.get("bytes"):
+            kind = "truncated" if len(data) < expected.get("bytes", 0) else "changed"
+            return f"{name} is {kind} ({len(data)} bytes, {expected.get('bytes')} committed)"
+        if hashlib.sha256(data).hexdigest() != expected.get("sha256"):
+            return f"{name} differs from what was committed (sha256)"
+    return None
+
+
+def _remove_stale(out: Path, previous: dict[str, Any] | None, log: Callable[[str], None]) -> None:
+    """Remove the temporary files a killed sweep left in ``out`` and say so, with a "running" status."""
+    stale = sorted(p for p in out.iterdir() if _STALE.match(p.name))
+    for path in stale:
+        path.unlink()
+    if stale:
+        log(f"{out}: removed {len(stale)} temporary file(s) a killed sweep left: "
+            f"{', '.join(p.name for p in stale)}")
+    if previous is not None and previous.get("status") == "running":
+        log(f"{out}: the sweep there did not end (status 'running' in {MANIFEST}: its process was killed)")
+
+
+def _prepare_folder(sweep: Sweep, out: Path, fingerprint: str, resume: bool, overwrite: bool,
+                    log: Callable[[str], None]) -> dict[str, dict[str, Any]]:
+    """Check ``out`` against resume/overwrite; remove stale runs if overwriting; return the rows kept, each
+    verified against the size and checksum the manifest holds for its files (a run that fails is run again)."""
     if resume and overwrite:
         raise SweepError("resume and overwrite exclude each other: continue the sweep or replace it")
     if not out.exists() or not any(out.iterdir()):
         return {}
     previous = _read_manifest(out)
     if previous is None:
+        if all(_STALE.match(p.name) for p in out.iterdir()):   # killed before its first manifest
+            _remove_stale(out, None, log)
+            return {}
         raise SweepError(f"{out}: holds files but no {MANIFEST}; choose a new or empty folder for the sweep")
     label = f"{previous.get('sweep', '?')}, {len(previous['cases'])} finished run(s)"
+    if not resume and not overwrite:
+        raise SweepError(f"{out}: holds a sweep ({label}); pass --resume to continue it or --overwrite to "
+                         f"replace its runs, or choose another folder")
+    if resume and previous.get("fingerprint") != fingerprint:
+        raise SweepError(f"{out}: holds another sweep ({label}); --resume continues only the same sweep file "
+                         f"and system; pass --overwrite to replace it or choose another folder")
+    _remove_stale(out, previous, log)
     if overwrite:
         names = [row.get("case") for row in previous["cases"]] + [row.get("case") for row in previous.get("failed", [])]
         for name in names:
@@ -282,15 +338,20 @@ def _prepare_folder(sweep: Sweep, out: Path, fingerprint: str, resume: bool,
                 sidecar_path(path).unlink(missing_ok=True)
         (out / MANIFEST).unlink()
         return {}
-    if not resume:
-        raise SweepError(f"{out}: holds a sweep ({label}); pass --resume to continue it or --overwrite to "
-                         f"replace its runs, or choose another folder")
-    if previous.get("fingerprint") != fingerprint:
-        raise SweepError(f"{out}: holds another sweep ({label}); --resume continues only the same sweep file "
-                         f"and system; pass --overwrite to replace it or choose another folder")
     names = {c.name for c in sweep.cases}
-    return {row["case"]: row for row in previous["cases"]
-            if row.get("case") in names and _inside(out, f"{row['case']}.csv").exists()}
+    kept: dict[str, dict[str, Any]] = {}
+    for row in previous["cases"]:
+        if row.get("case") not in names:
+            continue
+        damage = _damage(out, row)
+        if damage is None:
+            kept[row["case"]] = row
+            continue
+        log(f"run {row['case']} runs again: {damage}")
+        path = _inside(out, f"{row['case']}.csv")
+        path.unlink(missing_ok=True)
+        sidecar_path(path).unlink(missing_ok=True)
+    return kept
 
 
 def run_to_folder(sweep: Sweep, out: str | Path, executor: Any = None, *, executor_name: str = "inprocess",
@@ -307,13 +368,15 @@ def run_to_folder(sweep: Sweep, out: str | Path, executor: Any = None, *, execut
     executor:
         A :mod:`harness.executor` executor (default in-process); ``executor_name`` is recorded in the manifest.
     resume:
-        Continue the same sweep in ``out``: runs the manifest lists as finished are kept, the others run.
+        Continue the same sweep in ``out``: runs the manifest lists as finished are kept if their files still
+        have the size and checksum committed, the others run (and ``log`` says which and why).
     overwrite:
         Replace the sweep in ``out``: the runs its manifest lists are removed first.
     retries:
         How often a run whose worker process died is tried again before it is reported as failed.
     log:
-        Receives the run count before anything runs, and one line per failed run.
+        Receives the run count before anything runs, one line per failed run, and what resume or overwrite
+        cleaned (stale temporary files, runs whose files are missing or changed).
 
     Returns
     -------
@@ -328,7 +391,7 @@ def run_to_folder(sweep: Sweep, out: str | Path, executor: Any = None, *, execut
         raise SweepError(f"retries: expected a non-negative integer, got {retries!r}")
     targets = {case.name: _inside(out, f"{case.name}.csv") for case in sweep.cases}
     fingerprint = _fingerprint(sweep)
-    rows = _prepare_folder(sweep, out, fingerprint, resume, overwrite)
+    rows = _prepare_folder(sweep, out, fingerprint, resume, overwrite, log)
     todo = [case for case in sweep.cases if case.name not in rows]
     log(f"{len(sweep.cases)} runs (limit {MAX_RUNS}): {len(rows)} finished earlier, {len(todo)} to run")
     meta = master_for(sweep.system).metadata()   # opens the FMUs: a bad one fails before out is created
@@ -364,9 +427,11 @@ def run_to_folder(sweep: Sweep, out: str | Path, executor: Any = None, *, execut
             else:
                 rec = recording_from_log(result, sweep.log, meta, excited={"sweep": str(sweep.source), "case": case.name},
                                     metadata={"system": str(sweep.system.source), "parameters": case.parameters})
-                atomic_write_texts(recording_texts(targets[case.name], rec))
+                texts = recording_texts(targets[case.name], rec)
+                atomic_write_texts(texts)
                 rows[case.name] = {"case": case.name, "parameters": case.parameters,
-                                   "final": {k: float(rec[k][-1]) for k in rec.columns}}
+                                   "final": {k: float(rec[k][-1]) for k in rec.columns},
+                                   "files": _file_records(texts)}
                 completed.append(case.name)
             if time.perf_counter() - last_write >= MANIFEST_INTERVAL:
                 write_manifest("running")

@@ -2,6 +2,7 @@
 whichever executor runs them, the CLI's recordings, and clear errors for bad files."""
 from __future__ import annotations
 
+import hashlib
 import json
 import threading
 from pathlib import Path
@@ -378,4 +379,54 @@ def test_sigterm_stops_a_sweep_cleanly_with_exit_143_and_it_resumes(sweep_file: 
     assert sorted(p.name for p in out.iterdir()) == sorted([sweep.MANIFEST] + [f"{n}.{e}" for n in finished
                                                                                  for e in ("csv", "json")])
     assert main(["sweep", str(sweep_file), "--resume", "--out", str(out)]) == 0
+    _assert_folder_holds(out, _direct_runs(sweep_file))
+
+
+def test_resume_reruns_runs_whose_files_are_missing_truncated_or_changed_and_cleans_a_killed_sweep(
+        sweep_file: Path, tmp_path: Path) -> None:
+    """Four runs committed, then: a CSV truncated, a CSV replaced by junk of the same size, a sidecar deleted,
+    a temporary file and a "running" status left as a killed sweep leaves them. --resume keeps the one intact
+    run, says which runs run again and why, removes the temporary file, and ends with every run as direct."""
+    direct = _direct_runs(sweep_file)
+    names = list(direct)
+    out = tmp_path / "out"
+    with pytest.raises(KeyboardInterrupt):
+        sweep.run_to_folder(sweep.load_sweep(sweep_file), out, _InterruptedAfter(4), log=lambda line: None)
+    manifest = json.loads((out / sweep.MANIFEST).read_text())
+    row = manifest["cases"][0]
+    csv = (out / f"{names[0]}.csv").read_bytes()
+    assert row["files"][f"{names[0]}.csv"] == {"bytes": len(csv), "sha256": hashlib.sha256(csv).hexdigest()}
+    side = (out / f"{names[0]}.json").read_bytes()
+    assert row["files"][f"{names[0]}.json"] == {"bytes": len(side), "sha256": hashlib.sha256(side).hexdigest()}
+
+    (out / f"{names[0]}.csv").write_bytes(csv[:len(csv) // 2])
+    junk = (out / f"{names[1]}.csv").read_bytes().replace(b"e-0", b"e-1")
+    (out / f"{names[1]}.csv").write_bytes(junk)
+    (out / f"{names[2]}.json").unlink()
+    stale = out / f".{names[4]}.csv.{'0123456789abcdef' * 2}.tmp"
+    stale.write_text("half a recording")
+    manifest["status"] = "running"
+    (out / sweep.MANIFEST).write_text(json.dumps(manifest))
+
+    lines: list[str] = []
+    outcome = sweep.run_to_folder(sweep.load_sweep(sweep_file), out, resume=True, log=lines.append)
+    assert outcome.resumed == [names[3]] and outcome.completed == names[:3] + names[4:]
+    assert f"run {names[0]} runs again: {names[0]}.csv is truncated ({len(csv) // 2} bytes, {len(csv)} committed)" \
+        in lines
+    assert f"run {names[1]} runs again: {names[1]}.csv differs from what was committed (sha256)" in lines
+    assert f"run {names[2]} runs again: {names[2]}.json is missing" in lines
+    assert f"{out}: removed 1 temporary file(s) a killed sweep left: {stale.name}" in lines
+    assert f"{out}: the sweep there did not end (status 'running' in sweep.json: its process was killed)" in lines
+    assert "6 runs (limit 10000): 1 finished earlier, 5 to run" in lines
+    _assert_folder_holds(out, direct)
+
+
+def test_overwrite_removes_the_temporary_files_of_a_killed_sweep(sweep_file: Path, tmp_path: Path) -> None:
+    out = tmp_path / "out"
+    out.mkdir()
+    stale = out / f".{'x'}.json.{'ab' * 16}.tmp"
+    stale.write_text("{")
+    assert main(["sweep", str(sweep_file), "--out", str(out)]) == 0   # a folder holding only debris is free
+    (out / f".sweep.json.{'cd' * 16}.bak").write_text("{}")
+    assert main(["sweep", str(sweep_file), "--overwrite", "--out", str(out)]) == 0
     _assert_folder_holds(out, _direct_runs(sweep_file))
