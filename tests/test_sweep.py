@@ -130,10 +130,11 @@ def _assert_folder_holds(out: Path, direct: dict[str, np.ndarray]) -> None:
         np.testing.assert_allclose(read_recording(out / f"{name}.csv")["plant.q"], q, rtol=1e-15, atol=0)
 
 
-def _kill_a_worker_once_runs_complete(out: Path, total: int) -> threading.Thread:
-    """A thread that SIGKILLs a process-pool worker of this process while it runs a case (as an out-of-memory
+def _kill_workers(out: Path, total: int, kills: int = 1, interval: float = 0.0) -> threading.Thread:
+    """A thread that SIGKILLs process-pool workers of this process while they run a case (as an out-of-memory
     killer or a crashing FMU would): once the first recording is in ``out``, the first worker seen running
-    (state R in /proc, i.e. computing, not waiting for work), while runs are still missing."""
+    (state R in /proc, i.e. computing or sending, not waiting for work), ``kills`` times ``interval`` seconds
+    apart, while runs are still missing."""
     import multiprocessing
     import os
     import signal
@@ -146,15 +147,17 @@ def _kill_a_worker_once_runs_complete(out: Path, total: int) -> threading.Thread
             return False
 
     def kill() -> None:
-        deadline = time.monotonic() + 120
-        while time.monotonic() < deadline:
-            if out.exists() and any(out.glob("*.csv")):
+        deadline, done = time.monotonic() + 120, 0
+        while done < kills and time.monotonic() < deadline:
+            if out.exists() and any(out.glob("*.csv")) and len(list(out.glob("*.csv"))) < total:
                 busy = [w.pid for w in multiprocessing.active_children() if running(w.pid)]
                 if busy:
-                    assert len(list(out.glob("*.csv"))) < total, "every run finished before the kill"
                     os.kill(busy[0], signal.SIGKILL)
-                    return
+                    done += 1
+                    time.sleep(interval)
+                    continue
             time.sleep(0.002)
+        thread.kills = done
 
     thread = threading.Thread(target=kill)
     thread.start()
@@ -164,15 +167,23 @@ def _kill_a_worker_once_runs_complete(out: Path, total: int) -> threading.Thread
 LONG_SWEEP = SWEEP.replace('log = "log"', 'log = "log"\nstop_time = 1.0').replace("count = 3", "count = 4")
 
 
-def test_killed_worker_is_retried_and_every_run_is_committed(sweep_file: Path, tmp_path: Path) -> None:
+def test_killed_workers_are_retried_and_every_run_is_committed(sweep_file: Path, tmp_path: Path) -> None:
+    """Workers killed again and again while they run or send a case (up to 10 kills): every run is committed,
+    equal to a direct run, within a bound."""
+    import time
+
     sweep_file.write_text(LONG_SWEEP)
     direct = _direct_runs(sweep_file)
     out = tmp_path / "out"
-    killer = _kill_a_worker_once_runs_complete(out, len(direct))
-    code = main(["sweep", str(sweep_file), "--executor", "process", "--workers", "2", "--out", str(out)])
+    killer = _kill_workers(out, len(direct), kills=10, interval=0.05)
+    t0 = time.monotonic()
+    code = main(["sweep", str(sweep_file), "--executor", "process", "--workers", "2", "--retries", "10",
+                 "--out", str(out)])
+    seconds = time.monotonic() - t0
     killer.join(timeout=150)
-    assert code == 0
+    assert code == 0 and killer.kills >= 1
     _assert_folder_holds(out, direct)
+    assert seconds < 150
 
 
 def test_killed_worker_without_retries_fails_its_runs_by_name_and_keeps_the_others(sweep_file: Path,
@@ -182,7 +193,7 @@ def test_killed_worker_without_retries_fails_its_runs_by_name_and_keeps_the_othe
     sweep_file.write_text(LONG_SWEEP)
     plan = sweep.load_sweep(sweep_file)
     out = tmp_path / "out"
-    killer = _kill_a_worker_once_runs_complete(out, len(plan.cases))
+    killer = _kill_workers(out, len(plan.cases))
     with make_executor("process", 2) as executor:
         outcome = sweep.run_to_folder(plan, out, executor, retries=0, log=lambda line: None)
     killer.join(timeout=150)
