@@ -294,8 +294,13 @@ def test_run_stop_time_beyond_the_limit_names_the_option(sweep_file: Path, tmp_p
     assert not out.exists()
 
 
-def test_ctrl_c_on_a_process_pool_sweep_is_exit_130_one_line_and_resumable(sweep_file: Path, tmp_path: Path) -> None:
-    """A real Ctrl-C (SIGINT to the process group, as a terminal sends it) during a process-pool sweep."""
+@pytest.mark.parametrize("signal_name, executor", [("SIGINT", "process"), ("SIGTERM", "inprocess"),
+                                                    ("SIGTERM", "process")])
+def test_a_stopped_sweep_exits_130_or_143_with_one_line_and_resumes(sweep_file: Path, tmp_path: Path,
+                                                                    signal_name: str, executor: str) -> None:
+    """A real Ctrl-C (SIGINT to the process group, as a terminal sends it) or SIGTERM (to the process, as
+    ``timeout`` or systemd sends it) during a sweep: exit 130 or 143, one line, manifest "interrupted", no
+    temporary file left, and --resume completes the sweep."""
     import os
     import signal
     import subprocess
@@ -304,17 +309,21 @@ def test_ctrl_c_on_a_process_pool_sweep_is_exit_130_one_line_and_resumable(sweep
 
     sweep_file.write_text(LONG_SWEEP)
     out = tmp_path / "out"
-    command = [sys.executable, "-c", "import sys; from motiontwin.cli import main; sys.exit(main())", "sweep", str(sweep_file), "--executor", "process",
-               "--workers", "2", "--out", str(out)]
+    command = [sys.executable, "-c", "import sys; from motiontwin.cli import main; sys.exit(main())", "sweep",
+               str(sweep_file), "--executor", executor, "--workers", "2", "--out", str(out)]
     proc = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             start_new_session=True, preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     deadline = time.monotonic() + 120
     while not (out.exists() and any(out.glob("*.csv"))) and time.monotonic() < deadline and proc.poll() is None:
         time.sleep(0.01)
-    os.killpg(proc.pid, signal.SIGINT)
+    if signal_name == "SIGINT":
+        os.killpg(proc.pid, signal.SIGINT)
+    else:
+        os.kill(proc.pid, signal.SIGTERM)
     _, err = proc.communicate(timeout=120)
-    assert proc.returncode == 130, err
-    assert err.strip().splitlines() == ["motiontwin sweep: interrupted; finished outputs are complete, nothing "
+    code, what = (130, "interrupted") if signal_name == "SIGINT" else (143, "terminated (SIGTERM)")
+    assert proc.returncode == code, err
+    assert err.strip().splitlines() == [f"motiontwin sweep: {what}; finished outputs are complete, nothing "
                                         "half-written was kept (add --resume to continue)"]
     manifest = json.loads((out / sweep.MANIFEST).read_text())
     finished = [row["case"] for row in manifest["cases"]]
@@ -358,39 +367,6 @@ def test_a_run_the_fmu_refuses_is_named_with_its_message_and_spares_the_others(s
     for name, q in direct.items():
         np.testing.assert_allclose(read_recording(out / f"{name}.csv")["plant.q"], q, rtol=1e-15, atol=0)
     assert {p.stem for p in out.glob("*.csv")} == set(valid)
-
-
-@pytest.mark.parametrize("executor", ["inprocess", "process"])
-def test_sigterm_stops_a_sweep_cleanly_with_exit_143_and_it_resumes(sweep_file: Path, tmp_path: Path,
-                                                                    executor: str) -> None:
-    """SIGTERM (as ``timeout`` or systemd sends it) to a real ``motiontwin sweep`` mid-run: exit 143, one line,
-    manifest "interrupted", no temporary file left, and --resume completes the sweep."""
-    import os
-    import signal
-    import subprocess
-    import sys
-    import time
-
-    sweep_file.write_text(LONG_SWEEP)
-    out = tmp_path / "out"
-    command = [sys.executable, "-c", "import sys; from motiontwin.cli import main; sys.exit(main())", "sweep",
-               str(sweep_file), "--executor", executor, "--workers", "2", "--out", str(out)]
-    proc = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    deadline = time.monotonic() + 120
-    while not (out.exists() and any(out.glob("*.csv"))) and time.monotonic() < deadline and proc.poll() is None:
-        time.sleep(0.01)
-    os.kill(proc.pid, signal.SIGTERM)
-    _, err = proc.communicate(timeout=120)
-    assert proc.returncode == 143, err
-    assert err.strip().splitlines() == ["motiontwin sweep: terminated (SIGTERM); finished outputs are complete, "
-                                        "nothing half-written was kept (add --resume to continue)"]
-    manifest = json.loads((out / sweep.MANIFEST).read_text())
-    finished = [row["case"] for row in manifest["cases"]]
-    assert manifest["status"] == "interrupted" and 1 <= len(finished) < 8
-    assert sorted(p.name for p in out.iterdir()) == sorted([sweep.MANIFEST] + [f"{n}.{e}" for n in finished
-                                                                                 for e in ("csv", "json")])
-    assert main(["sweep", str(sweep_file), "--resume", "--out", str(out)]) == 0
-    _assert_folder_holds(out, _direct_runs(sweep_file))
 
 
 def test_resume_reruns_runs_whose_files_are_missing_truncated_or_changed_and_cleans_a_killed_sweep(
