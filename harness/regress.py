@@ -217,9 +217,7 @@ def write_junit(path: str | Path, results: Sequence[SignalResult], suite: str = 
         if not r.passed:
             failure = ET.SubElement(case, "failure", message=r.message, type="ToleranceTube")
             failure.text = "\n".join([r.message, *r.notes])
-        if r.notes:
-            ET.SubElement(case, "system-out").text = "\n".join(r.notes)
-            out.extend(f"{r.case} {r.signal}: {n}" for n in r.notes)
+        out.extend(f"{r.case}: {n}" for n in r.notes)
     for name, message in errors.items():
         case = ET.SubElement(node, "testcase", classname=name, name="run", time=f"{error_seconds.get(name, 0.0):.3f}")
         kind = message.split(":", 1)[0] if ":" in message else "RunError"
