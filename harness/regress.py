@@ -35,7 +35,7 @@ below; the failure message names the file), and returns exit code 0 (all pass), 
 case errored, e.g. a missing reference), 2 (the suite file is unusable: missing, not TOML, a bad field;
 the JUnit XML then holds one ``<error>``). ``--update`` rewrites the references from the current results
 instead (deliberate rebaselining; with ``--junit`` one passed testcase per case). A reference records every
-FMU's sha256 and its effective parameters (start values and overrides); a run whose FMUs or parameters
+FMU's content sha256 (:func:`fmu_sha256`) and its effective parameters (start values and overrides); a run whose FMUs or parameters
 differ from the reference's says so on the console and in the JUnit ``<system-out>``.
 
 JUnit XML (the Ant/Jenkins schema CI servers read): ``<testsuites>`` holding one ``<testsuite>`` with
@@ -53,6 +53,7 @@ import socket
 import time as _time
 import tomllib
 import xml.etree.ElementTree as ET
+import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterable, Sequence
@@ -360,11 +361,17 @@ def _case_inputs(case: Case, root: Path) -> dict[str, Any]:
             for name, value in case.inputs.items()}
 
 
-def _sha256(path: Path) -> str:
+def fmu_sha256(path: str | Path) -> str:
+    """sha256 of an FMU's contents: every member's name and bytes in name order, modelDescription.xml without
+    its generationDateAndTime (zip timestamps and the generation time change with every rebuild of the same
+    FMU; the hash should not)."""
     digest = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            digest.update(block)
+    with zipfile.ZipFile(path) as zf:
+        for name in sorted(zf.namelist()):
+            data = zf.read(name)
+            if name == "modelDescription.xml":
+                data = re.sub(rb'\sgenerationDateAndTime="[^"]*"', b"", data)
+            digest.update(name.encode() + b"\0" + len(data).to_bytes(8, "little") + data)
     return digest.hexdigest()
 
 
@@ -385,7 +392,7 @@ def _simulate(case: Case, root: Path) -> tuple[np.ndarray, dict[str, Any]]:
                   if v.causality == "parameter" and v.type in ("Real", "Float64") and v.start is not None}
         case_values = {k.split(".", 1)[1]: v for k, v in case.parameters.items() if k.split(".", 1)[0] == name}
         fmu["parameters"] = {**starts, **fmu["parameters"], **case_values}
-        fmu["sha256"] = _sha256(Path(fmu["path"]))
+        fmu["sha256"] = fmu_sha256(fmu["path"])
     return logs[group], meta
 
 

@@ -5,7 +5,9 @@ from __future__ import annotations
 import hashlib
 import json
 import re
+import struct
 import time
+import zipfile
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
@@ -142,6 +144,37 @@ def test_unusable_suite_file_exits_2_with_a_junit_error(tmp_path: Path, content:
     assert (tmp_path / "cli.xml").is_file()
 
 
+def content_sha256(fmu: Path) -> str:
+    """The documented FMU hash, written out independently: sorted members (name, length, bytes), the
+    generation time removed from modelDescription.xml."""
+    digest = hashlib.sha256()
+    with zipfile.ZipFile(fmu) as zf:
+        for info in sorted(zf.infolist(), key=lambda i: i.filename):
+            data = zf.read(info)
+            if info.filename == "modelDescription.xml":
+                start = data.find(b' generationDateAndTime="')
+                if start >= 0:
+                    data = data[:start] + data[data.index(b'"', start + 24) + 1:]
+            digest.update(info.filename.encode() + b"\0" + struct.pack("<Q", len(data)) + data)
+    return digest.hexdigest()
+
+
+def test_fmu_hash_ignores_the_generation_time_and_zip_dates(gemseo_fmus: Path, tmp_path: Path) -> None:
+    """Rebuilding an FMU changes its zip dates and generationDateAndTime, not its hash; a changed byte does."""
+    source = gemseo_fmus / "add.fmu"
+    rebuilt, changed = tmp_path / "rebuilt.fmu", tmp_path / "changed.fmu"
+    with zipfile.ZipFile(source) as zf, zipfile.ZipFile(rebuilt, "w") as same, zipfile.ZipFile(changed, "w") as other:
+        for info in zf.infolist():
+            data = zf.read(info)
+            if info.filename == "modelDescription.xml":
+                data = re.sub(rb'generationDateAndTime="[^"]*"', b'generationDateAndTime="2031-01-01T00:00:00Z"', data)
+            same.writestr(zipfile.ZipInfo(info.filename, (2031, 1, 1, 0, 0, 0)), data)
+            other.writestr(info.filename, data + (b" " if info.filename == "modelDescription.xml" else b""))
+    assert rebuilt.read_bytes() != source.read_bytes()
+    assert regress.fmu_sha256(rebuilt) == regress.fmu_sha256(source) == content_sha256(source)
+    assert regress.fmu_sha256(changed) != regress.fmu_sha256(source)
+
+
 SUITE = """
 [tolerance]
 abs = 1e-9
@@ -179,7 +212,7 @@ def test_suite_update_then_pass_then_catch_a_change(gemseo_fmus: Path, tmp_path:
     assert (tmp_path / "refs" / "p_loop.csv").is_file() and (tmp_path / "refs" / "p_loop.json").is_file()
     sidecar = json.loads((tmp_path / "refs" / "p_loop.json").read_text())
     for name, fmu in (("plant", "Mass_Damper.fmu"), ("ctrl", "add.fmu")):  # hash and every parameter recorded
-        assert sidecar["fmus"][name]["sha256"] == hashlib.sha256((gemseo_fmus / fmu).read_bytes()).hexdigest()
+        assert sidecar["fmus"][name]["sha256"] == content_sha256(gemseo_fmus / fmu)
         md = fmpy.read_model_description(str(gemseo_fmus / fmu))
         starts = {v.name: float(v.start) for v in md.modelVariables if v.causality == "parameter" and v.start}
         overrides = {"add.k1": 5000.0, "add.k2": -5000.0} if name == "ctrl" else {}
