@@ -29,8 +29,8 @@ demo: setup
 test: setup
 	$(BIN)/python -m pytest -q -n auto --dist loadfile
 
-bench: setup
-	for b in tests/benchmarks/bench_*.py; do $(BIN)/python $$b || exit 1; done
+bench: setup  # one table of every benchmark's ratios; make bench SMOKE=1 for the small sizes
+	$(BIN)/python tests/benchmarks/run_all.py $(if $(SMOKE),--smoke)
 
 clean:
 	rm -rf build $(VENV)

@@ -12,6 +12,7 @@ master's base grid (:func:`harness.measurement.add_noise`). Values are in the in
 """
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import Any
 
@@ -55,11 +56,20 @@ def resolve_input(value: Any, root: Path, where: str) -> Any:
                      f"{{experiment = \"FILE.toml\", field = \"NAME\"}}, got keys {sorted(value)}")
 
 
-def input_from_spec(spec: str) -> tuple[str, tuple[np.ndarray, np.ndarray]]:
-    """``NAME=EXPERIMENT.toml[:FIELD]`` (the ``--input`` option) -> (NAME, (time, values))."""
+def input_from_spec(spec: str) -> tuple[str, float | tuple[np.ndarray, np.ndarray]]:
+    """``NAME=VALUE`` or ``NAME=EXPERIMENT.toml[:FIELD]`` (the ``--input`` option) -> (NAME, constant) or
+    (NAME, (time, values)), as a suite file's ``[case.inputs]`` takes them."""
     name, sep, rest = spec.partition("=")
     if not sep or not name:
-        raise InputError(f"--input {spec!r}: expected NAME=EXPERIMENT.toml[:FIELD]")
+        raise InputError(f"--input {spec!r}: expected NAME=VALUE or NAME=EXPERIMENT.toml[:FIELD]")
+    try:
+        value = float(rest)
+    except ValueError:
+        value = None
+    if value is not None:
+        if not math.isfinite(value):
+            raise InputError(f"--input {spec!r}: the constant must be a finite number")
+        return name, value
     path, field = rest, None
     if ":" in rest and rest.rsplit(":", 1)[0].endswith(".toml"):
         path, field = rest.rsplit(":", 1)

@@ -30,17 +30,30 @@ Suite file (TOML), paths relative to it::
     "ctrl.add.k1" = 5000.0
 
 ``motiontwin regress SUITE [--update] [--junit FILE] [--plots DIR]`` runs every case, compares, writes
-JUnit XML and one PNG per failing signal, and returns exit code 0 (all pass), 1 (a signal failed or
-a case errored), 2 (the suite file is unusable). ``--update`` rewrites the references from the current results instead (deliberate
-rebaselining).
+JUnit XML and one PNG per failing signal (signal and tube with units above, the residual against the tube
+below; the failure message names the file), and returns exit code 0 (all pass), 1 (a signal failed or a
+case errored, e.g. a missing reference), 2 (the suite file is unusable: missing, not TOML, a bad field;
+the JUnit XML then holds one ``<error>``). ``--update`` rewrites the references from the current results
+instead (deliberate rebaselining; with ``--junit`` one passed testcase per case). A reference records every
+FMU's content sha256 (:func:`fmu_sha256`) and its effective parameters (start values and overrides); a run whose FMUs or parameters
+differ from the reference's says so on the console and in the JUnit ``<system-out>``.
+
+JUnit XML (the Ant/Jenkins schema CI servers read): ``<testsuites>`` holding one ``<testsuite>`` with
+``name``, ``id``, ``package``, ``tests``, ``failures``, ``errors``, ``time``, ``timestamp`` and ``hostname``,
+then ``<properties>`` (the FMUs' sha256), one ``<testcase classname=CASE name=SIGNAL time=...>`` per
+signal, ``<system-out>`` and ``<system-err>``. A testcase's time is its share of the whole case: the
+simulation split evenly over the case's signals plus its own comparison.
 """
 
 from __future__ import annotations
 
+import hashlib
 import re
+import socket
 import time as _time
 import tomllib
 import xml.etree.ElementTree as ET
+import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterable, Sequence
@@ -78,6 +91,8 @@ class SignalResult:
     reference_time: np.ndarray | None = field(default=None, repr=False)
     reference: np.ndarray | None = field(default=None, repr=False)
     seconds: float = 0.0
+    unit: str = ""
+    notes: list[str] = field(default_factory=list)
 
 
 def _window_extremes(t_ref: np.ndarray, y_ref: np.ndarray, t: np.ndarray, shift: float) -> tuple[np.ndarray, np.ndarray]:
@@ -152,6 +167,7 @@ def compare_recordings(case: str, reference: Any, actual: Any, tolerance: Tolera
     with a ``time`` field) with the same-named signal of ``actual`` (either kind)."""
     ref_t, ref_cols = _columns(reference)
     act_t, act_cols = _columns(actual)
+    units = getattr(reference, "units", {})
     names = list(signals) if signals is not None else list(ref_cols)
     results = []
     for name in names:
@@ -162,6 +178,7 @@ def compare_recordings(case: str, reference: Any, actual: Any, tolerance: Tolera
                                                            f"result has {sorted(act_cols)}"))
         else:
             results.append(compare_signal(case, name, ref_t, ref_cols[name], act_t, act_cols[name], tolerance))
+            results[-1].unit = units.get(name) or ""
     return results
 
 
@@ -180,24 +197,35 @@ def _columns(data: Any) -> tuple[np.ndarray, dict[str, np.ndarray]]:
 
 
 def write_junit(path: str | Path, results: Sequence[SignalResult], suite: str = "motiontwin-regress",
-                errors: dict[str, str] | None = None) -> Path:
-    """JUnit XML: one testcase per (case, signal); a case that could not run is one errored testcase."""
-    errors = errors or {}
+                errors: dict[str, str] | None = None, error_seconds: dict[str, float] | None = None,
+                properties: dict[str, str] | None = None, seconds: float | None = None) -> Path:
+    """JUnit XML (Ant/Jenkins schema, see the module docstring): one testcase per (case, signal); a case that
+    could not run, or an unusable suite file, is one testcase named "run" holding an ``<error>``
+    (``errors``: classname -> "Type: message"). ``seconds``: the suite's wall time (default: the sum)."""
+    errors, error_seconds = errors or {}, error_seconds or {}
     failures = sum(not r.passed for r in results)
-    root = ET.Element("testsuites", name=suite, tests=str(len(results) + len(errors)),
-                      failures=str(failures), errors=str(len(errors)))
-    node = ET.SubElement(root, "testsuite", name=suite, tests=str(len(results) + len(errors)),
-                         failures=str(failures), errors=str(len(errors)),
-                         time=f"{sum(r.seconds for r in results):.6f}")
+    total = sum(r.seconds for r in results) + sum(error_seconds.values()) if seconds is None else seconds
+    root = ET.Element("testsuites")
+    node = ET.SubElement(root, "testsuite", name=suite, id="0", package=suite, tests=str(len(results) + len(errors)),
+                         failures=str(failures), errors=str(len(errors)), time=f"{total:.3f}",
+                         timestamp=_time.strftime("%Y-%m-%dT%H:%M:%S"), hostname=socket.gethostname() or "localhost")
+    props = ET.SubElement(node, "properties")
+    for name, value in (properties or {}).items():
+        ET.SubElement(props, "property", name=name, value=value)
+    out = []
     for r in results:
-        case = ET.SubElement(node, "testcase", classname=r.case, name=r.signal, time=f"{r.seconds:.6f}")
+        case = ET.SubElement(node, "testcase", classname=r.case, name=r.signal, time=f"{r.seconds:.3f}")
         if not r.passed:
             failure = ET.SubElement(case, "failure", message=r.message, type="ToleranceTube")
-            failure.text = r.message
+            failure.text = "\n".join([r.message, *r.notes])
+        out.extend(f"{r.case}: {n}" for n in r.notes)
     for name, message in errors.items():
-        case = ET.SubElement(node, "testcase", classname=name, name="run")
-        error = ET.SubElement(case, "error", message=message.splitlines()[0] if message else "", type="RunError")
+        case = ET.SubElement(node, "testcase", classname=name, name="run", time=f"{error_seconds.get(name, 0.0):.3f}")
+        kind = message.split(":", 1)[0] if ":" in message else "RunError"
+        error = ET.SubElement(case, "error", message=message.splitlines()[0] if message else "", type=kind)
         error.text = message
+    ET.SubElement(node, "system-out").text = "\n".join(dict.fromkeys(out))
+    ET.SubElement(node, "system-err").text = "\n".join(errors.values())
     ET.indent(root)
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -210,7 +238,8 @@ def _safe(name: str) -> str:
 
 
 def plot_failure(result: SignalResult, folder: str | Path) -> Path | None:
-    """PNG of the reference, tube, actual signal and violating samples of a failed comparison."""
+    """PNG of a failed comparison: reference, tube and result in the signal's unit above; below, the
+    residual (result - reference at the result's instants) inside the tube's band, violations marked."""
     if result.time is None or result.reference is None:
         return None
     import matplotlib
@@ -218,20 +247,29 @@ def plot_failure(result: SignalResult, folder: str | Path) -> Path | None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(figsize=(9, 4.5))
+    unit = f" [{result.unit}]" if result.unit else " (no unit declared)"
+    fig, (ax, res) = plt.subplots(2, 1, figsize=(9, 6.5), sharex=True, height_ratios=(3, 2))
     try:
         ax.plot(result.reference_time, result.reference, color="0.3", lw=1, label="reference")
+        ref = np.interp(result.time, result.reference_time, result.reference)
+        res.axhline(0.0, color="0.3", lw=1)
         if result.lower is not None:
+            outside = (result.actual < result.lower) | (result.actual > result.upper)
             ax.fill_between(result.time, result.lower, result.upper, color="tab:green", alpha=0.25, lw=0,
                             label="tolerance tube")
-            outside = (result.actual < result.lower) | (result.actual > result.upper)
             ax.plot(result.time[outside], result.actual[outside], "x", color="tab:red", ms=4, label="outside")
+            res.fill_between(result.time, result.lower - ref, result.upper - ref, color="tab:green", alpha=0.25,
+                             lw=0, label="tube - reference")
+            res.plot(result.time[outside], (result.actual - ref)[outside], "x", color="tab:red", ms=4)
         ax.plot(result.time, result.actual, color="tab:blue", lw=1, label="result")
-        ax.set_xlabel("time [s]")
-        ax.set_ylabel(result.signal)
+        res.plot(result.time, result.actual - ref, color="tab:blue", lw=1, label="result - reference")
+        ax.set_ylabel(f"{result.signal}{unit}")
+        res.set_ylabel(f"residual{unit}")
+        res.set_xlabel("time [s]")
         ax.set_title(f"{result.case}: {result.signal} FAILED", fontsize=10)
-        ax.legend(loc="best", fontsize=8)
-        ax.grid(True, alpha=0.3)
+        for a in (ax, res):
+            a.legend(loc="best", fontsize=8)
+            a.grid(True, alpha=0.3)
         fig.tight_layout()
         path = Path(folder) / f"{_safe(result.case)}__{_safe(result.signal)}.png"
         write_figure(path, fig, dpi=100)
@@ -279,6 +317,8 @@ def load_suite(path: str | Path) -> list[Case]:
     path = Path(path)
     try:
         data = tomllib.loads(path.read_text(encoding="utf-8"))
+    except OSError as exc:
+        raise SuiteError(f"{path}: cannot read the suite file ({exc.strerror or exc})") from None
     except UnicodeDecodeError as exc:
         raise SuiteError(f"{path}: not UTF-8 text (byte {exc.start}: {exc.reason})") from None
     except tomllib.TOMLDecodeError as exc:
@@ -321,7 +361,23 @@ def _case_inputs(case: Case, root: Path) -> dict[str, Any]:
             for name, value in case.inputs.items()}
 
 
+def fmu_sha256(path: str | Path) -> str:
+    """sha256 of an FMU's contents: every member's name and bytes in name order, modelDescription.xml without
+    its generationDateAndTime (zip timestamps and the generation time change with every rebuild of the same
+    FMU; the hash should not)."""
+    digest = hashlib.sha256()
+    with zipfile.ZipFile(path) as zf:
+        for name in sorted(zf.namelist()):
+            data = zf.read(name)
+            if name == "modelDescription.xml":
+                data = re.sub(rb'\sgenerationDateAndTime="[^"]*"', b"", data)
+            digest.update(name.encode() + b"\0" + len(data).to_bytes(8, "little") + data)
+    return digest.hexdigest()
+
+
 def _simulate(case: Case, root: Path) -> tuple[np.ndarray, dict[str, Any]]:
+    """Run the case; its log group and the system's metadata with, per FMU, ``sha256`` and the effective
+    ``parameters`` (modelDescription start values, then the system file's and the case's overrides)."""
     from .master import master_for
 
     master = master_for(case.system)
@@ -330,7 +386,14 @@ def _simulate(case: Case, root: Path) -> tuple[np.ndarray, dict[str, Any]]:
     group = case.log or next(iter(logs))
     if group not in logs:
         raise SuiteError(f"case '{case.name}': no log group '{group}'; groups: {sorted(logs)}")
-    return logs[group], master.metadata()
+    meta = master.metadata()
+    for name, fmu in meta["fmus"].items():
+        starts = {v.name: float(v.start) for v in master.instances[name].model_description.modelVariables
+                  if v.causality == "parameter" and v.type in ("Real", "Float64") and v.start is not None}
+        case_values = {k.split(".", 1)[1]: v for k, v in case.parameters.items() if k.split(".", 1)[0] == name}
+        fmu["parameters"] = {**starts, **fmu["parameters"], **case_values}
+        fmu["sha256"] = fmu_sha256(fmu["path"])
+    return logs[group], meta
 
 
 def _rebaseline(case: Case, log: np.ndarray, meta: dict[str, Any]) -> Path:
@@ -344,8 +407,7 @@ def _rebaseline(case: Case, log: np.ndarray, meta: dict[str, Any]) -> Path:
         sample_time=float(step[0]) if step.size and np.allclose(step, step[0]) else None,
         excited={"inputs": case.inputs},
         fmus=meta["fmus"],
-        parameters={n: {**f["parameters"], **{k.split(".", 1)[1]: v for k, v in case.parameters.items()
-                                              if k.split(".", 1)[0] == n}} for n, f in meta["fmus"].items()},
+        parameters={n: f["parameters"] for n, f in meta["fmus"].items()},
         metadata={"regress_case": case.name},
     )
     case.reference.parent.mkdir(parents=True, exist_ok=True)
@@ -353,36 +415,90 @@ def _rebaseline(case: Case, log: np.ndarray, meta: dict[str, Any]) -> Path:
     return case.reference
 
 
-def run_suite(suite: str | Path, update: bool = False, junit: str | Path | None = None,
-              plots: str | Path | None = None, log=print) -> int:
-    """Run, compare (or ``update`` the references), write JUnit XML and plots; return the exit code."""
+def _differences(reference: Any, meta: dict[str, Any]) -> list[str]:
+    """What changed since the reference was recorded: an FMU's sha256, a parameter value."""
+    notes = []
+    ref_fmus = reference.meta.get("fmus") or {}
+    for name, fmu in meta["fmus"].items():
+        ref = ref_fmus.get(name) if isinstance(ref_fmus, dict) else None
+        if not isinstance(ref, dict) or "sha256" not in ref:
+            notes.append(f"FMU '{name}': the reference records no sha256 (rebaseline with --update to record it)")
+            continue
+        if ref["sha256"] != fmu["sha256"]:
+            notes.append(f"FMU '{name}' differs from the reference's: sha256 {fmu['sha256'][:12]}..., reference "
+                         f"{ref['sha256'][:12]}... ({fmu['path']})")
+        ref_pars = (reference.meta.get("parameters") or {}).get(name) or {}
+        changed = sorted(k for k in set(ref_pars) | set(fmu["parameters"])
+                         if ref_pars.get(k) != fmu["parameters"].get(k))
+        if changed:
+            notes.append(f"FMU '{name}': parameters differ from the reference's: " + ", ".join(
+                f"{k} = {fmu['parameters'].get(k)} (reference {ref_pars.get(k)})" for k in changed))
+    return notes
+
+
+def _run_case(case: Case, suite: Path, update: bool, log, hashes: dict[str, str]) -> list[SignalResult]:
+    """Simulate and compare (or rebaseline) one case; the results carry the whole case's time. Adds the
+    FMUs' sha256 to ``hashes`` (property name "sha256 PATH")."""
     from .recording import read_recording
 
+    start = _time.perf_counter()
+    if not update and not case.reference.is_file():
+        raise FileNotFoundError(f"reference {case.reference} not found: run `motiontwin regress {suite} --update` "
+                                f"to record it")
+    actual, meta = _simulate(case, suite.parent)
+    simulated = _time.perf_counter() - start
+    hashes.update({f"sha256 {fmu['path']}": fmu["sha256"] for fmu in meta["fmus"].values()})
+    if update:
+        path = _rebaseline(case, actual, meta)
+        log(f"{case.name}: reference written to {path}")
+        return [SignalResult(case.name, "update", True, f"reference written to {path}",
+                             seconds=_time.perf_counter() - start)]
+    reference = read_recording(case.reference)
+    results = compare_recordings(case.name, reference, actual, case.tolerance, case.signals)
+    notes = _differences(reference, meta)
+    for note in notes:
+        log(f"{case.name}: NOTE {note}")
+    for r in results:
+        r.seconds += simulated / len(results)
+        r.notes = list(notes)
+    return results
+
+
+def run_suite(suite: str | Path, update: bool = False, junit: str | Path | None = None,
+              plots: str | Path | None = None, log=print) -> int:
+    """Run, compare (or ``update`` the references), write JUnit XML and plots; return the exit code
+    (0 all passed, 1 a failure or a case error, 2 an unusable suite file)."""
     suite = Path(suite)
-    cases = load_suite(suite)
+    start = _time.perf_counter()
+    try:
+        cases = load_suite(suite)
+    except SuiteError as exc:
+        log(f"motiontwin regress: {exc}")
+        if junit is not None:
+            write_junit(junit, [], suite=suite.stem, errors={str(suite): f"SuiteError: {exc}"})
+        return 2
     results: list[SignalResult] = []
     errors: dict[str, str] = {}
+    error_seconds: dict[str, float] = {}
+    hashes: dict[str, str] = {}
     for case in cases:
+        case_start = _time.perf_counter()
         try:
-            actual, meta = _simulate(case, suite.parent)
-            if update:
-                log(f"{case.name}: reference written to {_rebaseline(case, actual, meta)}")
-                continue
-            reference = read_recording(case.reference)
-            results.extend(compare_recordings(case.name, reference, actual, case.tolerance, case.signals))
+            results.extend(_run_case(case, suite, update, log, hashes))
         except Exception as exc:  # a case that cannot run is reported, the others still run
             errors[case.name] = f"{type(exc).__name__}: {exc}"
+            error_seconds[case.name] = _time.perf_counter() - case_start
             log(f"{case.name}: ERROR {errors[case.name]}")
-    if update:
-        return 1 if errors else 0
     for r in results:
-        log(f"{'PASS' if r.passed else 'FAIL'} {r.case} {r.signal}{': ' + r.message if r.message else ''}")
         if not r.passed and plots is not None:
             path = plot_failure(r, plots)
             if path:
-                log(f"     plot: {path}")
+                r.message += f"; plot: {path}"
+        if not update:
+            log(f"{'PASS' if r.passed else 'FAIL'} {r.case} {r.signal}{': ' + r.message if r.message else ''}")
     if junit is not None:
-        write_junit(junit, results, suite=suite.stem, errors=errors)
+        write_junit(junit, results, suite=suite.stem, errors=errors, error_seconds=error_seconds,
+                    properties=hashes, seconds=_time.perf_counter() - start)
     failed = sum(not r.passed for r in results)
-    log(f"{len(results) - failed} passed, {failed} failed, {len(errors)} errors")
+    log(f"{len(results) - failed} {'updated' if update else 'passed'}, {failed} failed, {len(errors)} errors")
     return 1 if failed or errors else 0

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import ctypes
 import math
+import struct
 import subprocess
 from pathlib import Path
 
@@ -47,6 +48,12 @@ def _enter_init(ld: fu.Loaded) -> None:
         ld.fmu.enterInitializationMode()
     else:
         ld.fmu.enterInitializationMode(startTime=0.0)
+
+
+def _starts(ld: fu.Loaded, *names: str) -> list[float]:
+    """Start values from modelDescription.xml (FMI 2.0 allows no getter before initialisation)."""
+    start = {v.name: v.start for v in ld.md.modelVariables}
+    return [float(start[n]) for n in names]
 
 
 def _errors(ld: fu.Loaded) -> list[str]:
@@ -181,7 +188,7 @@ def test_sampled_part_semantics_in_cosimulation(built_fmus, opened, version, ste
     """The sample at t_k = k*Ts uses the input present when the FMU is at t_k (held inside a long step); the
     output is held until the next sample; an input set again at t0 redoes the sample at t0."""
     ld = _open(opened, built_fmus["SampledPI", version])
-    kp, ki, kd, tau, ts = fu.get(ld, "Kp", "Ki", "Kd", "tau", "Ts")
+    kp, ki, kd, tau, ts = _starts(ld, "Kp", "Ki", "Kd", "tau", "Ts")
     Ad, Bd, Cd, Dd = _sampled_pi_reference(kp, ki, kd, tau, ts)
     h = ts / steps_per_sample
     n_steps = 40
@@ -232,7 +239,7 @@ def test_sampled_part_follows_parameter_changes_after_reset_and_state_restore(bu
     gain again after restoring an FMU state taken before, must both reach the output (scipy Tustin reference)."""
     ld = _open(opened, built_fmus["SampledPI", version])
     f, v2 = ld.fmu, version == "2.0"
-    kp, ki, kd, tau, ts = fu.get(ld, "Kp", "Ki", "Kd", "tau", "Ts")
+    kp, ki, kd, tau, ts = _starts(ld, "Kp", "Ki", "Kd", "tau", "Ts")
     inputs = np.random.default_rng(3).normal(size=12)
     _enter_init(ld)
     f.exitInitializationMode()
@@ -358,6 +365,108 @@ def test_fmu_state_of_another_model_or_corrupted_is_rejected(built_fmus, opened,
         deserialize(b"garbage" + blob[7:])
     assert any("another model" in m for m in joint.messages), joint.messages
     assert any("bad header" in m for m in joint.messages), joint.messages
+
+
+@pytest.mark.parametrize("version", VERSIONS)
+def test_getters_before_initialization_follow_the_fmi_state_machine(built_fmus, opened, version):
+    """FMI 2.0 state tables (sections 3.2.3, 4.2.4): no fmi2Get* and no status getter in Instantiated. FMI 3.0.2
+    (state Instantiated): fmi3Get* answers the start values of modelDescription.xml, or what was set since, and
+    nothing that must be computed; derivatives and nominals only from Initialization Mode on. Refused calls
+    return Error with a message; from Initialization Mode on every getter answers."""
+    ld = _open(opened, built_fmus["FrictionJoint", version])
+    me = _open(opened, built_fmus["FrictionJoint", version], "me")
+    f, vr = ld.fmu, ld.vr
+    starts = _starts(ld, "m", "d", "q", "u")
+    if version == "2.0":
+        refused = {"fmi2GetReal": lambda: f.getReal([vr["m"]]), "fmi2GetInteger": lambda: f.getInteger([vr["m"]]),
+                   "fmi2GetBoolean": lambda: f.getBoolean([vr["m"]]), "fmi2GetString": lambda: f.getString([vr["m"]]),
+                   "fmi2GetRealStatus": lambda: f.getRealStatus(2),  # fmi2LastSuccessfulTime
+                   "fmi2GetRealOutputDerivatives": lambda: f.getRealOutputDerivatives([vr["q"]], [1])}
+        for name, call in refused.items():
+            with pytest.raises(FMICallException):
+                call()
+            assert any(m.startswith(f"{name}: illegal call sequence: not allowed in Instantiated (allowed ")
+                       for m in ld.messages), (name, ld.messages)
+    else:
+        assert list(fu.get(ld, "m", "d", "q", "u")) == starts
+        fu.set_(ld, {"m": 3.5})
+        assert fu.get(ld, "m")[0] == 3.5
+        for name in ("a", "der(v)"):
+            with pytest.raises(FMICallException):
+                fu.get(ld, name)
+            assert any(f"fmi3GetFloat64: {name} (value reference {vr[name]}) is a" in m and "without a start value"
+                       in m for m in ld.messages), ld.messages
+    with pytest.raises(FMICallException):
+        buffer = (ctypes.c_double * 2)()
+        me.fmu.getNominalsOfContinuousStates(buffer, 2) if version == "3.0" else me.fmu.getDerivatives(buffer, 2)
+    assert any("illegal call sequence: not allowed in Instantiated" in m for m in me.messages), me.messages
+    _enter_init(ld)
+    got = fu.get(ld, "m", "d", "q", "u", "a")
+    assert list(got[1:4]) == starts[1:] and got[0] == (starts[0] if version == "2.0" else 3.5)
+    assert got[4] == 0.0  # a = (u - d v - Fc tanh(v/v_eps))/m at rest without force
+
+
+def _state_blob(ld: fu.Loaded) -> bytes:
+    f = ld.fmu
+    if ld.md.fmiVersion == "2.0":
+        return bytes(f.serializeFMUstate(f.getFMUstate()))
+    return bytes(f.serializeFMUState(f.getFMUState()))
+
+
+# Offsets after the token in a serialised state (mt_snapshot.c): mode i32, at_sample i32, sample counter i64,
+# t0, t, rtol, h, then x[nx], the x_set flags[nx], u[nu], p[np] as doubles.
+STATE_FIELDS = [("mode", 0, "<i", 8, "mode = 8 is no mode of this interface type"),  # Continuous-Time in CS
+                ("mode", 0, "<i", 3, "mode = 3 is no mode"),
+                ("at_sample", 4, "<i", 7, "at-sample flag = 7 is not 0 or 1"),
+                ("k", 8, "<q", -5, "sample counter = -5 is outside"),
+                ("t0", 16, "<d", math.inf, "start time = inf is not finite"),
+                ("t", 24, "<d", math.nan, "time = nan is not finite"),
+                ("rtol", 32, "<d", math.nan, "relative tolerance = nan is not in (0, 1)"),
+                ("rtol", 32, "<d", -1e-6, "relative tolerance = -9.9999999999999995e-07 is not in (0, 1)"),
+                ("h", 40, "<d", -1.0, "solver step size = -1 is not finite and >= 0"),
+                ("x", 48 + 8, "<d", math.inf, "state v = inf is not finite"),
+                ("x_set", 48 + 16, "<d", 0.5, "start-value flag of a state = 0.5 is not 0 or 1"),
+                ("u", 48 + 32, "<d", math.nan, "input u = nan is not finite"),
+                ("p", None, "<d", 0.0, "parameter m = 0 is below its minimum")]
+
+
+@pytest.mark.parametrize("version", VERSIONS)
+def test_deserialized_state_is_validated_field_by_field(built_fmus, opened, version):
+    """A serialised state with one field out of its domain (mode enum, flags, counter, times, tolerance, step
+    size, a non-finite state or input, a parameter below its minimum) or of the wrong size is refused by
+    DeserializeFMUState with the field named; the instance keeps its state and the good blob still restores."""
+    ld = _open(opened, built_fmus["FrictionJoint", version])
+    v2 = version == "2.0"
+    f = ld.fmu
+    _enter_init(ld)
+    f.exitInitializationMode()
+    fu.set_(ld, {"u": 8.0})
+    fu.step(ld, 0.0, 0.05)
+    blob = _state_blob(ld)
+    base = 8 + 8 * 4 + len(ld.md.guid)
+    params = sorted((v.valueReference, v.name) for v in ld.md.modelVariables if v.causality == "parameter")
+    p_m = 48 + 40 + 8 * [n for _, n in params].index("m")
+    deserialize = f.deSerializeFMUstate if v2 else f.deserializeFMUState
+    fn = "fmi2DeSerializeFMUstate" if v2 else "fmi3DeserializeFMUState"
+    for field, offset, fmt, value, text in STATE_FIELDS:
+        at = base + (p_m if offset is None else offset)
+        bad = bytearray(blob)
+        bad[at:at + struct.calcsize(fmt)] = struct.pack(fmt, value)
+        ld.messages.clear()
+        with pytest.raises(FMICallException):
+            deserialize(bytes(bad))
+        assert any(m == f"{fn}: FMU state refused: {text}" or m.startswith(f"{fn}: FMU state refused: {text}")
+                   for m in ld.messages), (field, ld.messages)
+    with pytest.raises(FMICallException):
+        deserialize(blob[:-8])
+    assert any(f"FMU state has {len(blob) - 8} bytes, expected {len(blob)}" in m for m in ld.messages)
+    q = fu.get(ld, "q")[0]
+    state = deserialize(blob)   # the untouched blob restores to where it was taken
+    fu.step(ld, 0.05, 0.05)
+    assert fu.get(ld, "q")[0] != q
+    (f.setFMUstate if v2 else f.setFMUState)(state)
+    assert fu.get(ld, "q")[0] == q
+    (f.freeFMUstate if v2 else f.freeFMUState)(state)
 
 
 @pytest.mark.parametrize("version", VERSIONS)

@@ -31,6 +31,10 @@
 #define NOT_FAILED (MT_ANY_MODE & ~MT_FAILED)
 #define SETTABLE (MT_INSTANTIATED | MT_INIT | MT_EVENT | MT_CONTINUOUS | MT_STEP)
 #define EVALUATED (MT_INIT | MT_EVENT | MT_CONTINUOUS | MT_STEP | MT_TERMINATED | MT_FAILED)
+/* The state tables of FMI 2.0 (sections 3.2.3 and 4.2.4): variable getters, directional derivatives and the
+ * Model Exchange getters are allowed from Initialization Mode on, not in Instantiated; the status getters of
+ * Co-Simulation only after initialisation and not in Error. */
+#define STATUS (MT_STEP | MT_TERMINATED)
 
 /* The logger's message is a printf format: protect '%' in the finished text. */
 static void emit(mt_instance *inst, int status, const char *category, const char *message)
@@ -117,28 +121,28 @@ fmi2Status fmi2Reset(fmi2Component c)
 
 fmi2Status fmi2GetReal(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, fmi2Real value[])
 {
-    CHECK(MT_ANY_MODE, "fmi2GetReal");
+    CHECK(EVALUATED, "fmi2GetReal");
     return (fmi2Status)mt_get_float64(INST, vr, nvr, value, "fmi2GetReal");
 }
 
 fmi2Status fmi2GetInteger(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, fmi2Integer value[])
 {
     (void)value;
-    CHECK(MT_ANY_MODE, "fmi2GetInteger");
+    CHECK(EVALUATED, "fmi2GetInteger");
     return (fmi2Status)mt_wrong_type(INST, vr, nvr, "Integer", "fmi2GetInteger");
 }
 
 fmi2Status fmi2GetBoolean(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, fmi2Boolean value[])
 {
     (void)value;
-    CHECK(MT_ANY_MODE, "fmi2GetBoolean");
+    CHECK(EVALUATED, "fmi2GetBoolean");
     return (fmi2Status)mt_wrong_type(INST, vr, nvr, "Boolean", "fmi2GetBoolean");
 }
 
 fmi2Status fmi2GetString(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, fmi2String value[])
 {
     (void)value;
-    CHECK(MT_ANY_MODE, "fmi2GetString");
+    CHECK(EVALUATED, "fmi2GetString");
     return (fmi2Status)mt_wrong_type(INST, vr, nvr, "String", "fmi2GetString");
 }
 
@@ -377,7 +381,7 @@ fmi2Status fmi2GetRealOutputDerivatives(fmi2Component c, const fmi2ValueReferenc
     (void)vr;
     (void)order;
     (void)value;
-    CHECK(MT_ANY_MODE, "fmi2GetRealOutputDerivatives");
+    CHECK(MT_STEP | MT_TERMINATED | MT_FAILED, "fmi2GetRealOutputDerivatives");
     CHECK_CS("fmi2GetRealOutputDerivatives");
     if (nvr == 0) return fmi2OK;
     mt_log(INST, MT_ERROR, "logStatusError", "fmi2GetRealOutputDerivatives: not supported "
@@ -404,7 +408,7 @@ fmi2Status fmi2CancelStep(fmi2Component c)
 
 static fmi2Status no_status(fmi2Component c, const char *fn)
 {
-    CHECK(MT_ANY_MODE, fn);
+    CHECK(STATUS, fn);
     mt_log(INST, MT_DISCARD, "logStatusError", "%s: this status kind is not provided (fmi2DoStep never returns "
            "fmi2Pending)", fn);
     return fmi2Discard;
@@ -419,7 +423,7 @@ fmi2Status fmi2GetStatus(fmi2Component c, const fmi2StatusKind s, fmi2Status *va
 
 fmi2Status fmi2GetRealStatus(fmi2Component c, const fmi2StatusKind s, fmi2Real *value)
 {
-    CHECK(MT_ANY_MODE, "fmi2GetRealStatus");
+    CHECK(STATUS, "fmi2GetRealStatus");
     CHECK_CS("fmi2GetRealStatus");
     if (s != fmi2LastSuccessfulTime || !value) return no_status(c, "fmi2GetRealStatus");
     *value = INST->t;
@@ -435,7 +439,7 @@ fmi2Status fmi2GetIntegerStatus(fmi2Component c, const fmi2StatusKind s, fmi2Int
 
 fmi2Status fmi2GetBooleanStatus(fmi2Component c, const fmi2StatusKind s, fmi2Boolean *value)
 {
-    CHECK(MT_ANY_MODE, "fmi2GetBooleanStatus");
+    CHECK(STATUS, "fmi2GetBooleanStatus");
     CHECK_CS("fmi2GetBooleanStatus");
     if (s != fmi2Terminated || !value) return no_status(c, "fmi2GetBooleanStatus");
     *value = fmi2False;

@@ -38,6 +38,8 @@
 #define NOT_FAILED (MT_ANY_MODE & ~MT_FAILED)
 #define SETTABLE (MT_INSTANTIATED | MT_INIT | MT_EVENT | MT_CONTINUOUS | MT_STEP)
 #define EVALUATED (MT_INIT | MT_EVENT | MT_CONTINUOUS | MT_STEP | MT_TERMINATED | MT_FAILED)
+/* FMI 3.0.2 state tables: fmi3Get{VariableType} is allowed in every state, in Instantiated for start values only
+ * (mt_get_float64); derivatives, nominals and output derivatives only from Initialization Mode on. */
 
 static void emit(mt_instance *inst, int status, const char *category, const char *message)
 {
@@ -559,7 +561,7 @@ fmi3Status fmi3GetContinuousStates(fmi3Instance instance, fmi3Float64 continuous
 
 fmi3Status fmi3GetNominalsOfContinuousStates(fmi3Instance instance, fmi3Float64 nominals[], size_t nContinuousStates)
 {
-    CHECK(MT_ANY_MODE, "fmi3GetNominalsOfContinuousStates");
+    CHECK(EVALUATED, "fmi3GetNominalsOfContinuousStates");
     CHECK_ME("fmi3GetNominalsOfContinuousStates");
     return (fmi3Status)mt_get_nominals(INST, nominals, nContinuousStates, "fmi3GetNominalsOfContinuousStates");
 }
@@ -598,7 +600,7 @@ fmi3Status fmi3GetOutputDerivatives(fmi3Instance instance, const fmi3ValueRefere
     (void)orders;
     (void)values;
     (void)nValues;
-    CHECK(MT_ANY_MODE, "fmi3GetOutputDerivatives");
+    CHECK(MT_STEP | MT_TERMINATED | MT_FAILED, "fmi3GetOutputDerivatives");
     if (nValueReferences == 0) return fmi3OK;
     ERR("fmi3GetOutputDerivatives: not supported (maxOutputDerivativeOrder is 0)");
     return fmi3Error;

@@ -92,9 +92,14 @@ static const char *mode_name(int mode)
 
 int mt_allowed(mt_instance *inst, int mask, const char *fn)
 {
+    const char *hint = "";
     if (!inst) return 0;
     if (inst->mode & mask) return 1;
-    LOG_ERROR(inst, "%s: illegal call sequence: not allowed in %s", fn, mode_name(inst->mode));
+    if (inst->mode == MT_INSTANTIATED && (mask & MT_INIT))
+        hint = " (allowed from Initialization Mode on: call EnterInitializationMode first)";
+    else if ((inst->mode & (MT_INSTANTIATED | MT_INIT)) && (mask & (MT_STEP | MT_EVENT | MT_CONTINUOUS)))
+        hint = " (allowed after ExitInitializationMode)";
+    LOG_ERROR(inst, "%s: illegal call sequence: not allowed in %s%s", fn, mode_name(inst->mode), hint);
     return 0;
 }
 
@@ -144,7 +149,7 @@ static int call(mt_instance *inst, const mt_function *f, const double *a0, const
 }
 
 /* Before exit of initialisation the states follow x0(p) except where the user set a start value. */
-static int refresh_initial_states(mt_instance *inst)
+int mt_refresh_initial_states(mt_instance *inst)
 {
     const mt_model *m = inst->m;
     int i;
@@ -429,7 +434,7 @@ void mt_reset(mt_instance *inst)
 /* ------------------------------------------------------------------------------------------ */
 /* Sampled part                                                                                */
 
-static int sampled(const mt_instance *inst)
+int mt_sampled(const mt_instance *inst)
 {
     return inst->m->sample.eval && inst->m->ts_index >= 0 && inst->m->nz + inst->m->nyd > 0;
 }
@@ -515,7 +520,7 @@ static int do_sample(mt_instance *inst, const char *fn)
 /* Samples due at the current time (and any missed earlier ones). */
 static int samples_due(mt_instance *inst, const char *fn)
 {
-    if (!sampled(inst)) return MT_OK;
+    if (!mt_sampled(inst)) return MT_OK;
     while (sample_time(inst, inst->k_next) <= inst->t + sample_eps(inst))
         if (do_sample(inst, fn) != MT_OK) return MT_ERROR;
     return MT_OK;
@@ -523,6 +528,30 @@ static int samples_due(mt_instance *inst, const char *fn)
 
 /* ------------------------------------------------------------------------------------------ */
 /* Get and set                                                                                 */
+
+/* FMI 3.0 in Instantiated: "get variable start values as defined in modelDescription.xml" (FMI 3.0.2, state
+ * Instantiated), or the value set since; nothing is evaluated. Variables without a start value (derivatives,
+ * computed variables, states whose start depends on parameters) are refused. FMI 2.0 refuses all getters there. */
+static int start_values(mt_instance *inst, const unsigned int *vr, size_t n, double *value, const char *fn)
+{
+    const mt_model *m = inst->m;
+    size_t k;
+    for (k = 0; k < n; k++) {
+        int i, b = block_of(m, vr[k], &i);
+        if (b == B_NONE) {
+            LOG_ERROR(inst, "%s: unknown value reference %u (this FMU has 0 .. %d)", fn, vr[k], m->nvr - 1);
+            return MT_ERROR;
+        }
+        if (!(b == B_X || b == B_U || b == B_Z || b == B_P) || !m->start || isnan(m->start[vr[k]])) {
+            LOG_ERROR(inst, "%s: %s (value reference %u) is %s without a start value: it is computed from "
+                      "Initialization Mode on (call EnterInitializationMode first); in Instantiated only start "
+                      "values can be read", fn, b == B_TIME ? "time" : m->names[vr[k]], vr[k], BLOCK_KIND[b]);
+            return MT_ERROR;
+        }
+        value[k] = b == B_X ? inst->x[i] : (b == B_U ? inst->u[i] : (b == B_Z ? inst->z[i] : inst->p[i]));
+    }
+    return MT_OK;
+}
 
 int mt_get_float64(mt_instance *inst, const unsigned int *vr, size_t n, double *value, const char *fn)
 {
@@ -533,7 +562,8 @@ int mt_get_float64(mt_instance *inst, const unsigned int *vr, size_t n, double *
         LOG_ERROR(inst, "%s: null pointer for value references or values", fn);
         return MT_ERROR;
     }
-    if (refresh_initial_states(inst)) {
+    if (inst->mode == MT_INSTANTIATED) return start_values(inst, vr, n, value, fn);
+    if (mt_refresh_initial_states(inst)) {
         LOG_ERROR(inst, "%s: evaluation of the initial states failed", fn);
         return MT_ERROR;
     }
@@ -638,7 +668,7 @@ int mt_set_float64(mt_instance *inst, const unsigned int *vr, size_t n, const do
             break;
         }
     }
-    if (inputs_changed && inst->at_sample && sampled(inst) && !(inst->mode & start_modes)) {
+    if (inputs_changed && inst->at_sample && mt_sampled(inst) && !(inst->mode & start_modes)) {
         /* event iteration: redo the sample at this instant with the new inputs */
         if (run_sample(inst, inst->z_pre, fn) != MT_OK) return mt_fail(inst);
         LOG_EVENT(inst, "%s: sample %lld at t = %.17g repeated with new inputs", fn, inst->k_next - 1, inst->t);
@@ -698,14 +728,14 @@ int mt_exit_initialization(mt_instance *inst)
             LOG_ERROR(inst, "%s: input %s = %g is not finite", fn, name_of(m, B_U, i), inst->u[i]);
             return mt_fail(inst);
         }
-    if (sampled(inst)) {
+    if (mt_sampled(inst)) {
         double ts = sample_period(inst);
         if (!(ts > 0.0) || !isfinite(ts)) {
             LOG_ERROR(inst, "%s: sample period %s = %g must be > 0", fn, name_of(m, B_P, m->ts_index), ts);
             return mt_fail(inst);
         }
     }
-    if (refresh_initial_states(inst)) {
+    if (mt_refresh_initial_states(inst)) {
         LOG_ERROR(inst, "%s: evaluation of the initial states failed", fn);
         return mt_fail(inst);
     }
@@ -730,7 +760,7 @@ int mt_exit_initialization(mt_instance *inst)
     }
     inst->k_next = 0;
     inst->at_sample = 0;
-    if (sampled(inst) && do_sample(inst, fn) != MT_OK) return mt_fail(inst);
+    if (mt_sampled(inst) && do_sample(inst, fn) != MT_OK) return mt_fail(inst);
     inst->solver.h = 0.0;
     inst->solver.rtol = inst->rtol;
     inst->mode = inst->co_simulation ? MT_STEP : MT_EVENT;
@@ -795,7 +825,7 @@ int mt_do_step(mt_instance *inst, double t, double h, const char *fn)
             return mt_fail(inst);
         }
     }
-    if (sampled(inst)) { /* instants strictly inside (t, tend) use the held inputs */
+    if (mt_sampled(inst)) { /* instants strictly inside (t, tend) use the held inputs */
         while (sample_time(inst, inst->k_next) < tend - sample_eps(inst)) {
             inst->t = sample_time(inst, inst->k_next);
             if (do_sample(inst, fn) != MT_OK) return mt_fail(inst);
@@ -849,7 +879,7 @@ int mt_set_states(mt_instance *inst, const double *x, size_t n, const char *fn)
 int mt_get_states(mt_instance *inst, double *x, size_t n, const char *fn)
 {
     if (check_nx(inst, x, n, fn)) return MT_ERROR;
-    if (refresh_initial_states(inst)) return MT_ERROR;
+    if (mt_refresh_initial_states(inst)) return MT_ERROR;
     memcpy(x, inst->x, n * sizeof(double));
     return MT_OK;
 }
@@ -859,7 +889,7 @@ int mt_get_derivatives(mt_instance *inst, double *dx, size_t n, const char *fn)
     size_t i;
     if (check_nx(inst, dx, n, fn)) return MT_ERROR;
     if (n == 0) return MT_OK;
-    if (refresh_initial_states(inst) || eval_ode(inst, inst->t, inst->x, dx)) {
+    if (mt_refresh_initial_states(inst) || eval_ode(inst, inst->t, inst->x, dx)) {
         LOG_ERROR(inst, "%s: evaluation of the derivatives failed at t = %.17g", fn, inst->t);
         return MT_ERROR;
     }
@@ -893,170 +923,8 @@ int mt_check_event_indicators(mt_instance *inst, size_t n, const char *fn)
 int mt_update_discrete(mt_instance *inst, int *next_defined, double *next_time)
 {
     if (samples_due(inst, "UpdateDiscreteStates") != MT_OK) return mt_fail(inst);
-    *next_defined = sampled(inst);
-    *next_time = sampled(inst) ? sample_time(inst, inst->k_next) : 0.0;
-    return MT_OK;
-}
-
-/* ------------------------------------------------------------------------------------------ */
-/* FMU state snapshots                                                                         */
-
-static const char MAGIC[8] = {'M', 'T', 'S', 'T', 'A', 'T', 'E', '1'};
-#define HEADER_INTS 8 /* token length, nx, nu, ny, nyd, nz, np, co_simulation */
-
-typedef struct {
-    unsigned char *p;
-    const unsigned char *q;
-} cursor;
-
-static size_t snapshot_size(const mt_model *m)
-{
-    size_t tok = strlen(m->token);
-    size_t ndbl = 4 + (size_t)m->nx * 2 + (size_t)m->nu + (size_t)m->np + 2 * (size_t)m->nz + (size_t)m->nyd;
-    return sizeof MAGIC + HEADER_INTS * sizeof(int32_t) + tok + 2 * sizeof(int32_t) + sizeof(int64_t) +
-           ndbl * sizeof(double);
-}
-
-static void put(cursor *c, const void *src, size_t n)
-{
-    memcpy(c->p, src, n);
-    c->p += n;
-}
-
-static void get(cursor *c, void *dst, size_t n)
-{
-    memcpy(dst, c->q, n);
-    c->q += n;
-}
-
-static void put_i32(cursor *c, int v)
-{
-    int32_t x = (int32_t)v;
-    put(c, &x, sizeof x);
-}
-
-static int get_i32(cursor *c)
-{
-    int32_t x;
-    get(c, &x, sizeof x);
-    return (int)x;
-}
-
-mt_snapshot *mt_snapshot_take(mt_instance *inst, mt_snapshot *reuse)
-{
-    const mt_model *m = inst->m;
-    size_t size = snapshot_size(m), tok = strlen(m->token);
-    mt_snapshot *s = reuse;
-    cursor c;
-    int64_t k = inst->k_next;
-    int i;
-    if (refresh_initial_states(inst)) return NULL;
-    if (!s || s->size != size) {
-        free(s);
-        s = malloc(sizeof *s + size);
-        if (!s) {
-            LOG_ERROR(inst, "GetFMUState: out of memory");
-            return NULL;
-        }
-        s->size = size;
-    }
-    c.p = s->data;
-    put(&c, MAGIC, sizeof MAGIC);
-    put_i32(&c, (int)tok);
-    put_i32(&c, m->nx);
-    put_i32(&c, m->nu);
-    put_i32(&c, m->ny);
-    put_i32(&c, m->nyd);
-    put_i32(&c, m->nz);
-    put_i32(&c, m->np);
-    put_i32(&c, inst->co_simulation);
-    put(&c, m->token, tok);
-    put_i32(&c, inst->mode);
-    put_i32(&c, inst->at_sample);
-    put(&c, &k, sizeof k);
-    put(&c, &inst->t0, sizeof(double));
-    put(&c, &inst->t, sizeof(double));
-    put(&c, &inst->rtol, sizeof(double));
-    put(&c, &inst->solver.h, sizeof(double));
-    put(&c, inst->x, (size_t)m->nx * sizeof(double));
-    for (i = 0; i < m->nx; i++) {
-        double flag = inst->x_set[i];
-        put(&c, &flag, sizeof flag);
-    }
-    put(&c, inst->u, (size_t)m->nu * sizeof(double));
-    put(&c, inst->p, (size_t)m->np * sizeof(double));
-    put(&c, inst->z, (size_t)m->nz * sizeof(double));
-    put(&c, inst->z_pre, (size_t)m->nz * sizeof(double));
-    put(&c, inst->yd, (size_t)m->nyd * sizeof(double));
-    return s;
-}
-
-int mt_snapshot_restore(mt_instance *inst, const unsigned char *data, size_t size, int apply, const char *fn)
-{
-    const mt_model *m = inst->m;
-    size_t tok = strlen(m->token);
-    const int expect[HEADER_INTS] = {(int)tok, m->nx, m->nu, m->ny, m->nyd, m->nz, m->np, inst->co_simulation};
-    static const char *const what[HEADER_INTS] = {"token length", "nx", "nu", "ny", "nyd", "nz", "np",
-                                                  "interface type"};
-    cursor c;
-    int i, mode, at_sample;
-    int64_t k;
-    double d[4];
-    if (!data) {
-        LOG_ERROR(inst, "%s: null FMU state", fn);
-        return MT_ERROR;
-    }
-    if (size < sizeof MAGIC + HEADER_INTS * sizeof(int32_t) || memcmp(data, MAGIC, sizeof MAGIC) != 0) {
-        LOG_ERROR(inst, "%s: not an FMU state of a motiontwin FMU (bad header)", fn);
-        return MT_ERROR;
-    }
-    c.q = data + sizeof MAGIC;
-    for (i = 0; i < HEADER_INTS; i++) {
-        int v = get_i32(&c);
-        if (v != expect[i]) {
-            LOG_ERROR(inst, "%s: FMU state of another model or interface: %s is %d, expected %d", fn, what[i], v,
-                      expect[i]);
-            return MT_ERROR;
-        }
-    }
-    if (size != snapshot_size(m)) {
-        LOG_ERROR(inst, "%s: FMU state has %zu bytes, expected %zu", fn, size, snapshot_size(m));
-        return MT_ERROR;
-    }
-    if (memcmp(c.q, m->token, tok) != 0) {
-        LOG_ERROR(inst, "%s: FMU state was saved by another model (token differs from %s)", fn, m->token);
-        return MT_ERROR;
-    }
-    c.q += tok;
-    mode = get_i32(&c);
-    at_sample = get_i32(&c);
-    get(&c, &k, sizeof k);
-    get(&c, d, sizeof d);
-    if (!(mode == MT_INSTANTIATED || mode == MT_INIT || mode == MT_EVENT || mode == MT_CONTINUOUS ||
-          mode == MT_STEP || mode == MT_TERMINATED) || k < 0) {
-        LOG_ERROR(inst, "%s: FMU state is corrupt (mode %d, sample counter %lld)", fn, mode, (long long)k);
-        return MT_ERROR;
-    }
-    if (!apply) return MT_OK;
-    inst->mode = mode;
-    inst->at_sample = at_sample != 0;
-    inst->k_next = k;
-    inst->t0 = d[0];
-    inst->t = d[1];
-    inst->rtol = d[2];
-    inst->solver.h = d[3];
-    get(&c, inst->x, (size_t)m->nx * sizeof(double));
-    for (i = 0; i < m->nx; i++) {
-        double flag;
-        get(&c, &flag, sizeof flag);
-        inst->x_set[i] = flag != 0.0;
-    }
-    get(&c, inst->u, (size_t)m->nu * sizeof(double));
-    get(&c, inst->p, (size_t)m->np * sizeof(double));
-    inst->S_valid = 0;
-    get(&c, inst->z, (size_t)m->nz * sizeof(double));
-    get(&c, inst->z_pre, (size_t)m->nz * sizeof(double));
-    get(&c, inst->yd, (size_t)m->nyd * sizeof(double));
+    *next_defined = mt_sampled(inst);
+    *next_time = mt_sampled(inst) ? sample_time(inst, inst->k_next) : 0.0;
     return MT_OK;
 }
 
@@ -1097,7 +965,7 @@ int mt_derivatives(mt_instance *inst, const unsigned int *unknowns, size_t n_unk
             return MT_ERROR;
         }
     }
-    if (refresh_initial_states(inst) || (nr > 0 && m->nx + m->nu > 0 && eval_jac(inst, inst->t, inst->x))) {
+    if (mt_refresh_initial_states(inst) || (nr > 0 && m->nx + m->nu > 0 && eval_jac(inst, inst->t, inst->x))) {
         LOG_ERROR(inst, "%s: evaluation of the Jacobian failed at t = %.17g", fn, inst->t);
         return MT_ERROR;
     }

@@ -118,13 +118,21 @@ int mt_check_event_indicators(mt_instance *inst, size_t n, const char *fn);
 /* Executes the samples due at the current time; reports the next time event. */
 int mt_update_discrete(mt_instance *inst, int *next_defined, double *next_time);
 
-/* FMU state snapshots: a validated byte blob (the serialised form is the snapshot itself). */
+/* Before exit of initialisation: the states follow x0(p) except where the user set a start value.
+ * Returns -1 when x0 fails to evaluate. */
+int mt_refresh_initial_states(mt_instance *inst);
+/* 1 when the model has a sampled part. */
+int mt_sampled(const mt_instance *inst);
+
+/* FMU state snapshots (mt_snapshot.c): a byte blob, the serialised form is the snapshot itself. */
 typedef struct {
     size_t size;
     unsigned char data[];
 } mt_snapshot;
 mt_snapshot *mt_snapshot_take(mt_instance *inst, mt_snapshot *reuse);
-/* Validates data (magic, token, sizes) and, when apply is 1, restores the instance from it. */
+/* Validates data (magic, token, sizes, then every field: mode, counters, times, tolerance, step size, the
+ * variables' finiteness and ranges) and, when apply is 1, restores the instance from it. A refused state is
+ * named field by field in the log and leaves the instance unchanged. */
 int mt_snapshot_restore(mt_instance *inst, const unsigned char *data, size_t size, int apply, const char *fn);
 
 /* d unknowns / d knowns times seed (adjoint: transposed). Unknowns: states, derivatives, y;

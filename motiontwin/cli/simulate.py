@@ -77,8 +77,9 @@ def register(sub: argparse._SubParsersAction) -> None:
 
     p = sub.add_parser("run", help="co-simulate a system file and write a recording")
     p.add_argument("system", type=Path, help="system description (TOML)")
-    p.add_argument("--input", action="append", default=[], metavar="NAME=EXPERIMENT.toml[:FIELD]",
-                   help="drive external input NAME with an experiment's signal (FIELD: value, position, ...)")
+    p.add_argument("--input", action="append", default=[], metavar="NAME=VALUE|EXPERIMENT.toml[:FIELD]",
+                   help="drive external input NAME with a constant or an experiment's signal (FIELD: value, "
+                        "position, ...)")
     p.add_argument("--stop-time", type=float, default=None, help="[s] (default: the system file's stop_time)")
     p.add_argument("--log", default=None, help="log group to record (default: the first)")
     p.add_argument("--out", type=Path, required=True, help="recording CSV (a JSON sidecar is written beside it)")

@@ -4,8 +4,9 @@ harness.comparison) around CheungManipulator, FMI 2.0, Ts = 5e-4 s, the referenc
 (the paper's substrate move, back and forth every 0.25 s). Prints the plant's and the controllers' cost per
 tick (plant split into ticks while the reference moves and at rest) and the plant's solver statistics.
 
-Run: .venv/bin/python tests/benchmarks/bench_closed_loop_c.py [SIMULATED_SECONDS] [--callgrind]
-(--callgrind runs 1 s under valgrind's callgrind and prints the instruction profile: load-independent.)
+Run: .venv/bin/python tests/benchmarks/bench_closed_loop_c.py [SIMULATED_SECONDS] [--callgrind] [--smoke]
+(--callgrind runs 1 s under valgrind's callgrind and prints the instruction profile: load-independent;
+--smoke: 0.05 s simulated.) The driver prints the ratio line (real-time factor: the baseline is real time).
 """
 from __future__ import annotations
 
@@ -25,6 +26,7 @@ sys.path.insert(0, str(Path(__file__).parent))
 
 import bench_manipulator  # noqa: E402
 from motiontwin import comparison  # noqa: E402
+from ratios import smoke  # noqa: E402
 
 DRIVER = ROOT / "tests" / "c" / "closed_loop_timing.c"
 
@@ -54,9 +56,10 @@ def binary(fmu: Path, into: Path) -> tuple[str, str]:
 
 
 def main() -> None:
+    small = smoke()
     args = [a for a in sys.argv[1:] if not a.startswith("--")]
     callgrind = "--callgrind" in sys.argv
-    simulated = float(args[0]) if args else (1.0 if callgrind else 4.0)
+    simulated = float(args[0]) if args else (1.0 if callgrind else (0.05 if small else 4.0))
     n = round(simulated / comparison.TS)
     with tempfile.TemporaryDirectory() as tmp:
         tmp_path = Path(tmp)

@@ -1,7 +1,8 @@
 """Benchmark (not a test): cost of one doStep of the joint plant FMU at 0.5 ms steps, measured in C,
 beside the cost of one fmpy set/doStep/get cycle on the same FMU, in one run.
 
-Run: .venv/bin/python tests/benchmarks/bench_fmu_step.py
+Run: .venv/bin/python tests/benchmarks/bench_fmu_step.py [--smoke]   (--smoke: 1000 steps)
+Ratio: the fmpy cycle over the C cycle (the baseline: the same calls from C).
 """
 from __future__ import annotations
 
@@ -15,6 +16,7 @@ import fmpy
 from fmpy.fmi2 import FMU2Slave
 
 from motiontwin.fmus import build, package
+from ratios import ratio, smoke
 
 STEP = 5e-4
 STEPS = 20000
@@ -50,6 +52,7 @@ int main(int argc, char **argv) {
 
 
 def main() -> None:
+    steps = 1000 if smoke() else STEPS
     with tempfile.TemporaryDirectory() as tmp:
         tmp_path = Path(tmp)
         fmu = build.build(["MotionTwin.Plants.LinearMotorJoint"],
@@ -64,7 +67,7 @@ def main() -> None:
         exe = tmp_path / "loop"
         headers = Path(fmpy.__file__).parent / "c-code"
         subprocess.run(["gcc", "-O2", f"-I{headers}", str(src), "-o", str(exe), "-ldl"], check=True)
-        c_seconds = float(subprocess.run([str(exe), str(lib), md.guid, str(vr["u"]), str(vr["q"]), str(STEPS),
+        c_seconds = float(subprocess.run([str(exe), str(lib), md.guid, str(vr["u"]), str(vr["q"]), str(steps),
                                           str(STEP)], capture_output=True, text=True, check=True).stdout)
 
         slave = FMU2Slave(guid=md.guid, unzipDirectory=str(unzip), modelIdentifier=fmu.identifier)
@@ -74,7 +77,7 @@ def main() -> None:
         slave.exitInitializationMode()
         q = 0.0
         start = time.perf_counter()
-        for k in range(STEPS):
+        for k in range(steps):
             slave.setReal([vr["u"]], [3.0 - 100.0 * q])
             slave.doStep(currentCommunicationPoint=k * STEP, communicationStepSize=STEP)
             q = slave.getReal([vr["q"]])[0]
@@ -82,12 +85,14 @@ def main() -> None:
         slave.terminate()
         slave.freeInstance()
 
-    c_us = c_seconds / STEPS * 1e6
-    py_us = py_seconds / STEPS * 1e6
-    print(f"joint plant FMU, {STEPS} steps of {STEP * 1e3:g} ms under proportional feedback")
+    c_us = c_seconds / steps * 1e6
+    py_us = py_seconds / steps * 1e6
+    print(f"joint plant FMU, {steps} steps of {STEP * 1e3:g} ms under proportional feedback")
     print(f"  C set/doStep/get cycle:     {c_us:8.2f} us/step  (real-time factor {STEP * 1e6 / c_us:8.0f}x)")
     print(f"  fmpy set/doStep/get cycle:  {py_us:8.2f} us/step  (real-time factor {STEP * 1e6 / py_us:8.0f}x)")
     print(f"  fmpy overhead over C:       {py_us / c_us:8.2f}x")
+    ratio("fmu_step.fmpy_over_c", py_us / c_us, "fmpy set/doStep/get cycle / the same cycle in C, per step")
+    ratio("fmu_step.realtime_factor_c", STEP * 1e6 / c_us, "step size / wall time of one C cycle")
 
 
 if __name__ == "__main__":

@@ -7,9 +7,10 @@ Two closed loops, plant force = controller output + u_ext(t), u_ext seeded noise
 2. the project's FMUs (built here with fmus.build into a temporary folder): ``SampledPI`` (FMI 3.0,
    Ts = 1 ms) around ``LinearMotorJoint`` (FMI 2.0, 0.5 ms, i.e. 2 kHz).
 
-Run: .venv/bin/python tests/benchmarks/bench_harness.py [FOLDER_WITH_GEMSEO_FMUS]
+Run: .venv/bin/python tests/benchmarks/bench_harness.py [FOLDER_WITH_GEMSEO_FMUS] [--smoke]
 (default: $MOTIONTWIN_TEST_FMUS, else the gemseo-fmu wheel's FMUs fetched once into
-~/.cache/motiontwin/gemseo_fmus by tests.fmi_util.gemseo_fmu_folder).
+~/.cache/motiontwin/gemseo_fmus by tests.fmi_util.gemseo_fmu_folder; --smoke: 0.2 s and 0.5 s simulated,
+one repetition, 4 sweep seeds). Ratios: harness over the raw fmpy loop (the baseline) for both loops.
 """
 from __future__ import annotations
 
@@ -30,11 +31,15 @@ from fmpy.fmi3 import FMU3Slave  # noqa: E402
 
 from motiontwin.harness.executor import run_sweep  # noqa: E402
 from motiontwin.harness.master import Master  # noqa: E402
+from ratios import ratio, smoke  # noqa: E402
 from tests.fmi_util import gemseo_fmu_folder  # noqa: E402
 
 BASE = 1e-4
 STOP = 2.0
 SUB = 10  # plant steps per controller step
+REPEATS = 5
+SEEDS = 100
+PROJECT_STOP = 10.0
 KP = 2000.0
 
 SYSTEM = """
@@ -170,7 +175,7 @@ def project_section(tmp: Path) -> None:
 
     pi = build.build_fmu(build.load_model("SampledPI", ROOT / "tests" / "models" / "SampledPI.mo"), tmp, "3.0").path
     plant = build.build_fmu(build.load_model("MotionTwin.Plants.LinearMotorJoint", build.MODELICA_DIR), tmp, "2.0").path
-    stop = 10.0
+    stop = PROJECT_STOP
     n = round(stop / 5e-4)
     path = tmp / "project.toml"
     path.write_text(PROJECT_SYSTEM.format(stop=stop, pi=pi, plant=plant))
@@ -178,7 +183,7 @@ def project_section(tmp: Path) -> None:
     with Master(path, progress=False) as master:
         master.run(inputs={"r": 1e-3, "u_ext": u_ext})
         raw_times, harness_times = [], []
-        for _ in range(5):
+        for _ in range(REPEATS):
             raw_s, raw = raw_project_loop(pi, plant, 1e-3, u_ext, n)
             t0 = time.perf_counter()
             log = master.run(inputs={"r": 1e-3, "u_ext": u_ext})["log"]
@@ -191,9 +196,14 @@ def project_section(tmp: Path) -> None:
     print(f"  harness run   : {harness_s * 1e3:8.1f} ms  ({harness_s / n * 1e6:.2f} us per base step)")
     print(f"  overhead ratio harness/raw = {harness_s / raw_s:.2f} (target <= 1.5); identical results: {same}")
     print(f"  real-time factor (harness) = {stop / harness_s:.0f}x")
+    ratio("harness.project_loop_over_raw_fmpy", harness_s / raw_s, "harness run / raw fmpy set/doStep/get loop on "
+          "the project FMUs, wall (target <= 1.5)")
 
 
 def main() -> None:
+    global STOP, REPEATS, SEEDS, PROJECT_STOP
+    if smoke():
+        STOP, REPEATS, SEEDS, PROJECT_STOP = 0.2, 1, 4, 0.5
     given = sys.argv[1] if len(sys.argv) > 1 else os.environ.get("MOTIONTWIN_TEST_FMUS")
     fmus = Path(given) if given else gemseo_fmu_folder(Path.home() / ".cache" / "motiontwin" / "gemseo_fmus")
     with tempfile.TemporaryDirectory() as tmp:
@@ -204,7 +214,7 @@ def main() -> None:
         with Master(path, progress=False) as master:
             master.run(inputs={"r": -0.45, "u_ext": u_ext})  # warm-up
             raw_times, harness_times = [], []
-            for _ in range(5):
+            for _ in range(REPEATS):
                 raw_s, raw = raw_loop(fmus, -0.45, u_ext)
                 t0 = time.perf_counter()
                 log = master.run(inputs={"r": -0.45, "u_ext": u_ext})["log"]
@@ -218,11 +228,13 @@ def main() -> None:
                   f"incl. reset, init, logging 3 signals)")
             print(f"  overhead ratio harness/raw = {harness_s / raw_s:.2f} (target <= 1.5); identical results: {same}")
             print(f"  real-time factor (harness) = {STOP / harness_s:.0f}x")
+            ratio("harness.gemseo_loop_over_raw_fmpy", harness_s / raw_s, "harness run / raw fmpy "
+                  "set/doStep/get loop on the OpenModelica FMUs, wall (target <= 1.5)")
 
         short = path.with_name("short.toml")
         short.write_text(SYSTEM.format(base=BASE, stop=0.1, ts=SUB * BASE, kp=KP, fmus=fmus))
         cases = [{"inputs": {"r": -0.45, "u_ext": np.random.default_rng(seed).normal(0, 10, 1001)}}
-                 for seed in range(100)]
+                 for seed in range(SEEDS)]
         run_sweep(short, cases[:2])
         t0 = time.perf_counter()
         results = run_sweep(short, cases)

@@ -8,7 +8,9 @@
    Abdellatif's Fig. 5: estimated normal densities per parameter and design.
 2. Projection method vs direct output-error fit on closed-loop data: bias table (tests/test_ident_closedloop.py setup).
 
-Run: .venv/bin/python tests/benchmarks/bench_ident_montecarlo.py [--seeds 100] [--figure out.png]
+Run: .venv/bin/python tests/benchmarks/bench_ident_montecarlo.py [--seeds 100] [--figure out.png] [--smoke]
+(--smoke: 2 seeds, one optimiser start per design). Ratios: the D-optimal design's spread over the random
+excitation's (the baseline), and the projection method's gain bias over the direct output-error fit's.
 """
 from __future__ import annotations
 
@@ -32,6 +34,7 @@ from motiontwin.ident.excitation_design import (  # noqa: E402
     random_design,
 )
 from motiontwin.ident.joint import identify_joint_periodic  # noqa: E402
+from ratios import ratio  # noqa: E402
 from tests import test_ident_closedloop as cl  # noqa: E402
 from tests.ident_truth import JOINT_TRUTH, noisy_periods, simulate_joint_period  # noqa: E402
 
@@ -41,11 +44,11 @@ NAMES = list(JOINT_TRUTH)
 TRUTH = np.array([JOINT_TRUTH[n] for n in NAMES])
 
 
-def joint_monte_carlo(seeds: int):
+def joint_monte_carlo(seeds: int, starts: int = 3):
     designs = {
         "random": random_design(LIMITS, F0, NH, np.random.default_rng(3)),
-        "condition": optimize_excitation(LIMITS, F0, NH, criterion="condition", n_starts=3),
-        "d_optimal": optimize_excitation(LIMITS, F0, NH, criterion="d_optimal", n_starts=3),
+        "condition": optimize_excitation(LIMITS, F0, NH, criterion="condition", n_starts=starts),
+        "d_optimal": optimize_excitation(LIMITS, F0, NH, criterion="d_optimal", n_starts=starts),
     }
     results = {}
     for label, design in designs.items():
@@ -108,7 +111,8 @@ def save_figure(results, path: Path) -> None:
     print(f"figure written to {path}")
 
 
-def closed_loop_table(seeds: int) -> None:
+def closed_loop_table(seeds: int) -> float:
+    """Prints the bias table; returns |gain bias| of the projection method / that of the direct fit."""
     truth = cl._features(cl.B, cl.A)
     naive, pm = [], []
     for seed in range(seeds):
@@ -123,19 +127,28 @@ def closed_loop_table(seeds: int) -> None:
     print(f"{'method':>22} {'gain bias':>10} {'gain std':>9} {'f_res bias':>11} {'f_res std':>10}")
     for label, e in (("direct output-error", naive), ("projection method", pm)):
         print(f"{label:>22} {e[:, 0].mean():10.2f} {e[:, 0].std():9.2f} {e[:, 1].mean():11.2f} {e[:, 1].std():10.2f}")
+    return abs(pm[:, 0].mean()) / abs(naive[:, 0].mean())
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, default=100)
     parser.add_argument("--figure", type=Path, default=Path(tempfile.gettempdir()) / "ident_montecarlo_fig5.png")
+    parser.add_argument("--smoke", action="store_true", help="2 seeds, 1 optimiser start: only proves it runs")
     args = parser.parse_args()
+    if args.smoke:
+        args.seeds = 2
     t0 = time.perf_counter()
-    results = joint_monte_carlo(args.seeds)
+    results = joint_monte_carlo(args.seeds, 1 if args.smoke else 3)
     print_joint_table(results)
     save_figure(results, args.figure)
-    closed_loop_table(args.seeds)
+    bias = closed_loop_table(args.seeds)
     print(f"\ntotal time {time.perf_counter() - t0:.1f} s")
+    spread = {label: ((est - TRUTH) / np.abs(TRUTH)).std(axis=0) for label, (_, est, _) in results.items()}
+    ratio("montecarlo.doptimal_over_random_spread", float(np.mean(spread["d_optimal"] / spread["random"])),
+          "random Fourier excitation: spread of the relative errors, mean over the parameters")
+    ratio("montecarlo.projection_over_direct_gain_bias", bias, "direct output-error fit on closed-loop data: "
+          "|gain bias|")
 
 
 if __name__ == "__main__":

@@ -4,6 +4,7 @@ least_squares whose residual runs an fmpy simulation of the FMU, finite-differen
 same start, same bounds, both in one run; prints wall times, their ratio (target >= 10) and both optima.
 
 Run: .venv/bin/python tests/benchmarks/bench_ident_oe.py [--seconds 60] [--model linear|cheung] [--casadi-chain]
+[--smoke] (--smoke: 1 s of data). Ratios: the scipy + fmpy output-error refit (the baseline) over CasADi's.
 """
 from __future__ import annotations
 
@@ -19,6 +20,7 @@ from scipy.optimize import least_squares
 from motiontwin.fmus import build
 from motiontwin.harness.recording import make_recording
 from motiontwin.ident import outputerror as oe
+from ratios import ratio
 
 TS = 5e-4
 MODELS = {
@@ -51,7 +53,10 @@ def main() -> None:
     parser.add_argument("--casadi-chain", action="store_true",
                         help="chain the samples with CasADi mapaccum instead of compiled C (the fallback)")
     parser.add_argument("--noise", type=float, default=2e-6, help="encoder noise std [m]")
+    parser.add_argument("--smoke", action="store_true", help="1 s of data: only proves the script runs")
     args = parser.parse_args()
+    if args.smoke:
+        args.seconds = 1.0
     class_name, state, truth = MODELS[args.model]
     model = build.load_model(class_name)
     fmu = str(build.build_fmu(model, tempfile.mkdtemp(prefix="bench-oe-"), "2.0").path)
@@ -102,6 +107,10 @@ def main() -> None:
           f"(target >= 10x)")
     diff = np.abs(casadi_opt - naive_opt) / std
     print(f"|difference| / std: {diff} (agreement criterion: < 0.1 std each)")
+    ratio("ident_oe.speedup_incl_compile", t_naive / t_casadi, "scipy least_squares over fmpy.simulate_fmu "
+          "(finite differences) / CasADi refit incl. C compile, wall (target >= 10)")
+    ratio("ident_oe.speedup_cached", t_naive / t_cached, "scipy least_squares over fmpy.simulate_fmu "
+          "(finite differences) / CasADi refit with the cached .so, wall (target >= 10)")
 
 
 if __name__ == "__main__":

@@ -6,7 +6,8 @@
    channel covariance: 10^5 samples = 6*10^5 rows.
 Each timing is the best of 3 runs. Target (issue 5): WLS on 10^5 samples under 1 s.
 
-Run: .venv/bin/python tests/benchmarks/bench_ident_wls.py
+Run: .venv/bin/python tests/benchmarks/bench_ident_wls.py [--smoke]   (--smoke: 10^4 samples, one run each)
+Ratios: each time over the 1 s target (the baseline).
 """
 from __future__ import annotations
 
@@ -22,12 +23,15 @@ from motiontwin.ident.joint import joint_regressor  # noqa: E402
 from motiontwin.ident.leastsquares import gauss_markov  # noqa: E402
 from motiontwin.ident.signals import lowpass_differentiate  # noqa: E402
 from motiontwin.harness.excitation import fourier_trajectory  # noqa: E402
+from ratios import ratio, smoke  # noqa: E402
 
 N = 100_000
 FS = 1000.0
+REPEATS = 3
 
 
-def best_of(fn, repeats=3):
+def best_of(fn, repeats=None):
+    repeats = repeats or REPEATS
     times = []
     for _ in range(repeats):
         t0 = time.perf_counter()
@@ -37,6 +41,9 @@ def best_of(fn, repeats=3):
 
 
 def main() -> None:
+    global N, REPEATS
+    if smoke():
+        N, REPEATS = 10_000, 1
     rng = np.random.default_rng(0)
     t = np.arange(N) / FS
     f0 = FS / N * 10  # 10 whole periods in the record
@@ -67,12 +74,14 @@ def main() -> None:
     z = np.abs(res_multi.estimate - p_true) / res_multi.std
 
     print(f"{'case':<52} {'time [s]':>9}")
-    print(f"{'joint WLS, 1e5 x 7 (statistics included)':<52} {t_wls:9.3f}")
+    print(f"{f'joint WLS, {N:.0e} x 7 (statistics included)':<52} {t_wls:9.3f}")
     print(f"{'joint pipeline: FFT filter + regressor + WLS, 1e5':<52} {t_pipe:9.3f}")
     print(f"{'6-channel GM, 1e5 samples (6e5 x 24), full 6x6 cov':<52} {t_multi:9.3f}")
     print(f"joint max |error|/std = {np.max(np.abs(res.estimate - theta) / res.std):.2f}; "
           f"6-channel max |error|/std = {z.max():.2f}")
     print("target: < 1 s for 1e5 samples:", "PASS" if max(t_wls, t_pipe) < 1.0 else "FAIL")
+    for name, seconds in (("joint_wls", t_wls), ("joint_pipeline", t_pipe), ("six_channel_gm", t_multi)):
+        ratio(f"wls.{name}_over_target", seconds / 1.0, f"1 s target for 1e5 samples ({N} samples here)")
 
 
 if __name__ == "__main__":

@@ -6,7 +6,9 @@ Loop: four ``RobustJointController`` channels (FMI 2.0, Ts = 5e-4 s, Table 2 des
 harness.comparison) around ``CheungManipulator`` (FMI 2.0, 5e-4 s steps), the paper's substrate move
 repeated back and forth. Real-time factor = simulated time / wall time (target >= 50x on this 2-core machine).
 
-Run: .venv/bin/python tests/benchmarks/bench_manipulator.py [SIMULATED_SECONDS]
+Run: .venv/bin/python tests/benchmarks/bench_manipulator.py [SIMULATED_SECONDS] [--smoke]
+(--smoke: 0.05 s simulated, one repetition.) Ratios: the raw fmpy set/doStep/get loop (the baseline), the
+harness's Python loop and a direct ctypes loop, each over the harness's compiled loop.
 """
 from __future__ import annotations
 
@@ -27,6 +29,7 @@ from motiontwin import comparison  # noqa: E402
 from motiontwin.harness.excitation import end_effector_point_to_point  # noqa: E402
 from motiontwin.harness.kinematics import CHEUNG_END_POSE, CHEUNG_START_POSE  # noqa: E402
 from motiontwin.harness.master import Master  # noqa: E402
+from ratios import ratio, smoke  # noqa: E402
 
 TS = comparison.TS
 TARGET = 50.0
@@ -121,8 +124,13 @@ def direct_loop(fmus: dict[str, Path], designs: list[dict[str, float]], holding:
     c_in = [(uint * 5)(*[cv[k] for k in ("r", "q", "r_dot", "r_ddot", "r_dddot")]) for _, cv in ctrls]
     c_out = [(uint * 1)(cv["u"]) for _, cv in ctrls]
     in_buf, out_buf = (dbl * 5)(), (dbl * 1)()
-    fn = plant._functions
-    get, put, step = fn["fmi2GetReal"], fn["fmi2SetReal"], fn["fmi2DoStep"]
+    def functions(s: FMU2Slave) -> tuple:
+        """fmi2GetReal, fmi2SetReal, fmi2DoStep of the FMU binary ``s`` was instantiated from (an instance is
+        only valid with its own binary's functions)."""
+        return s._functions["fmi2GetReal"], s._functions["fmi2SetReal"], s._functions["fmi2DoStep"]
+
+    get, put, step = functions(plant)
+    c_get, c_put, c_step = zip(*[functions(c) for c, _ in ctrls])
     comps = [c.component for c, _ in ctrls]
     pc = plant.component
     n = ref.shape[0] - 1
@@ -135,7 +143,8 @@ def direct_loop(fmus: dict[str, Path], designs: list[dict[str, float]], holding:
         for j in range(4):
             p, v, a, jerk = ref[k, :, j]
             in_buf[:] = (p, q_buf[j], v, a, jerk)
-            status = put(comps[j], c_in[j], 5, in_buf) | step(comps[j], t, TS, 1) | get(comps[j], c_out[j], 1, out_buf)
+            status = (c_put[j](comps[j], c_in[j], 5, in_buf) | c_step[j](comps[j], t, TS, 1)
+                      | c_get[j](comps[j], c_out[j], 1, out_buf))
             u_buf[j] = out_buf[0] + holding[j]
             if status > 1:
                 raise RuntimeError(f"controller {j} failed at t = {t}")
@@ -150,7 +159,9 @@ def direct_loop(fmus: dict[str, Path], designs: list[dict[str, float]], holding:
 
 
 def main() -> None:
-    simulated = float(sys.argv[1]) if len(sys.argv) > 1 else 4.0
+    small = smoke()
+    simulated = float(sys.argv[1]) if len(sys.argv) > 1 else (0.05 if small else 4.0)
+    repeats = 1 if small else 3
     n = round(simulated / TS)
     with tempfile.TemporaryDirectory() as tmp:
         fmus = comparison.build_fmus(tmp)
@@ -168,15 +179,16 @@ def main() -> None:
             inputs[f"ff{p}"] = np.full(n + 1, holding[j])
         overrides = {f"c{p}.{k}": v for p, d in zip(comparison.PORTS, designs) for k, v in d.items()
                      if k not in ("Ts", "table2_scale")}
-        warm = round(0.1 / TS) + 1
+        warm_time = min(0.1, n * TS)
+        warm = round(warm_time / TS) + 1
         harness_s: dict[bool, list[float]] = {True: [], False: []}
         logs = {}
         raw_s, direct_s = [], []
         with Master(system, progress=False) as compiled, Master(system, progress=False, native=False) as python:
             assert compiled.uses_native, "no C compiler: the compiled loop is not available"
             for master in (compiled, python):
-                master.run(inputs={k: v[:warm] for k, v in inputs.items()}, parameters=overrides, stop_time=0.1)
-            for _ in range(3):
+                master.run(inputs={k: v[:warm] for k, v in inputs.items()}, parameters=overrides, stop_time=warm_time)
+            for _ in range(repeats):
                 for master in (compiled, python):
                     t0 = time.perf_counter()
                     logs[master.native] = master.run(inputs=inputs, parameters=overrides, stop_time=n * TS)["log"]
@@ -210,6 +222,11 @@ def main() -> None:
         line("direct ctypes loop", d, f"  (max |q - q_raw| = {np.max(np.abs(direct - raw)):.1e} m)")
         print(f"  ratios: Python loop / compiled = {py / c:.2f}, raw fmpy / compiled = {r / c:.2f}, "
               f"direct ctypes / compiled = {d / c:.2f}")
+        ratio("manipulator.speedup_over_raw_fmpy", r / c, "raw fmpy set/doStep/get loop / harness compiled loop, "
+              "wall")
+        ratio("manipulator.speedup_over_python_loop", py / c, "harness Python loop / harness compiled loop, wall")
+        ratio("manipulator.speedup_over_direct_ctypes", d / c, "direct ctypes loop / harness compiled loop, wall")
+        ratio("manipulator.realtime_factor", simulated / c, f"simulated time / wall time (target >= {TARGET:g})")
         print(f"  compiled and Python loop logs bit-identical: {identical};  "
               f"max |q_harness - q_raw| = {float(np.max(np.abs(q[True] - raw))):.2e} m")
         print(f"  CPU time (less sensitive to the load): compiled loop {cpu[True]:.3f} s "

@@ -166,6 +166,9 @@ int main(int argc, char **argv)
            1e6 * (t_plant_move + t_plant_rest) / n);
     printf("  controller set/doStep/get: %.3f us each (4 per tick: %.2f us)\n", 1e6 * t_ctrl / n / NJ,
            1e6 * t_ctrl / n);
+    printf("RATIO closed_loop_c.realtime_factor_cpu=%.6g baseline=simulated time / CPU time of the pure C loop\n",
+           n * TS / t_all);
+    fflush(stdout);
     P.terminate(plant);
     P.free_instance(plant);
     for (j = 0; j < NJ; j++) {

@@ -1,7 +1,9 @@
 /* A full FMI life cycle on one FMU binary, for valgrind: instantiate, initialise, step, get/set/serialize
- * state, Model Exchange calls, free, then a second free and calls on invalid instance pointers. Usage: fmi_cycle LIB.so 2|3 TOKEN NVR INPUT_VR NX
+ * state, Model Exchange calls, free, then a second free and calls on invalid instance pointers; refused calls
+ * too: a getter before initialisation, a serialised state with a NaN tolerance. Usage: fmi_cycle LIB.so 2|3 TOKEN NVR INPUT_VR NX
  * Exit code 0 when every call that should succeed did. */
 #include <dlfcn.h>
+#include <math.h>
 #include <stdarg.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -18,6 +20,12 @@ static void logger2(fmi2ComponentEnvironment env, fmi2String inst, fmi2Status st
 }
 static void logger3(fmi3InstanceEnvironment env, fmi3Status st, fmi3String cat, fmi3String msg) {
     (void)env; (void)st; (void)cat; (void)msg;
+}
+
+/* NaN into the relative tolerance of a serialised state (layout: fmus/runtime/mt_snapshot.c). */
+static void corrupt_tolerance(void *blob, const char *token) {
+    double nan_value = NAN;
+    memcpy((char *)blob + 8 + 8 * 4 + strlen(token) + 32, &nan_value, sizeof nan_value);
 }
 
 static int run2(void *lib, const char *token, int nvr, unsigned input_vr, int nx) {
@@ -38,6 +46,7 @@ static int run2(void *lib, const char *token, int nvr, unsigned input_vr, int nx
     /* Co-Simulation */
     fmi2Component c = fmi2Instantiate("cs", fmi2CoSimulation, token, "", &cb, fmi2False, fmi2True);
     if (!c) return 3;
+    if (fmi2GetReal(c, vrs, 1, vals) != fmi2Error) failures++;  /* not in Instantiated */
     CHECK(fmi2SetupExperiment(c, fmi2False, 0, 0, fmi2False, 0));
     CHECK(fmi2EnterInitializationMode(c));
     double u = 3.0;
@@ -56,6 +65,8 @@ static int run2(void *lib, const char *token, int nvr, unsigned input_vr, int nx
     fmi2FMUstate s2 = NULL;
     CHECK(fmi2DeSerializeFMUstate(c, blob, n, &s2));
     CHECK(fmi2SetFMUstate(c, s2));
+    corrupt_tolerance(blob, token);
+    if (fmi2DeSerializeFMUstate(c, blob, n, &s2) != fmi2Error) failures++;
     free(blob);
     CHECK(fmi2FreeFMUstate(c, &s));
     CHECK(fmi2FreeFMUstate(c, &s2));
@@ -110,6 +121,7 @@ static int run3(void *lib, const char *token, int nvr, unsigned input_vr, int nx
     for (int i = 0; i < nvr && i < 4096; i++) vrs[i] = (unsigned)i;
     fmi3Instance c = fmi3InstantiateCoSimulation("cs", token, "", fmi3False, fmi3True, fmi3False, fmi3False, NULL, 0, NULL, logger3, NULL);
     if (!c) return 3;
+    if (fmi3GetFloat64(c, vrs, 1, vals, 1) != fmi3Error) failures++;  /* time has no start value */
     CHECK(fmi3EnterInitializationMode(c, fmi3False, 0, 0, fmi3False, 0));
     double u = 3.0;
     CHECK(fmi3SetFloat64(c, &input_vr, 1, &u, 1));
@@ -128,6 +140,8 @@ static int run3(void *lib, const char *token, int nvr, unsigned input_vr, int nx
     fmi3FMUState s2 = NULL;
     CHECK(fmi3DeserializeFMUState(c, blob, n, &s2));
     CHECK(fmi3SetFMUState(c, s2));
+    corrupt_tolerance(blob, token);
+    if (fmi3DeserializeFMUState(c, blob, n, &s2) != fmi3Error) failures++;
     free(blob);
     CHECK(fmi3FreeFMUState(c, &s));
     CHECK(fmi3FreeFMUState(c, &s2));
