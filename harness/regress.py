@@ -50,6 +50,7 @@ from __future__ import annotations
 import hashlib
 import re
 import socket
+import sys
 import time as _time
 import tomllib
 import xml.etree.ElementTree as ET
@@ -464,16 +465,20 @@ def _run_case(case: Case, suite: Path, update: bool, log, hashes: dict[str, str]
     return results
 
 
+def _print_error(message: str) -> None:
+    print(message, file=sys.stderr)
+
+
 def run_suite(suite: str | Path, update: bool = False, junit: str | Path | None = None,
-              plots: str | Path | None = None, log=print) -> int:
+              plots: str | Path | None = None, log=print, error=_print_error) -> int:
     """Run, compare (or ``update`` the references), write JUnit XML and plots; return the exit code
-    (0 all passed, 1 a failure or a case error, 2 an unusable suite file)."""
+    (0 all passed, 1 a failure or a case error, 2 an unusable suite file, reported through ``error``)."""
     suite = Path(suite)
     start = _time.perf_counter()
     try:
         cases = load_suite(suite)
     except SuiteError as exc:
-        log(f"motiontwin regress: {exc}")
+        error(f"motiontwin regress: {exc}")
         if junit is not None:
             write_junit(junit, [], suite=suite.stem, errors={str(suite): f"SuiteError: {exc}"})
         return 2

@@ -64,10 +64,11 @@ def _snapshot(folder: Path) -> dict[str, bytes]:
     return {str(p.relative_to(folder)): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()}
 
 
-def _check(argv: list[str], capsys, expected: str) -> None:
-    code = main(argv)
+def _check(argv: list[str], capsys, expected: str, code: int = 1) -> None:
+    """One line on stderr naming the fault, exit ``code`` (``regress`` documents 2 for an unusable suite)."""
+    returned = main(argv)
     err = capsys.readouterr().err
-    assert code == 1, (argv, err)
+    assert returned == code, (argv, err)
     assert "Traceback" not in err, err
     assert len(err.strip().splitlines()) == 1, err
     assert expected in err, (argv, err)
@@ -241,9 +242,9 @@ def test_binary_input_files_are_named(tmp_path, capsys) -> None:
                  ["run", str(junk), "--out", str(tmp_path / "o.csv")],
                  ["sweep", str(junk), "--out", str(tmp_path / "o")],
                  ["ssp", str(junk), str(tmp_path / "o.ssp")],
-                 ["compare", "--design", str(junk), "--out", str(tmp_path / "o")],
-                 ["regress", str(junk)]):
+                 ["compare", "--design", str(junk), "--out", str(tmp_path / "o")]):
         _check(argv, capsys, f"{junk}: not UTF-8 text (byte 1: invalid start byte)")
+    _check(["regress", str(junk)], capsys, f"{junk}: not UTF-8 text (byte 1: invalid start byte)", code=2)
     model = tmp_path / "junk.mo"
     model.write_bytes(junk.read_bytes())
     _check(["build", "Foo.Bar", "--modelica", str(model), "--out", str(tmp_path / "o")], capsys,

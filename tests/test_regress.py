@@ -134,7 +134,7 @@ def test_unusable_suite_file_exits_2_with_a_junit_error(tmp_path: Path, content:
     if content is not None:
         suite.write_text(content)
     messages: list[str] = []
-    assert run_suite(suite, junit=tmp_path / "junit.xml", log=messages.append) == 2
+    assert run_suite(suite, junit=tmp_path / "junit.xml", log=print, error=messages.append) == 2
     assert len(messages) == 1 and str(suite) in messages[0] and text in messages[0]
     node = check_junit_schema(ET.parse(tmp_path / "junit.xml").getroot())
     error = node.find("testcase/error")
