@@ -34,7 +34,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import scipy.io
 
 from motiontwin.harness import recording
 from motiontwin.harness.recording import DEFAULT_UNITS, Recording, RecordingError
@@ -163,6 +162,8 @@ def read_lab_file(path: str | Path) -> LabSource:
         return LabSource(path, "hdf5", _read_hdf5(path, matlab=False))
     if suffix != ".mat":
         return _read_text(path)
+    import scipy.io  # here: only .mat files need it, and it costs its import
+
     try:
         contents = scipy.io.loadmat(path, simplify_cells=True)
     except NotImplementedError:       # MATLAB v7.3 is HDF5

@@ -4,8 +4,6 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-import numpy as np
-
 from motiontwin.cli.arguments import name_values
 
 
@@ -29,9 +27,11 @@ def _report_fit(fit: object, args: argparse.Namespace, method: str) -> int:
 def _joint_document(fit: object, method: str, source: Path) -> dict[str, object]:
     """The --out JSON of identify joint: SerialRobotJoint names (for writeback --values) for a revolute fit, the
     names of MotionTwin.Effects.JointBase-style axes (m, d, Fc, F0) for a prismatic one; regressor estimates beside."""
-    from motiontwin.ident.joint import prismatic_axis_parameters, serial_joint_parameters
-
     import dataclasses
+
+    import numpy as np
+
+    from motiontwin.ident.joint import prismatic_axis_parameters, serial_joint_parameters
 
     convert = serial_joint_parameters if "g_sin" in fit.names else prismatic_axis_parameters
     plant = "MotionTwin.Plants.SerialRobotJoint" if "g_sin" in fit.names else "MotionTwin.Plants.PrismaticAxis"
@@ -156,6 +156,8 @@ def _identify_oe(args: argparse.Namespace) -> int:
     reads ({"parameters", "std", "covariance", ...})."""
     import json
 
+    import numpy as np
+
     from motiontwin.fmus import build
     from motiontwin.harness.recording import atomic_write_texts, read_recording
     from motiontwin.ident import startvalues
@@ -260,6 +262,8 @@ def _design_excitation(args: argparse.Namespace) -> int:
     """``design-excitation joint``: designs the joint's Fourier coefficients, prints its exact criteria beside
     the median of 20 random designs under the same limits, and writes a ``fourier`` experiment file
     (harness.excitation) that ``motiontwin excite`` samples."""
+    import numpy as np
+
     from motiontwin.harness.excitation import fourier_experiment_text, periodic_time_grid
     from motiontwin.harness.recording import atomic_write_texts
     from motiontwin.harness.system import check_run_length
@@ -319,7 +323,7 @@ def _design_excitation(args: argparse.Namespace) -> int:
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Add this module's subcommands to the ``motiontwin`` parser."""
-    from motiontwin.fmus.build import MODELICA_DIR
+    from motiontwin.fmus import MODELICA_DIR
 
     p = sub.add_parser("identify", help="identify plant parameters from a recording")
     kinds = p.add_subparsers(dest="kind", required=True)
