@@ -331,13 +331,16 @@ def register(sub: argparse._SubParsersAction) -> None:
                                        "friction) from a periodic recording by inverse-dynamics weighted least squares",
                          description="Inverse-dynamics Gauss-Markov least squares on the period-averaged, "
                                      "frequency-domain filtered recording (ident.joint). The sample time is the "
-                                     "sidecar's (else the median step); time-stamp jitter up to 1e-3 of it is "
+                                     "sidecar's (else the median step, snapped to its clock when within the jitter); "
+                                     "time-stamp jitter up to 1e-3 of it is "
                                      "accepted and reported; samples after the last whole period are dropped and "
                                      "reported.")
     q.add_argument("recording", type=Path, help="recording CSV (at least 2 periods; the rest is trimmed)")
     q.add_argument("--position", default="q", help="position column [rad or m] (default q)")
     q.add_argument("--force", default="u", help="force/torque column [N or N.m] (default u)")
-    q.add_argument("--f0", type=float, required=True, help="fundamental frequency of the excitation [Hz]")
+    q.add_argument("--f0", type=float, default=None,
+                   help="fundamental frequency of the excitation [Hz]; default: found in the spectrum of the "
+                        "reference column r (else of the position) as a whole number of samples per period, printed")
     q.add_argument("--cutoff", type=float, required=True, help="low-pass cut-off of the derivatives [Hz]")
     q.add_argument("--min-speed", type=float, default=0.0,
                    help="drop samples slower than this [m/s or rad/s] (sign of Coulomb unreliable there)")
