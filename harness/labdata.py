@@ -14,8 +14,9 @@ before the header are skipped), and writes ``NAME.csv`` + ``NAME.json`` through 
   (:func:`harness.units.si_scale`). Every conversion and assumption is reported in ``notes``.
 * **sample time**: ``sample_time`` when given (e.g. the controller's period), else the median step, snapped
   to its clock when within the jitter (0.000999984 -> 0.001, :func:`clock_step`); the jitter (deviation of
-  each step from the median) is measured and reported. The time stamps are kept as recorded unless ``resample`` is set (linear interpolation onto the
-  uniform grid t0 + k Ts, stated in the notes and the sidecar). Jitter beyond the recording format's
+  each step from the median) is measured and reported. The time stamps are kept as recorded unless
+  ``resample`` is set (linear interpolation onto the ticks k Ts of a given ``sample_time``, else onto
+  t0 + k Ts; stated in the notes and the sidecar). Jitter beyond the recording format's
   tolerance (``recording.SAMPLE_TIME_TOLERANCE`` of Ts) without ``resample`` leaves ``sample_time`` null.
 * **trimming**: to a time window ``[start, stop]``, then to whole periods of the excitation (``period`` [s]),
   counted from the window's first sample; what was dropped is reported.
@@ -341,7 +342,8 @@ def import_lab_file(path: str | Path, *, mapping: dict[str, str] | None = None, 
     gains : per recording column, a factor with its unit (``{"u": "40 N/V"}``).
     window : (start, stop) [s, after conversion]: keep samples with start <= t <= stop.
     period : excitation period [s]: keep the largest whole number of periods from the window's start.
-    resample : interpolate linearly onto the uniform grid t0 + k Ts.
+    resample : interpolate linearly onto a uniform grid: the ticks k Ts of a given ``sample_time`` (recordings of
+        one experiment share them), else t0 + k Ts from the first sample.
     sample_time : Ts [s], e.g. the controller's period: the grid of ``resample``; without it, the median step
         must lie within the jitter of it. Default: the median step, snapped to its clock (:func:`clock_step`).
     excited : what was excited, stored in the sidecar.
@@ -408,13 +410,17 @@ def import_lab_file(path: str | Path, *, mapping: dict[str, str] | None = None, 
     notes.append(jitter.text())
     ts, origin = _clock(jitter, sample_time, resample, notes)
     if resample:
-        grid = t[0] + ts * np.arange(int(np.floor((t[-1] - t[0]) / ts * (1 + 1e-12))) + 1)
+        if sample_time is None:   # the recording's own clock, from its first sample
+            grid, where = t[0] + ts * np.arange(int(np.floor((t[-1] - t[0]) / ts * (1 + 1e-12))) + 1), "t0 + k*"
+        else:                     # the given clock's ticks k*Ts: recordings of one experiment share them
+            first, last = np.ceil(t[0] / ts - 1e-9), np.floor(t[-1] / ts + 1e-9)
+            grid, where = np.arange(first, last + 1) * ts, "k*"
         if grid.size < 2:
             raise ValueError(f"sample time {ts:.9g} s: the record ({t[-1] - t[0]:.6g} s) holds less than one step")
         columns = {k: np.interp(grid, t, v) for k, v in columns.items()}
         t = grid
-        notes.append(f"resampled onto the uniform grid t0 + k*{ts:.9g} s ({origin}) by linear interpolation "
-                     f"({t.size} samples)")
+        notes.append(f"resampled onto the uniform grid {where}{ts:.9g} s ({origin}) by linear interpolation "
+                     f"({t.size} samples from {t[0]:.9g} s)")
     if period is not None:
         if not period > 0:
             raise ValueError(f"period must be > 0 s, got {period}")

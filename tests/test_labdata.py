@@ -173,24 +173,24 @@ def test_cli_import_writes_the_recording_and_refuses_without_writing(tmp_path, c
     assert not bad.exists()
 
 
-def _polled(step: float, jitter: float, seconds: float, seed: int) -> np.ndarray:
-    """Host poll instants from t = 0: steps of ``step`` +- uniform ``jitter``."""
+def _polled(step: float, jitter: float, seconds: float, seed: int, start: float = 0.0) -> np.ndarray:
+    """Host poll instants from ``start``: steps of ``step`` +- uniform ``jitter``."""
     steps = step + np.random.default_rng(seed).uniform(-jitter, jitter, int(seconds / step))
-    return np.concatenate([[0.0], np.cumsum(steps)])
+    return start + np.concatenate([[0.0], np.cumsum(steps)])
 
 
 def test_resampling_onto_a_given_sample_time_matches_the_exact_samples(tmp_path):
     """A controller at 1 kHz recorded by a host polling every ~2.3 ms: the exact samples of a known smooth
     trajectory at the jittered instants, re-imported with --sample-time 1e-3, equal the trajectory on the
-    controller's grid within linear interpolation's bound h^2/8 max|q''| (h: the largest poll step); two
-    recordings of one experiment polled differently land on the same grid."""
+    controller's grid k*1e-3 within linear interpolation's bound h^2/8 max|q''| (h: the largest poll step); two
+    recordings of one experiment polled differently, from different first instants, land on the same grid."""
     def q(t):
         return 0.01 * np.sin(2 * np.pi * 2.0 * t) + 0.004 * np.sin(2 * np.pi * 7.0 * t + 1.0)
 
     q2_max = 0.01 * (2 * np.pi * 2.0) ** 2 + 0.004 * (2 * np.pi * 7.0) ** 2
     grids = []
-    for step, seed in ((2.312e-3, 1), (2.260e-3, 2)):
-        polled = _polled(step, 0.3e-3, 3.0, seed)
+    for step, seed, start in ((2.312e-3, 1, 0.7e-3), (2.260e-3, 2, 1.9e-3)):
+        polled = _polled(step, 0.3e-3, 3.0, seed, start)
         path = tmp_path / f"poll{seed}.csv"
         path.write_text("t,q\n" + "".join(f"{a:.17g},{q(a):.17g}\n" for a in polled))
         kept = labdata.import_lab_file(path)
@@ -198,17 +198,18 @@ def test_resampling_onto_a_given_sample_time_matches_the_exact_samples(tmp_path)
         result = labdata.import_lab_file(path, resample=True, sample_time=1e-3)
         rec = result.recording
         assert rec.sample_time == 1e-3
-        np.testing.assert_allclose(rec.time, np.arange(rec.time.size) * 1e-3, rtol=0, atol=1e-15)
+        k0 = 1 if seed == 1 else 2                                   # the first tick at or after the first poll
+        np.testing.assert_array_equal(rec.time, (k0 + np.arange(rec.time.size)) * 1e-3)
         bound = np.max(np.diff(polled)) ** 2 / 8 * q2_max
         error = np.max(np.abs(rec["q"] - q(rec.time)))
         assert error <= bound, (error, bound)
         assert error > bound / 100                                    # the bound is not vacuous
         assert np.max(np.abs(rec["q"] - q(rec.time + 1e-3))) > 20 * bound   # one sample off would show
-        assert any("t0 + k*0.001 s (given)" in n for n in result.notes)
+        assert any(f"grid k*0.001 s (given) by linear interpolation ({rec.time.size} samples from {k0 * 1e-3:g} s)"
+                   in n for n in result.notes)
         assert rec.meta["metadata"]["import"]["clock"] == {"sample_time": 1e-3, "origin": "given"}
         grids.append(rec.time)
-    n = min(g.size for g in grids)
-    assert np.array_equal(grids[0][:n], grids[1][:n])
+    assert np.array_equal(grids[0][1:], grids[1][:grids[0].size - 1])
 
 
 def test_a_median_step_within_the_jitter_snaps_to_the_clock(tmp_path, capsys):

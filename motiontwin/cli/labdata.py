@@ -61,8 +61,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     trim.add_argument("--period", type=float, default=None, help="excitation period [s]: trim to whole periods")
     trim.add_argument("--f0", type=float, default=None, help="excitation fundamental [Hz]: trim to whole periods")
     p.add_argument("--resample", action="store_true",
-                   help="interpolate linearly onto the uniform grid t0 + k*Ts (Ts: --sample-time, else the median "
-                        "step snapped to its clock); off by default")
+                   help="interpolate linearly onto a uniform grid: the ticks k*TS of --sample-time, else t0 + k*Ts "
+                        "with Ts the median step snapped to its clock; off by default")
     p.add_argument("--sample-time", type=float, default=None, metavar="TS",
                    help="sample time [s], e.g. the controller's period: the grid of --resample (two recordings of "
                         "one experiment then share it); without --resample the median step must lie within the "
