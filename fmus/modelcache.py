@@ -91,7 +91,7 @@ def fetch(digest: str, source: Path) -> FlatModel | None:
         if doc.get("format") != FORMAT:
             return None
         return _rebuild(doc, source)
-    except (OSError, ValueError, KeyError, TypeError, IndexError, RuntimeError):
+    except (OSError, ValueError, KeyError, TypeError, IndexError, RuntimeError, StopIteration):
         return None
 
 

@@ -104,7 +104,8 @@ def test_editing_a_source_file_invalidates_the_entry(tmp_path, empty_cache):
     assert len(_entries(empty_cache)) == 2
 
 
-@pytest.mark.parametrize("damage", ["truncated", "garbage", "other format", "wrong symbols"])
+@pytest.mark.parametrize("damage", ["truncated", "garbage", "other format", "wrong symbols", "fewer variables",
+                                    "more variables", "bad function"])
 def test_a_corrupt_entry_is_ignored_and_rebuilt(damage, tmp_path, empty_cache):
     source = tmp_path / "Calc.mo"
     source.write_text(CALC)
@@ -114,7 +115,10 @@ def test_a_corrupt_entry_is_ignored_and_rebuilt(damage, tmp_path, empty_cache):
     doc = json.loads(text)
     entry.write_text({"truncated": text[: len(text) // 2], "garbage": "\x00\x01 not json",
                       "other format": json.dumps({**doc, "format": -1}),
-                      "wrong symbols": json.dumps({**doc, "symbols": doc["symbols"][:-1]})}[damage])
+                      "wrong symbols": json.dumps({**doc, "symbols": doc["symbols"][:-1]}),
+                      "fewer variables": json.dumps({**doc, "states": doc["states"][:1]}),
+                      "more variables": json.dumps({**doc, "states": doc["states"] * 3}),
+                      "bad function": json.dumps({**doc, "function": doc["function"][:40]})}[damage])
     model = frontend.load(source, "Calc")
     assert [v.name for v in model.parameters] == ["m", "d", "c[1]", "c[2]"]
     assert json.loads(entry.read_text()) == doc      # rewritten whole
