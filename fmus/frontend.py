@@ -267,7 +267,7 @@ def load(source: str | os.PathLike[str], class_name: str, libraries: tuple[Path,
     data = {path: path.read_bytes() for path in files}
     roots = [source.parent if source.is_file() else source, *libraries]
     named = [(_relative_name(path, roots), raw) for path, raw in data.items()]
-    digest = modelcache.key(named, class_name, [Path(__file__)])
+    digest = modelcache.key(named, class_name, [Path(__file__), Path(modelcache.__file__)])
     model = modelcache.fetch(digest, source)
     if model is None:
         texts = {path: _mo_text(path, raw) for path, raw in data.items()}
