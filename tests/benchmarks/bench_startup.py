@@ -88,7 +88,12 @@ def main() -> None:
     if args.baseline:
         return baseline(*args.baseline)
     seconds, repeats = (0.5, 1) if args.smoke else (args.seconds, args.repeats)
-    folder = Path(tempfile.mkdtemp(prefix="bench-startup-"))
+    with tempfile.TemporaryDirectory(prefix="bench-startup-") as tmp:
+        _compare(Path(tmp), seconds, repeats)
+
+
+def _compare(folder: Path, seconds: float, repeats: int) -> None:
+    """Make the case in ``folder``, time both sides and print the table and the RATIO lines."""
     env = {**os.environ, "XDG_CACHE_HOME": str(folder / "cache")}   # a cold model cache for the first run
     fmu, csv = _make_case(folder, seconds)
     motiontwin = [sys.executable, "-m", "motiontwin"]
