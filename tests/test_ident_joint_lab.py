@@ -124,3 +124,22 @@ def test_identify_joint_without_f0_on_a_time_column_with_round_off(tmp_path, cap
         doc = json.loads(out.read_text())
         for name in ("m", "Fc", "F0"):
             assert doc["parameters"][name] == pytest.approx(TRUTH[name], rel=0.02), name
+
+
+def test_ml_without_f0_finds_the_period_and_the_same_fit(tmp_path, capsys):
+    """identify joint --ml on the band-limited revolute data of tests/test_ident_maximum_likelihood.py (10 periods
+    of 0.5 Hz at 200 Hz): without --f0 the period is found (400 samples) and the JSON equals the one with --f0."""
+    from tests.test_ident_maximum_likelihood import FS, band_limited_periods
+
+    qs, taus = band_limited_periods(1)
+    path = tmp_path / "band.csv"
+    recording.write_recording(path, recording.make_recording(np.arange(qs.size) / FS, {"q": qs, "u": taus},
+                                                             {"q": "rad", "u": "N.m"}, sample_time=1 / FS))
+    docs = []
+    for f0 in (["--f0", "0.5"], []):
+        out = tmp_path / f"ml{len(f0)}.json"
+        assert main(["identify", "joint", str(path), *f0, "--cutoff", "3", "--min-speed", "0.2", "--ml",
+                     "--out", str(out)]) == 0, capsys.readouterr().err
+        docs.append(json.loads(out.read_text()))
+    assert "excitation period 400 samples = 2 s, f0 = 0.5 Hz" in capsys.readouterr().out
+    assert docs[0] == docs[1]
