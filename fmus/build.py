@@ -15,10 +15,7 @@ from pathlib import Path
 
 from motiontwin.fmus import codegen, description, frontend, layout, package, symbolic
 
-# modelica/ sits beside fmus/ in the checkout and in the installed package (motiontwin/modelica).
-MODELICA_DIR = Path(__file__).resolve().parent.parent / "modelica"
-DEFAULT_OUT = Path("build") / "fmus"
-FMI_VERSIONS = ("2.0", "3.0")
+from motiontwin.fmus import DEFAULT_OUT, FMI_VERSIONS, MODELICA_DIR  # noqa: F401 (re-exported)
 
 
 @dataclass

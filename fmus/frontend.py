@@ -91,10 +91,10 @@ def _import_pymoca() -> tuple[Any, Any, Any]:
     return parser, api, generator
 
 
-def _mo_text(path: Path) -> str:
-    """The text of a Modelica file; ModelicaError naming it when it is not UTF-8."""
+def _mo_text(path: Path, data: bytes | None = None) -> str:
+    """The text of a Modelica file (``data``: its bytes, already read); ModelicaError naming it when not UTF-8."""
     try:
-        return path.read_text(encoding="utf-8")
+        return (path.read_bytes() if data is None else data).decode("utf-8")
     except UnicodeDecodeError as exc:
         raise ModelicaError(f"{path}: not UTF-8 text (byte {exc.start}: {exc.reason})") from None
 
@@ -107,16 +107,24 @@ def _mo_files(source: Path) -> list[Path]:
     return sorted(p for p in source.rglob("*.mo") if p.is_file())
 
 
-def parse_tree(source: Path, libraries: tuple[Path, ...] = ()) -> Any:
-    """Parse every ``.mo`` file under ``source`` (a file or a library folder) and ``libraries`` into one tree."""
-    parser, _, _ = _import_pymoca()
-    tree = None
+def _source_files(source: Path, libraries: tuple[Path, ...]) -> list[Path]:
+    """The ``.mo`` files of ``source`` (a file or a library folder), then those of ``libraries`` not among them."""
     files = _mo_files(source)
     if not files:
         raise ModelicaError(f"{source}: no .mo files found")
-    files += [f for lib in libraries for f in _mo_files(Path(lib)) if f not in files]
-    for path in files:
-        text = _mo_text(path)
+    return files + [f for lib in libraries for f in _mo_files(Path(lib)) if f not in files]
+
+
+def parse_tree(source: Path, libraries: tuple[Path, ...] = ()) -> Any:
+    """Parse every ``.mo`` file under ``source`` (a file or a library folder) and ``libraries`` into one tree."""
+    return _parse_files({path: _mo_text(path) for path in _source_files(source, libraries)})
+
+
+def _parse_files(texts: dict[Path, str]) -> Any:
+    """One pymoca tree of the given files (path -> text); a syntax error names file, line and column."""
+    parser, _, _ = _import_pymoca()
+    tree = None
+    for path, text in texts.items():
         try:
             parsed = parser.parse(text)
         except parser.ModelicaSyntaxError as exc:
@@ -132,6 +140,35 @@ def parse_tree(source: Path, libraries: tuple[Path, ...] = ()) -> Any:
         else:
             tree.extend(parsed)
     return tree
+
+
+_DEFINES = re.compile(r"\b(?:model|block|class|package|record|connector|type|function)\s+(\w+)")
+_WORD = re.compile(r"[A-Za-z_]\w*")
+_PROSE = re.compile(r'"(?:[^"\\]|\\.)*"|//[^\n]*|/\*.*?\*/', re.S)  # strings and comments
+
+
+def _needed(texts: dict[Path, str], class_name: str) -> dict[Path, str]:
+    """The files that may define ``class_name`` and, transitively, any name their text mentions.
+
+    A superset by words outside strings and comments, so the tree holds every class the flattening looks up; the
+    caller parses everything when it does not."""
+    code = {path: _PROSE.sub(" ", text) for path, text in texts.items()}
+    defines: dict[str, list[Path]] = {}
+    for path, text in code.items():
+        for name in set(_DEFINES.findall(text)):
+            defines.setdefault(name, []).append(path)
+    wanted: set[Path] = set()
+    todo, seen = class_name.split("."), set()
+    while todo:
+        word = todo.pop()
+        if word in seen:
+            continue
+        seen.add(word)
+        for path in defines.get(word, ()):
+            if path not in wanted:
+                wanted.add(path)
+                todo.extend(set(_WORD.findall(code[path])))
+    return {path: text for path, text in texts.items() if path in wanted}
 
 
 def _find_class(tree: Any, name: str) -> Any:
@@ -218,10 +255,42 @@ def _number(value: Any, default: float) -> float:
 
 
 def load(source: str | os.PathLike[str], class_name: str, libraries: tuple[Path, ...] = ()) -> FlatModel:
-    """Translate Modelica class ``class_name`` found under ``source`` (using ``libraries``) into a FlatModel."""
+    """Translate Modelica class ``class_name`` found under ``source`` (using ``libraries``) into a FlatModel.
+
+    The result is cached by the contents of the source files (:mod:`fmus.modelcache`); on a miss only the
+    files the class needs are parsed (all of them when that subset does not flatten, for the same errors)."""
+    from motiontwin.fmus import modelcache
+
     source = Path(source)
+    libraries = tuple(Path(lib) for lib in libraries)
+    files = _source_files(source, libraries)
+    data = {path: path.read_bytes() for path in files}
+    roots = [source.parent if source.is_file() else source, *libraries]
+    named = [(_relative_name(path, roots), raw) for path, raw in data.items()]
+    digest = modelcache.key(named, class_name, [Path(__file__), Path(modelcache.__file__)])
+    model = modelcache.fetch(digest, source)
+    if model is None:
+        texts = {path: _mo_text(path, raw) for path, raw in data.items()}
+        subset = _needed(texts, class_name) or texts
+        try:
+            model = _flatten(source, class_name, _parse_files(subset))
+        except ModelicaError:
+            if len(subset) == len(texts):
+                raise
+            model = _flatten(source, class_name, _parse_files(texts))
+        modelcache.store(digest, model)
+    return model
+
+
+def _relative_name(path: Path, roots: list[Path]) -> str:
+    """``path`` relative to the first of ``roots`` holding it, prefixed by that root's index (the cache key's name)."""
+    index, root = next((i, r) for i, r in enumerate(roots) if r in path.parents)
+    return f"{index}/{path.relative_to(root).as_posix()}"
+
+
+def _flatten(source: Path, class_name: str, tree: Any) -> FlatModel:
+    """The FlatModel of ``class_name`` in a parsed ``tree``."""
     _, api, _ = _import_pymoca()
-    tree = parse_tree(source, tuple(Path(lib) for lib in libraries))
     cls = _find_class(tree, class_name)
     if cls is None:
         raise ModelicaError(f"{source}: class {class_name!r} not found")

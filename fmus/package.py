@@ -10,7 +10,6 @@ import tempfile
 import zipfile
 from pathlib import Path
 
-import fmpy
 
 from motiontwin.fmus import clib
 
@@ -33,6 +32,8 @@ class BuildError(Exception):
 
 def runtime_sources(fmi_version: str) -> list[Path]:
     """The model-agnostic runtime files an FMU of ``fmi_version`` needs (C files and headers)."""
+    import fmpy  # here, not at import: loading a model for identification needs no fmpy
+
     other = "fmi3.c" if fmi_version == "2.0" else "fmi2.c"
     files = sorted(p for p in RUNTIME_DIR.iterdir() if p.suffix in (".c", ".h") and p.name != other)
     headers = Path(fmpy.__file__).parent / "c-code"

@@ -12,9 +12,11 @@ before the header are skipped), and writes ``NAME.csv`` + ``NAME.json`` through 
   factor with its unit (``{"u": "40 N/V"}``): the column is multiplied by the gain and gets the gain's
   numerator unit; then time, positions and forces in other scales (ms, mm, deg, kN, ...) are converted to SI
   (:func:`harness.units.si_scale`). Every conversion and assumption is reported in ``notes``.
-* **sample time** from the median step; the jitter (deviation of each step from it) is measured and
-  reported. The time stamps are kept as recorded unless ``resample`` is set (linear interpolation onto the
-  uniform grid t0 + k Ts, stated in the notes and the sidecar). Jitter beyond the recording format's
+* **sample time**: ``sample_time`` when given (e.g. the controller's period), else the median step, snapped
+  to its clock when within the jitter (0.000999984 -> 0.001, :func:`clock_step`); the jitter (deviation of
+  each step from the median) is measured and reported. The time stamps are kept as recorded unless
+  ``resample`` is set (linear interpolation onto the ticks k Ts of a given ``sample_time``, else onto
+  t0 + k Ts; stated in the notes and the sidecar). Jitter beyond the recording format's
   tolerance (``recording.SAMPLE_TIME_TOLERANCE`` of Ts) without ``resample`` leaves ``sample_time`` null.
 * **trimming**: to a time window ``[start, stop]``, then to whole periods of the excitation (``period`` [s]),
   counted from the window's first sample; what was dropped is reported.
@@ -34,13 +36,12 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import scipy.io
 
 from motiontwin.harness import recording
 from motiontwin.harness.recording import DEFAULT_UNITS, Recording, RecordingError
 from motiontwin.harness.units import si_scale, units_compatible
 
-__all__ = ["LabSource", "JitterReport", "LabImport", "read_lab_file", "parse_gain", "jitter_report",
+__all__ = ["LabSource", "JitterReport", "LabImport", "read_lab_file", "parse_gain", "jitter_report", "clock_step",
            "import_lab_file", "TIME_NAMES", "PERIOD_TOLERANCE"]
 
 TIME_NAMES = ("time", "t", "Time", "T")   # source names taken as the time vector when none is given
@@ -163,6 +164,8 @@ def read_lab_file(path: str | Path) -> LabSource:
         return LabSource(path, "hdf5", _read_hdf5(path, matlab=False))
     if suffix != ".mat":
         return _read_text(path)
+    import scipy.io  # here: only .mat files need it, and it costs its import
+
     try:
         contents = scipy.io.loadmat(path, simplify_cells=True)
     except NotImplementedError:       # MATLAB v7.3 is HDF5
@@ -207,6 +210,42 @@ class JitterReport:
     def as_dict(self) -> dict[str, float]:
         return {"sample_time": self.sample_time, "max_deviation": self.max_deviation,
                 "rms_deviation": self.rms_deviation, "relative": self.relative, "steps": self.steps}
+
+
+def clock_step(jitter: JitterReport) -> float:
+    """The clock period the median step stands for: the shortest decimal (1 to 6 significant digits) within the
+    jitter (the largest step deviation) of the median step, e.g. 0.000999984 -> 0.001 when the steps scatter by
+    more than 1.6e-8 s; the median step itself when none is, or when the steps are not uniform (relative jitter
+    beyond ``recording.SAMPLE_TIME_TOLERANCE``: no clock can be told from them)."""
+    ts = jitter.sample_time
+    if jitter.relative > recording.SAMPLE_TIME_TOLERANCE:
+        return ts
+    for digits in range(6):
+        clock = float(f"{ts:.{digits}e}")
+        if abs(clock - ts) <= jitter.max_deviation:
+            return clock
+    return ts
+
+
+def _clock(jitter: JitterReport, sample_time: float | None, resample: bool, notes: list[str]) -> tuple[float, str]:
+    """The sample time of the import and where it comes from: ``sample_time`` (checked against the median step
+    unless resampling onto it), else the median step snapped to its clock (:func:`clock_step`)."""
+    median = jitter.sample_time
+    if sample_time is not None:
+        if not sample_time > 0:
+            raise ValueError(f"sample time must be > 0 s, got {sample_time}")
+        off = abs(sample_time - median)
+        if not resample and off > max(jitter.max_deviation, 1e-12 * sample_time):
+            raise ValueError(f"sample time {sample_time:.9g} s differs from the median step {median:.9g} s by "
+                             f"{off:.3g} s, more than the jitter ({jitter.max_deviation:.3g} s); add --resample "
+                             "to interpolate onto it")
+        return sample_time, "given"
+    clock = clock_step(jitter)
+    if abs(clock - median) > 1e-9 * clock:
+        notes.append(f"sample time snapped to the clock {clock:.9g} s: the median step {median:.9g} s is within the "
+                     f"jitter ({jitter.max_deviation:.3g} s) of it")
+        return clock, "median step snapped to the clock"
+    return clock, "median step"
 
 
 def jitter_report(time: np.ndarray) -> JitterReport:
@@ -289,7 +328,7 @@ def _check_finite(source: LabSource, name: str, values: np.ndarray) -> None:
 def import_lab_file(path: str | Path, *, mapping: dict[str, str] | None = None, time: str | None = None,
                     units: dict[str, str] | None = None, gains: dict[str, str] | None = None,
                     window: tuple[float, float] | None = None, period: float | None = None,
-                    resample: bool = False, excited: Any = None) -> LabImport:
+                    resample: bool = False, sample_time: float | None = None, excited: Any = None) -> LabImport:
     """Read a lab file and return it as a validated recording with the notes of every step.
 
     Parameters
@@ -303,7 +342,10 @@ def import_lab_file(path: str | Path, *, mapping: dict[str, str] | None = None, 
     gains : per recording column, a factor with its unit (``{"u": "40 N/V"}``).
     window : (start, stop) [s, after conversion]: keep samples with start <= t <= stop.
     period : excitation period [s]: keep the largest whole number of periods from the window's start.
-    resample : interpolate linearly onto the uniform grid t0 + k Ts (Ts = median step).
+    resample : interpolate linearly onto a uniform grid: the ticks k Ts of a given ``sample_time`` (recordings of
+        one experiment share them), else t0 + k Ts from the first sample.
+    sample_time : Ts [s], e.g. the controller's period: the grid of ``resample``; without it, the median step
+        must lie within the jitter of it. Default: the median step, snapped to its clock (:func:`clock_step`).
     excited : what was excited, stored in the sidecar.
 
     Returns
@@ -366,13 +408,19 @@ def import_lab_file(path: str | Path, *, mapping: dict[str, str] | None = None, 
     columns = {k: v[keep] for k, v in columns.items()}
     jitter = jitter_report(t)
     notes.append(jitter.text())
-    ts = jitter.sample_time
+    ts, origin = _clock(jitter, sample_time, resample, notes)
     if resample:
-        grid = t[0] + ts * np.arange(int(np.floor((t[-1] - t[0]) / ts * (1 + 1e-12))) + 1)
+        if sample_time is None:   # the recording's own clock, from its first sample
+            grid, where = t[0] + ts * np.arange(int(np.floor((t[-1] - t[0]) / ts * (1 + 1e-12))) + 1), "t0 + k*"
+        else:                     # the given clock's ticks k*Ts: recordings of one experiment share them
+            first, last = np.ceil(t[0] / ts - 1e-9), np.floor(t[-1] / ts + 1e-9)
+            grid, where = np.arange(first, last + 1) * ts, "k*"
+        if grid.size < 2:
+            raise ValueError(f"sample time {ts:.9g} s: the record ({t[-1] - t[0]:.6g} s) holds less than one step")
         columns = {k: np.interp(grid, t, v) for k, v in columns.items()}
         t = grid
-        notes.append(f"resampled onto the uniform grid t0 + k*{ts:.9g} s by linear interpolation "
-                     f"({t.size} samples)")
+        notes.append(f"resampled onto the uniform grid {where}{ts:.9g} s ({origin}) by linear interpolation "
+                     f"({t.size} samples from {t[0]:.9g} s)")
     if period is not None:
         if not period > 0:
             raise ValueError(f"period must be > 0 s, got {period}")
@@ -391,14 +439,15 @@ def import_lab_file(path: str | Path, *, mapping: dict[str, str] | None = None, 
                         "dropped_samples_at_end": dropped})
         t = t[:periods * per]
         columns = {k: v[:periods * per] for k, v in columns.items()}
-    final = jitter_report(t)
-    uniform = final.relative <= recording.SAMPLE_TIME_TOLERANCE
+    largest = float(np.max(np.abs(np.diff(t) - ts))) / ts
+    uniform = largest <= recording.SAMPLE_TIME_TOLERANCE
     if not uniform:
-        notes.append(f"steps deviate by up to {final.relative:.3g} of Ts (more than "
+        notes.append(f"steps deviate by up to {largest:.3g} of Ts (more than "
                      f"{recording.SAMPLE_TIME_TOLERANCE:g}): sample_time left null; import with --resample for a "
                      "uniform grid")
     metadata = {"import": {"source": str(source.path), "format": source.kind, "time": time_name,
                            "columns": provenance, "jitter": jitter.as_dict(), "resampled": bool(resample),
+                           "clock": {"sample_time": ts, "origin": origin},
                            "trimmed": trimmed}}
     rec = recording.make_recording(t, columns, column_units, sample_time=ts if uniform else None,
                                    excited=excited, metadata=metadata)

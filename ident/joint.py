@@ -29,7 +29,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from motiontwin.harness.labdata import jitter_report
+from motiontwin.harness.labdata import clock_step, jitter_report
 from motiontwin.harness.recording import SAMPLE_TIME_TOLERANCE
 from motiontwin.ident.leastsquares import LeastSquaresResult, gauss_markov
 from motiontwin.ident.signals import lowpass_differentiate, period_average, samples_per_period
@@ -41,6 +41,7 @@ __all__ = [
     "PERIOD_RTOL",
     "PeriodicRecord",
     "periodic_record",
+    "find_period",
     "default_model",
     "joint_parameter_names",
     "joint_regressor",
@@ -279,13 +280,57 @@ class PeriodicRecord:
     sample_rate: float
     samples_per_period: int
     notes: list[str]
+    fundamental_frequency: float = 0.0   # [Hz]: the one given, or the one found (find_period)
 
 
-def periodic_record(rec, fundamental_frequency: float, *, position: str = "q", force: str = "u",
+def find_period(signal: np.ndarray, threshold: float = 0.1) -> int:
+    """Samples in one period of a periodic ``signal`` (a multisine or Fourier trajectory, with noise).
+
+    The difference function d(N) = sum_k (x[k+N] - x[k])^2 over lags up to half the record, from the power
+    spectrum (Wiener-Khinchin: the autocorrelation is its inverse DFT), normalised by its running mean (the
+    YIN pitch estimator, de Cheveigne & Kawahara 2002): d'(N) = d(N) N / sum_{j<=N} d(j), ~1 or more for an
+    unrelated lag, near 0 at the period and its multiples. The bottom of the first dip below ``threshold``
+    locates the period; the vertex of a parabola fitted to d over +-1 % of it (the bottom of the dip is flat
+    under noise, its flanks are not) refines it, rounded to a whole number of samples.
+    Raises ValueError when no lag up to half the record repeats the signal.
+    """
+    x = np.asarray(signal, dtype=float) - float(np.mean(signal))
+    n = x.size
+    top = n // 2
+    if top < 2 or not np.any(x):
+        raise ValueError(f"{n} samples of a constant signal hold no period")
+    power = np.abs(np.fft.rfft(x, 2 * n)) ** 2
+    auto = np.fft.irfft(power, 2 * n)[: top + 1]
+    energy = np.concatenate([[0.0], np.cumsum(x ** 2)])
+    lags = np.arange(top + 1)
+    d = energy[n - lags] + (energy[n] - energy[lags]) - 2.0 * auto       # sum over the overlap of length n - N
+    d = np.maximum(d, 0.0) / (n - lags)
+    running = np.cumsum(d[1:]) / lags[1:]
+    normalised = np.concatenate([[1.0], d[1:] / np.where(running > 0, running, np.inf)])
+    below = np.flatnonzero(normalised[2:] < threshold)
+    if below.size == 0:
+        best = int(np.argmin(normalised[2:])) + 2
+        raise ValueError(f"no period found: no lag up to {top} samples repeats the signal (best {best} samples, "
+                         f"normalised difference {normalised[best]:.3g} >= {threshold:g})")
+    start = int(below[0]) + 2
+    above = np.flatnonzero(normalised[start:] >= threshold)
+    stop = start + int(above[0]) if above.size else top + 1
+    lag = start + int(np.argmin(normalised[start:stop]))       # the bottom of the first dip
+    window = np.arange(max(2, lag - max(2, lag // 100)), min(top, lag + max(2, lag // 100)) + 1)
+    curve = np.polyfit(window - lag, d[window], 2)
+    if not curve[0] > 0:
+        return lag
+    return int(round(lag - curve[1] / (2 * curve[0])))
+
+
+def periodic_record(rec, fundamental_frequency: float | None, *, position: str = "q", force: str = "u",
                     source: str = "recording") -> PeriodicRecord:
     """The columns of ``rec`` as whole periods of the excitation at ``fundamental_frequency`` [Hz].
 
-    Sample time Ts: the sidecar's ``sample_time`` when present, else the median step; the jitter of the time
+    ``fundamental_frequency`` None: found from the spectrum of the reference column ``r`` when the recording
+    has one, else of the position (:func:`find_period`), as 1 / (whole samples per period x Ts), and noted.
+    Sample time Ts: the sidecar's ``sample_time`` when present, else the median step, snapped to its clock
+    when within the jitter (:func:`harness.labdata.clock_step`: 0.000999984 -> 0.001); the jitter of the time
     stamps (deviation of each step from Ts) is reported and accepted up to the recording format's tolerance
     (``SAMPLE_TIME_TOLERANCE`` of Ts; larger jitter: resample with ``motiontwin import --resample``).
     1/(Ts f0) must be a whole number of samples within PERIOD_RTOL (1e-6). Samples after the last whole
@@ -295,8 +340,9 @@ def periodic_record(rec, fundamental_frequency: float, *, position: str = "q", f
     notes: list[str] = []
     jitter = jitter_report(columns.time)
     declared = rec.meta.get("sample_time") if isinstance(rec.meta, dict) else None
-    ts = float(declared) if declared else jitter.sample_time
-    origin = "the sidecar's sample_time" if declared else "the median time step"
+    ts = float(declared) if declared else clock_step(jitter)
+    origin = ("the sidecar's sample_time" if declared else "the median time step" if ts == jitter.sample_time
+              else f"the median time step {jitter.sample_time:.9g} s snapped to the clock")
     largest = float(np.max(np.abs(np.diff(columns.time) - ts)))
     if largest > SAMPLE_TIME_TOLERANCE * ts:
         raise ValueError(f"{source}: column 'time': steps deviate from the sample time {ts:.9g} s by up to "
@@ -304,6 +350,15 @@ def periodic_record(rec, fundamental_frequency: float, *, position: str = "q", f
                          "resample it onto a uniform grid (motiontwin import --resample)")
     notes.append(f"{source}: sample time {ts:.9g} s from {origin}; time-stamp jitter up to {largest:.3g} s "
                  f"({largest / ts:.3g} of Ts, RMS {jitter.rms_deviation:.3g} s)")
+    if fundamental_frequency is None:
+        column = "r" if "r" in rec.columns else position
+        try:
+            found = find_period(rec.columns[column])
+        except ValueError as exc:
+            raise ValueError(f"{source}: column {column!r}: {exc}; give the excitation's --f0") from None
+        fundamental_frequency = 1.0 / (found * ts)
+        notes.append(f"{source}: excitation period {found} samples = {found * ts:.9g} s, f0 = "
+                     f"{fundamental_frequency:.9g} Hz, found in the spectrum of column {column!r} (no --f0 given)")
     if not fundamental_frequency > 0:
         raise ValueError(f"fundamental frequency must be > 0 Hz, got {fundamental_frequency}")
     ratio = 1.0 / (ts * fundamental_frequency)
@@ -322,7 +377,7 @@ def periodic_record(rec, fundamental_frequency: float, *, position: str = "q", f
         notes.append(f"{source}: trimmed to {periods} whole periods of {n_per} samples: dropped the last "
                      f"{n - keep} samples ({(n - keep) * ts:.6g} s, t > {columns.time[keep - 1]:.9g} s)")
     return PeriodicRecord(columns, columns[position][:keep], columns[force][:keep],
-                          n_per * fundamental_frequency, n_per, notes)
+                          n_per * fundamental_frequency, n_per, notes, fundamental_frequency)
 
 
 def default_model(rotary: bool) -> tuple[str, str]:
@@ -333,7 +388,7 @@ def default_model(rotary: bool) -> tuple[str, str]:
 
 def identify_joint_recording(
     rec,
-    fundamental_frequency: float,
+    fundamental_frequency: float | None,
     cutoff_frequency: float,
     *,
     position: str = "q",
@@ -364,7 +419,7 @@ def identify_joint_recording(
         notes.append(f"{source}: {'rotary' if rotary else 'linear'} axis ({columns.units[position]}): friction "
                      f"{friction!r}, gravity {_gravity_kind(gravity)!r}")
     result = identify_joint_periodic(
-        data.position, data.force, data.sample_rate, fundamental_frequency, cutoff_frequency,
+        data.position, data.force, data.sample_rate, data.fundamental_frequency, cutoff_frequency,
         min_speed=min_speed, friction=friction, gravity=gravity,
     )
     fit = result.fit

@@ -23,7 +23,6 @@ from dataclasses import dataclass, field
 from typing import Sequence
 
 import numpy as np
-import scipy.linalg
 
 __all__ = [
     "UnidentifiableError",
@@ -318,6 +317,8 @@ def _whiten(psi, gamma, noise_covariance, channel_covariance):
         return psi * w[:, None], gamma * w
     if cov.shape != (n, n):
         raise ValueError(f"noise_covariance must be ({n}, {n}), got {cov.shape}")
+    import scipy.linalg  # here: the output-error path never whitens, and scipy.linalg costs its import
+
     chol = np.linalg.cholesky(cov)
     return (
         scipy.linalg.solve_triangular(chol, psi, lower=True),
@@ -422,6 +423,8 @@ def base_parameters(
     labels = _names(names, psi.shape[1])
     norms = np.linalg.norm(psi, axis=0)
     scale = np.where(norms > 0, norms, 1.0)
+    import scipy.linalg
+
     _, r, perm = scipy.linalg.qr(psi / scale, mode="economic", pivoting=True)
     diag = np.abs(np.diag(r))
     rank = int(np.sum(diag > rcond * diag[0])) if diag.size and diag[0] > 0 else 0

@@ -158,7 +158,7 @@ class JointMaximumLikelihood:
 
 def identify_joint_ml_recording(
     rec,
-    fundamental_frequency: float,
+    fundamental_frequency: float | None,
     cutoff_frequency: float,
     *,
     cutoff_range: tuple[float, float] | None = None,
@@ -179,6 +179,7 @@ def identify_joint_ml_recording(
     """
     data = periodic_record(rec, fundamental_frequency, position=position, force=force, source=source)
     columns, fs = data.columns, data.sample_rate
+    fundamental_frequency = data.fundamental_frequency   # the one found when None was given
     if not columns.rotary(position):
         raise ValueError(f"{source}: column {position!r} is a linear position ({columns.units[position]}); the "
                          "maximum-likelihood fit models a revolute joint (sine gravity, asymmetric friction), "

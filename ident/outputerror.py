@@ -41,7 +41,6 @@ from typing import Callable
 
 import casadi as ca
 import numpy as np
-from scipy.optimize import least_squares
 
 from motiontwin.fmus import symbolic
 from motiontwin.harness.recording import Recording
@@ -739,6 +738,8 @@ def fit(loop: Loop, rec: Recording, weights: Weights, bounds: dict[str, tuple[fl
     if x_start.size:
         if loop.jac is None:
             raise ValueError("the loop was compiled without its Jacobian (with_jacobian=False)")
+        from scipy.optimize import least_squares  # here: importing scipy.optimize takes about a second
+
         sol = least_squares(res, x_start, jac=jac, bounds=(lo_all / scale, hi_all / scale), method="trf",
                             x_scale="jac", max_nfev=max_nfev, xtol=1e-10, ftol=1e-10, gtol=1e-10)
         xs = sol.x

@@ -30,7 +30,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from scipy.stats import chi2
 
 from motiontwin.fmus import symbolic
 from motiontwin.harness.recording import Recording, write_figure
@@ -150,6 +149,8 @@ def _correlation(a: np.ndarray, b: np.ndarray, lag: int) -> float:
 
 def autocorrelation_test(residual: np.ndarray, lags: int = 25, confidence: float = CONFIDENCE) -> CorrelationTest:
     """Whiteness of the residual: r_e(1..lags), band and portmanteau decision (module docstring)."""
+    from scipy.stats import chi2  # here: scipy.stats costs about a second to import
+
     e = np.asarray(residual, dtype=float) - np.mean(residual)
     n = e.size
     taus = np.arange(1, lags + 1)

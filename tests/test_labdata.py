@@ -171,3 +171,79 @@ def test_cli_import_writes_the_recording_and_refuses_without_writing(tmp_path, c
     assert main(["import", str(path), "--column", "q=nothere", "--out", str(bad)]) == 1
     assert "no numeric vector 'nothere'" in capsys.readouterr().err
     assert not bad.exists()
+
+
+def _polled(step: float, jitter: float, seconds: float, seed: int, start: float = 0.0) -> np.ndarray:
+    """Host poll instants from ``start``: steps of ``step`` +- uniform ``jitter``."""
+    steps = step + np.random.default_rng(seed).uniform(-jitter, jitter, int(seconds / step))
+    return start + np.concatenate([[0.0], np.cumsum(steps)])
+
+
+def test_resampling_onto_a_given_sample_time_matches_the_exact_samples(tmp_path):
+    """A controller at 1 kHz recorded by a host polling every ~2.3 ms: the exact samples of a known smooth
+    trajectory at the jittered instants, re-imported with --sample-time 1e-3, equal the trajectory on the
+    controller's grid k*1e-3 within linear interpolation's bound h^2/8 max|q''| (h: the largest poll step); two
+    recordings of one experiment polled differently, from different first instants, land on the same grid."""
+    def q(t):
+        return 0.01 * np.sin(2 * np.pi * 2.0 * t) + 0.004 * np.sin(2 * np.pi * 7.0 * t + 1.0)
+
+    q2_max = 0.01 * (2 * np.pi * 2.0) ** 2 + 0.004 * (2 * np.pi * 7.0) ** 2
+    grids = []
+    for step, seed, start in ((2.312e-3, 1, 0.7e-3), (2.260e-3, 2, 1.9e-3)):
+        polled = _polled(step, 0.3e-3, 3.0, seed, start)
+        path = tmp_path / f"poll{seed}.csv"
+        path.write_text("t,q\n" + "".join(f"{a:.17g},{q(a):.17g}\n" for a in polled))
+        kept = labdata.import_lab_file(path)
+        assert kept.recording.sample_time is None                      # the jitter is 13 % of a step
+        result = labdata.import_lab_file(path, resample=True, sample_time=1e-3)
+        rec = result.recording
+        assert rec.sample_time == 1e-3
+        k0 = 1 if seed == 1 else 2                                   # the first tick at or after the first poll
+        np.testing.assert_array_equal(rec.time, (k0 + np.arange(rec.time.size)) * 1e-3)
+        bound = np.max(np.diff(polled)) ** 2 / 8 * q2_max
+        error = np.max(np.abs(rec["q"] - q(rec.time)))
+        assert error <= bound, (error, bound)
+        assert error > bound / 100                                    # the bound is not vacuous
+        assert np.max(np.abs(rec["q"] - q(rec.time + 1e-3))) > 20 * bound   # one sample off would show
+        assert any(f"grid k*0.001 s (given) by linear interpolation ({rec.time.size} samples from {k0 * 1e-3:g} s)"
+                   in n for n in result.notes)
+        assert rec.meta["metadata"]["import"]["clock"] == {"sample_time": 1e-3, "origin": "given"}
+        grids.append(rec.time)
+    assert np.array_equal(grids[0][1:], grids[1][:grids[0].size - 1])
+
+
+def test_a_median_step_within_the_jitter_snaps_to_the_clock(tmp_path, capsys):
+    """A 1 kHz recording whose time column scatters by +-4e-8 s with a median step of 0.000999984 s: the sample
+    time is the clock's 0.001 s, said so; the same steps without scatter are a real 0.000999984 s clock."""
+    noise = np.random.default_rng(3).uniform(-4e-8, 4e-8, 3000)
+    noise -= np.median(noise)
+    for name, steps in (("scattered", 0.000999984 + noise), ("exact", np.full(3000, 0.000999984))):
+        time = np.concatenate([[0.0], np.cumsum(steps)])
+        path = tmp_path / f"{name}.csv"
+        path.write_text("t,q\n" + "".join(f"{a:.17g},{np.sin(a):.17g}\n" for a in time))
+        result = labdata.import_lab_file(path)
+        assert result.jitter.sample_time == pytest.approx(0.000999984, rel=1e-9)
+        snapped = [n for n in result.notes if "snapped to the clock" in n]
+        if name == "scattered":
+            assert result.recording.sample_time == 0.001
+            assert len(snapped) == 1 and snapped[0].startswith(
+                "sample time snapped to the clock 0.001 s: the median step 0.000999984 s is within the jitter (4.")
+            assert labdata.import_lab_file(path, resample=True).recording.time[1] == 0.001
+        else:
+            assert result.recording.sample_time == pytest.approx(0.000999984, rel=1e-12) and not snapped
+    assert main(["import", str(tmp_path / "scattered.csv"), "--out", str(tmp_path / "rec.csv")]) == 0
+    assert "snapped to the clock 0.001 s" in capsys.readouterr().out
+    assert json.loads((tmp_path / "rec.json").read_text())["sample_time"] == 0.001
+
+
+def test_a_given_sample_time_off_the_steps_needs_resample(tmp_path, capsys):
+    time, pos_mm, cmd_v = _lab_arrays()
+    path = tmp_path / "lab.mat"
+    scipy.io.savemat(path, {"t": time, "pos_enc": pos_mm})
+    assert labdata.import_lab_file(path, sample_time=1e-3).recording.sample_time == 1e-3
+    with pytest.raises(ValueError, match=r"sample time 0.00125 s differs from the median step 0.001 s by 0.00025 s, "
+                                         r"more than the jitter \(2e-08 s\); add --resample"):
+        labdata.import_lab_file(path, sample_time=1.25e-3)
+    out = tmp_path / "rec.csv"
+    assert main(["import", str(path), "--sample-time", "0", "--resample", "--out", str(out)]) == 1
+    assert "sample time must be > 0 s" in capsys.readouterr().err and not out.exists()

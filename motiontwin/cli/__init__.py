@@ -84,12 +84,7 @@ def main(argv: list[str] | None = None) -> int:
     """
     import zipfile
 
-    from fmpy.fmi1 import FMICallException
-
     from motiontwin.cli.errors import os_error_message, preflight
-    from motiontwin.fmus.frontend import ModelicaError
-    from motiontwin.fmus.package import BuildError
-    from motiontwin.harness.fmu_instance import FMUCallError
 
     args = parser().parse_args(argv)
     func: Callable[[argparse.Namespace], int] = args.func
@@ -111,9 +106,20 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{prefix}: a file given as an FMU or archive is not a zip archive ({exc}); check the paths",
               file=sys.stderr)
         return 1
-    except (ModelicaError, BuildError, FMUCallError, FMICallException, KeyError, ValueError) as exc:
+    except _library_errors() as exc:
         print(f"{prefix}: {exc}", file=sys.stderr)
         return 1
+
+
+# The library's error types by module: a module never imported (fmpy for identification) raised none of them.
+LIBRARY_ERRORS = {"motiontwin.fmus.frontend": "ModelicaError", "motiontwin.fmus.package": "BuildError",
+                  "motiontwin.harness.fmu_instance": "FMUCallError", "fmpy.fmi1": "FMICallException"}
+
+
+def _library_errors() -> tuple[type[Exception], ...]:
+    """The errors main reports as one line (evaluated when one is raised, so nothing is imported for it)."""
+    loaded = tuple(getattr(sys.modules[m], name) for m, name in LIBRARY_ERRORS.items() if m in sys.modules)
+    return (KeyError, ValueError, *loaded)
 
 
 if __name__ == "__main__":

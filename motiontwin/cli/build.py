@@ -22,7 +22,7 @@ def _build(args: argparse.Namespace) -> int:
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Add this module's subcommands to the ``motiontwin`` parser."""
-    from motiontwin.fmus.build import MODELICA_DIR, DEFAULT_OUT, FMI_VERSIONS
+    from motiontwin.fmus import DEFAULT_OUT, FMI_VERSIONS, MODELICA_DIR
 
     p = sub.add_parser("build", help="build Modelica classes into FMI 2.0/3.0 FMUs (ME + CS, with sources)")
     p.add_argument("classes", nargs="*", help="full Modelica class names, e.g. MotionTwin.Plants.LinearMotorJoint")

@@ -85,8 +85,6 @@ def _writable_location(option: str, path: Path, folder: bool) -> None:
 
 def preflight(args: argparse.Namespace) -> None:
     """Check the output and FMU arguments a subcommand declared (see the module docstring)."""
-    from motiontwin.fmus.archive import read_description
-
     for name in getattr(args, "output_files", ()):
         value = getattr(args, name, None)
         if value is not None:
@@ -98,4 +96,6 @@ def preflight(args: argparse.Namespace) -> None:
     for name in getattr(args, "input_fmus", ()):
         value = getattr(args, name, None)
         if value is not None:
+            from motiontwin.fmus.archive import read_description  # imports fmpy: only for a command given an FMU
+
             read_description(value)

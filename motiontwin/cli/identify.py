@@ -4,8 +4,6 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-import numpy as np
-
 from motiontwin.cli.arguments import name_values
 
 
@@ -29,9 +27,11 @@ def _report_fit(fit: object, args: argparse.Namespace, method: str) -> int:
 def _joint_document(fit: object, method: str, source: Path) -> dict[str, object]:
     """The --out JSON of identify joint: SerialRobotJoint names (for writeback --values) for a revolute fit, the
     names of MotionTwin.Effects.JointBase-style axes (m, d, Fc, F0) for a prismatic one; regressor estimates beside."""
-    from motiontwin.ident.joint import prismatic_axis_parameters, serial_joint_parameters
-
     import dataclasses
+
+    import numpy as np
+
+    from motiontwin.ident.joint import prismatic_axis_parameters, serial_joint_parameters
 
     convert = serial_joint_parameters if "g_sin" in fit.names else prismatic_axis_parameters
     plant = "MotionTwin.Plants.SerialRobotJoint" if "g_sin" in fit.names else "MotionTwin.Plants.PrismaticAxis"
@@ -156,6 +156,8 @@ def _identify_oe(args: argparse.Namespace) -> int:
     reads ({"parameters", "std", "covariance", ...})."""
     import json
 
+    import numpy as np
+
     from motiontwin.fmus import build
     from motiontwin.harness.recording import atomic_write_texts, read_recording
     from motiontwin.ident import startvalues
@@ -260,6 +262,8 @@ def _design_excitation(args: argparse.Namespace) -> int:
     """``design-excitation joint``: designs the joint's Fourier coefficients, prints its exact criteria beside
     the median of 20 random designs under the same limits, and writes a ``fourier`` experiment file
     (harness.excitation) that ``motiontwin excite`` samples."""
+    import numpy as np
+
     from motiontwin.harness.excitation import fourier_experiment_text, periodic_time_grid
     from motiontwin.harness.recording import atomic_write_texts
     from motiontwin.harness.system import check_run_length
@@ -319,7 +323,7 @@ def _design_excitation(args: argparse.Namespace) -> int:
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Add this module's subcommands to the ``motiontwin`` parser."""
-    from motiontwin.fmus.build import MODELICA_DIR
+    from motiontwin.fmus import MODELICA_DIR
 
     p = sub.add_parser("identify", help="identify plant parameters from a recording")
     kinds = p.add_subparsers(dest="kind", required=True)
@@ -327,13 +331,16 @@ def register(sub: argparse._SubParsersAction) -> None:
                                        "friction) from a periodic recording by inverse-dynamics weighted least squares",
                          description="Inverse-dynamics Gauss-Markov least squares on the period-averaged, "
                                      "frequency-domain filtered recording (ident.joint). The sample time is the "
-                                     "sidecar's (else the median step); time-stamp jitter up to 1e-3 of it is "
+                                     "sidecar's (else the median step, snapped to its clock when within the jitter); "
+                                     "time-stamp jitter up to 1e-3 of it is "
                                      "accepted and reported; samples after the last whole period are dropped and "
                                      "reported.")
     q.add_argument("recording", type=Path, help="recording CSV (at least 2 periods; the rest is trimmed)")
     q.add_argument("--position", default="q", help="position column [rad or m] (default q)")
     q.add_argument("--force", default="u", help="force/torque column [N or N.m] (default u)")
-    q.add_argument("--f0", type=float, required=True, help="fundamental frequency of the excitation [Hz]")
+    q.add_argument("--f0", type=float, default=None,
+                   help="fundamental frequency of the excitation [Hz]; default: found in the spectrum of the "
+                        "reference column r (else of the position) as a whole number of samples per period, printed")
     q.add_argument("--cutoff", type=float, required=True, help="low-pass cut-off of the derivatives [Hz]")
     q.add_argument("--min-speed", type=float, default=0.0,
                    help="drop samples slower than this [m/s or rad/s] (sign of Coulomb unreliable there)")

@@ -25,7 +25,7 @@ def _import(args: argparse.Namespace) -> int:
     result = labdata.import_lab_file(
         args.file, mapping=_pairs(args.column, "--column"), time=args.time, units=_pairs(args.unit, "--unit"),
         gains=_pairs(args.gain, "--gain"), window=tuple(args.window) if args.window else None, period=period,
-        resample=args.resample, excited=args.excited)
+        resample=args.resample, sample_time=args.sample_time, excited=args.excited)
     for note in result.notes:
         print(note)
     rec = result.recording
@@ -61,6 +61,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     trim.add_argument("--period", type=float, default=None, help="excitation period [s]: trim to whole periods")
     trim.add_argument("--f0", type=float, default=None, help="excitation fundamental [Hz]: trim to whole periods")
     p.add_argument("--resample", action="store_true",
-                   help="interpolate linearly onto the uniform grid t0 + k*Ts (Ts = median step); off by default")
+                   help="interpolate linearly onto a uniform grid: the ticks k*TS of --sample-time, else t0 + k*Ts "
+                        "with Ts the median step snapped to its clock; off by default")
+    p.add_argument("--sample-time", type=float, default=None, metavar="TS",
+                   help="sample time [s], e.g. the controller's period: the grid of --resample (two recordings of "
+                        "one experiment then share it); without --resample the median step must lie within the "
+                        "jitter of TS. Default: the median step, snapped to the clock when within the jitter "
+                        "(0.000999984 -> 0.001, reported)")
     p.add_argument("--excited", default=None, help="what was excited (free text, stored in the sidecar)")
     p.set_defaults(func=_import)

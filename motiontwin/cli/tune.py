@@ -10,8 +10,6 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from motiontwin.cli.arguments import name_values
 
 
@@ -51,6 +49,8 @@ def _write_json(out: Path, documents: dict[Path, dict]) -> None:
 
 def _tune_manipulator(args: argparse.Namespace) -> int:
     """``motiontwin tune --manipulator``: per-actuator design on the CheungManipulator FMU at --poses poses."""
+    import numpy as np
+
     from motiontwin.fmus import build
     from motiontwin.ident import tuning_manipulator as tm
     from motiontwin.ident.controller_fmu import write_controller_fmu
