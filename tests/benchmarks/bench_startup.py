@@ -20,6 +20,8 @@ import tempfile
 import time
 from pathlib import Path
 
+from ratios import ratio
+
 TS = 5e-4
 TRUTH = {"m": 2.6, "d": 14.0}
 NOISE = 2e-6
@@ -118,10 +120,10 @@ def _compare(folder: Path, seconds: float, repeats: int) -> None:
     print(f"  (cold cache)     {cold[0]:6.2f} s wall {cold[1]:6.2f} s CPU")
     print(f"  motiontwin --help {med(help_, 0):.2f} s wall, import motiontwin {med(imp, 0):.2f} s wall, "
           f"python -c pass {med(empty, 0):.2f} s wall")
-    print(f"RATIO identify_oe_vs_scipy_fmpy_wall={med(base, 0) / med(ours, 0):.3g}")
-    print(f"RATIO identify_oe_vs_scipy_fmpy_cpu={med(base, 1) / med(ours, 1):.3g}")
-    print(f"RATIO help_vs_python_wall={med(help_, 0) / med(empty, 0):.3g}")
-    print(f"RATIO import_vs_python_wall={med(imp, 0) / med(empty, 0):.3g}")
+    ratio("startup.scipy_fmpy_over_identify_oe_wall", med(base, 0) / med(ours, 0), "scipy + fmpy fit, whole process")
+    ratio("startup.scipy_fmpy_over_identify_oe_cpu", med(base, 1) / med(ours, 1), "scipy + fmpy fit, whole process")
+    ratio("startup.help_over_python_wall", med(help_, 0) / med(empty, 0), "python -c pass")
+    ratio("startup.import_over_python_wall", med(imp, 0) / med(empty, 0), "python -c pass")
 
 
 if __name__ == "__main__":
