@@ -36,9 +36,6 @@ import csv
 import io
 import json
 import os
-import shutil
-import tempfile
-import uuid
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterable, Sequence
@@ -46,11 +43,12 @@ from typing import Any, Iterable, Sequence
 import numpy as np
 import scipy.io
 
+from motiontwin.fmus.files import atomic_path, atomic_write_texts
+
 FORMAT_NAME = "motiontwin-recording"
 FORMAT_VERSION = 1
 META_KEYS = ("sample_time", "excited", "fmus", "parameters", "seed", "metadata")
 DEFAULT_UNITS = {"time": "s", "r": "m", "q": "m", "u": "N", "u_ext": "N", "v": "m/s", "a": "m/s2"}
-FILE_MODE = 0o644  # permissions of written files (tempfile.mkstemp would leave 0o600)
 SAMPLE_TIME_TOLERANCE = 1e-3  # relative deviation of a time step from sample_time that is accepted
 
 
@@ -345,58 +343,6 @@ def _csv_text(rec: Recording) -> str:
     return buffer.getvalue()
 
 
-def atomic_write_texts(files: dict[Path, str | bytes]) -> None:
-    """Write several files (text, or bytes written as they are) so that either all new contents appear or none do.
-
-    Each text goes to a temporary file in the target's directory (flushed and fsynced), then all are moved into
-    place with os.replace. If a move fails, targets already replaced are restored from hard-link backups of
-    their previous contents (or removed if they did not exist), so no partial set of files is left behind.
-    """
-    temps: dict[Path, str] = {}
-    backups: dict[Path, str | None] = {}
-    done: list[Path] = []
-    try:
-        for target, text in files.items():
-            # the name is recorded before the file exists, so an interrupt at any point leaves no temporary file
-            temps[target] = tmp = str(target.parent / f".{target.name}.{uuid.uuid4().hex}.tmp")
-            fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, FILE_MODE)
-            os.fchmod(fd, FILE_MODE)
-            binary = isinstance(text, bytes)
-            with (os.fdopen(fd, "wb") if binary else os.fdopen(fd, "w", encoding="utf-8", newline="")) as handle:
-                handle.write(text)
-                handle.flush()
-                os.fsync(handle.fileno())
-        for target in files:
-            if target.exists():
-                backups[target] = backup = str(target.parent / f".{target.name}.{uuid.uuid4().hex}.bak")
-                try:
-                    os.link(target, backup)
-                except OSError:
-                    shutil.copy2(target, backup)
-                backups[target] = backup
-            else:
-                backups[target] = None
-        for target in files:
-            os.replace(temps[target], target)
-            del temps[target]
-            done.append(target)
-    except BaseException:
-        for target in done:
-            backup = backups.get(target)
-            if backup is None:
-                target.unlink(missing_ok=True)
-            else:
-                os.replace(backup, target)
-                backups[target] = None
-        raise
-    finally:
-        for tmp in temps.values():
-            Path(tmp).unlink(missing_ok=True)
-        for backup in backups.values():
-            if backup is not None:
-                Path(backup).unlink(missing_ok=True)
-
-
 def write_figure(path: str | os.PathLike, fig: Any, dpi: int = 110) -> Path:
     """Save a matplotlib figure as a PNG at ``path`` atomically (all or nothing, ordinary file mode)."""
     buffer = io.BytesIO()
@@ -437,16 +383,8 @@ def write_mat(path: str | os.PathLike, rec: Recording) -> Path:
         "time_unit": rec.units.get("time", "s"),
         "meta_json": json.dumps({key: rec.meta.get(key) for key in META_KEYS}, allow_nan=False),
     }
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        os.fchmod(fd, FILE_MODE)
-        with os.fdopen(fd, "wb") as handle:
-            scipy.io.savemat(handle, contents, do_compression=False, oned_as="column")
-            handle.flush()
-            os.fsync(handle.fileno())
-        os.replace(tmp, path)
-    finally:
-        Path(tmp).unlink(missing_ok=True)
+    with atomic_path(path) as tmp:
+        scipy.io.savemat(tmp, contents, do_compression=False, oned_as="column")
     return path
 
 

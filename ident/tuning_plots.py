@@ -121,7 +121,7 @@ def write_loop_figure(path: str | os.PathLike, parameters: dict[str, float],
                       plants: Sequence[JointModel | control.LTI], delay_samples: int = 1,
                       labels: Sequence[str] | None = None, title: str = "", spec: TuningSpec | None = None,
                       margins: Sequence[LoopMargins] | None = None) -> Path:
-    """Render :func:`loop_figure` to a PNG at ``path`` atomically (temporary file + os.replace)."""
+    """Render :func:`loop_figure` to a PNG at ``path`` atomically (through :func:`harness.recording.write_figure`)."""
     import matplotlib.pyplot as plt
 
     fig = loop_figure(parameters, plants, delay_samples, labels, title, spec, margins)

@@ -22,4 +22,4 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("bundle", type=Path, help="bundle folder with experiment.json, plant .mo, train/validation CSV")
     p.add_argument("--out", type=Path, required=True, help="output folder (diagnosis.json, report.md, FMU, ...)")
     p.add_argument("--quiet", action="store_true", help="do not print progress")
-    p.set_defaults(func=_diagnose, output_folders=("out",))
+    p.set_defaults(func=_diagnose, output_folders=("out",), staged_folders=("out",))

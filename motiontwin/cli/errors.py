@@ -2,7 +2,8 @@
 that run before a subcommand does any work.
 
 A subcommand declares its paths with ``set_defaults``: ``output_files`` and ``output_folders`` (names of
-arguments that are written), ``input_fmus`` (arguments that must be FMU archives). :func:`preflight` checks
+arguments that are written; ``staged_folders`` those of them whose contents are staged in the folder above
+and moved in at the end), ``input_fmus`` (arguments that must be FMU archives). :func:`preflight` checks
 them, so a read-only target, a file where a folder is expected or a non-zip ``.fmu`` fail in milliseconds,
 before a build or a simulation, and nothing is written.
 """
@@ -83,19 +84,21 @@ def _writable_location(option: str, path: Path, folder: bool) -> None:
                           f"change its permissions")
 
 
+def _declared(args: argparse.Namespace, kind: str) -> list[tuple[str, str]]:
+    """(option, value) of the arguments a subcommand declared as ``kind`` and the user gave."""
+    return [("--" + name.replace("_", "-"), getattr(args, name)) for name in getattr(args, kind, ())
+            if getattr(args, name, None) is not None]
+
+
 def preflight(args: argparse.Namespace) -> None:
     """Check the output and FMU arguments a subcommand declared (see the module docstring)."""
     from motiontwin.fmus.archive import read_description
 
-    for name in getattr(args, "output_files", ()):
-        value = getattr(args, name, None)
-        if value is not None:
-            _writable_location("--" + name.replace("_", "-"), Path(value), folder=False)
-    for name in getattr(args, "output_folders", ()):
-        value = getattr(args, name, None)
-        if value is not None:
-            _writable_location("--" + name.replace("_", "-"), Path(value), folder=True)
-    for name in getattr(args, "input_fmus", ()):
-        value = getattr(args, name, None)
-        if value is not None:
-            read_description(value)
+    for option, value in _declared(args, "output_files"):
+        _writable_location(option, Path(value), folder=False)
+    for option, value in _declared(args, "output_folders"):
+        _writable_location(option, Path(value), folder=True)
+    for option, value in _declared(args, "staged_folders"):
+        _writable_location(f"{option} (staged in the folder above)", Path(value).absolute().parent, folder=True)
+    for _, value in _declared(args, "input_fmus"):
+        read_description(value)
