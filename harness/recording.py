@@ -250,6 +250,9 @@ def _parse_csv(path: Path) -> tuple[list[str], np.ndarray, RecordingError | None
     if not rows:
         raise RecordingError(f"{path}, row 1: empty file, expected a header line")
     header = [cell.strip() for cell in rows[0]]
+    if "time" not in header:   # not a recording: nothing of its content is echoed (it may be any file)
+        raise RecordingError(f"{path}, row 1: not a recording, the first line names no column 'time' (a "
+                             f"recording starts with a header of column names, see the recording format)")
     for j, name in enumerate(header):
         if not name:
             raise RecordingError(f"{path}, row 1, column {j + 1}: empty column name in the header")

@@ -7,18 +7,19 @@ import argparse
 import sys
 
 from motiontwin.ident.diagnosis.bundle import BundleError, make_bundle, read_bundle
-from motiontwin.ident.diagnosis.pipeline import Diagnosis, diagnose, diagnose_bundle
+from motiontwin.ident.diagnosis.pipeline import Diagnosis, diagnose, diagnose_bundle, diagnose_bundle_object
 from motiontwin.ident.startvalues import DivergenceError
 
 __all__ = ["BundleError", "Diagnosis", "DivergenceError", "diagnose", "diagnose_bundle", "main", "make_bundle",
            "read_bundle"]
 
 
-def run(bundle: str, out: str, quiet: bool = False) -> int:
-    """Diagnose ``bundle`` into ``out``; print a one-line summary; exit code 0, or 2 on a bad bundle."""
+def run(bundle: str, out: str, quiet: bool = False, allow_outside_paths: bool = False) -> int:
+    """Diagnose ``bundle`` into ``out``; print a one-line summary; exit code 0, or 2 on a bad bundle (files
+    named in its experiment.json must lie inside it unless ``allow_outside_paths``)."""
     progress = None if quiet else (lambda msg: print(msg, file=sys.stderr, flush=True))
     try:
-        doc = diagnose_bundle(bundle, out, progress=progress)
+        doc = diagnose_bundle_object(read_bundle(bundle, allow_outside_paths), progress).write(out)
     except BundleError as exc:
         print(f"motiontwin diagnose: bad bundle: {exc}", file=sys.stderr)
         return 2
