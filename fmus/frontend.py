@@ -17,6 +17,8 @@ from typing import Any
 
 import casadi as ca
 
+from motiontwin.fmus import limits
+
 for _cls in (ca.MX, ca.SX, ca.DM):  # pymoca 0.12 looks operators and Modelica built-ins up by these names
     _cls.__div__ = _cls.__truediv__
     _cls.atan, _cls.asin, _cls.acos = _cls.arctan, _cls.arcsin, _cls.arccos
@@ -92,11 +94,8 @@ def _import_pymoca() -> tuple[Any, Any, Any]:
 
 
 def _mo_text(path: Path) -> str:
-    """The text of a Modelica file; ModelicaError naming it when it is not UTF-8."""
-    try:
-        return path.read_text(encoding="utf-8")
-    except UnicodeDecodeError as exc:
-        raise ModelicaError(f"{path}: not UTF-8 text (byte {exc.start}: {exc.reason})") from None
+    """The text of a Modelica file; ModelicaError naming it when it is not UTF-8 or beyond the size limit."""
+    return limits.read_text(path, ModelicaError)
 
 
 def _mo_files(source: Path) -> list[Path]:

@@ -43,6 +43,7 @@ from typing import Any, Iterable, Sequence
 import numpy as np
 import scipy.io
 
+from motiontwin.fmus import limits
 from motiontwin.fmus.files import atomic_path, atomic_write_texts
 
 FORMAT_NAME = "motiontwin-recording"
@@ -238,12 +239,13 @@ def _parse_csv(path: Path) -> tuple[list[str], np.ndarray, RecordingError | None
     Returns the header, the rows before the first malformed one, and the error for that row (or None), so the
     caller can still report an earlier problem in the well-formed rows (e.g. time going backwards) first.
     """
+    limits.check_size(path, "recording", RecordingError)
+    raw = path.read_bytes()
+    limits.check_rows(path, raw.count(b"\n") - 1, RecordingError)
     try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise RecordingError(f"{path}: file not found") from None
+        text = raw.decode("utf-8")
     except UnicodeDecodeError as exc:
-        raise RecordingError(f"{path}: not UTF-8 text ({exc})") from None
+        raise RecordingError(f"{path}: not UTF-8 text (byte {exc.start}: {exc.reason})") from None
     rows = list(csv.reader(io.StringIO(text)))
     while rows and not any(cell.strip() for cell in rows[-1]):
         rows.pop()
@@ -251,8 +253,8 @@ def _parse_csv(path: Path) -> tuple[list[str], np.ndarray, RecordingError | None
         raise RecordingError(f"{path}, row 1: empty file, expected a header line")
     header = [cell.strip() for cell in rows[0]]
     if "time" not in header:   # not a recording: nothing of its content is echoed (it may be any file)
-        raise RecordingError(f"{path}, row 1: not a recording, the first line names no column 'time' (a "
-                             f"recording starts with a header of column names, see the recording format)")
+        raise RecordingError(f"{path}, row 1: required column 'time' missing; not a recording (a recording "
+                             f"starts with a header line of column names, 'time' among them)")
     for j, name in enumerate(header):
         if not name:
             raise RecordingError(f"{path}, row 1, column {j + 1}: empty column name in the header")
@@ -278,10 +280,7 @@ def _parse_csv(path: Path) -> tuple[list[str], np.ndarray, RecordingError | None
 def _read_sidecar(path: Path) -> dict[str, Any] | None:
     if not path.exists():
         return None
-    try:
-        doc = json.loads(path.read_text(encoding="utf-8"))
-    except json.JSONDecodeError as exc:
-        raise RecordingError(f"{path}, line {exc.lineno}, column {exc.colno}: invalid JSON ({exc.msg})") from None
+    doc = limits.load_json(path, RecordingError)
     if not isinstance(doc, dict):
         raise RecordingError(f"{path}: the sidecar must be a JSON object")
     if doc.get("format", FORMAT_NAME) != FORMAT_NAME:

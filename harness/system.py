@@ -47,11 +47,11 @@ Errors name the file, the TOML table/field and, when it can be found, the line.
 from __future__ import annotations
 
 import json
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from motiontwin.fmus.limits import load_toml
 from motiontwin.harness.numbers import is_finite_number
 
 INPUT_NAMESPACE = "input"
@@ -302,13 +302,7 @@ def system_from_dict(data: dict[str, Any], source: str | Path | None = None, tex
 def load_system(path: str | Path) -> System:
     """Read and validate a TOML system description file."""
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-        data = tomllib.loads(text)
-    except UnicodeDecodeError as exc:
-        raise SystemFileError(f"{path}: not UTF-8 text (byte {exc.start}: {exc.reason})") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise SystemFileError(f"{path}: {exc}") from None
+    data, text = load_toml(path, SystemFileError)
     return system_from_dict(data, source=path, text=text)
 
 

@@ -23,7 +23,6 @@ Units: those of the recording and model (SI).
 """
 from __future__ import annotations
 
-import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -33,6 +32,7 @@ import numpy as np
 from scipy.stats import chi2
 
 from motiontwin.fmus import symbolic
+from motiontwin.fmus.limits import load_json
 from motiontwin.harness.recording import Recording, write_figure
 from motiontwin.ident import outputerror as oe
 from motiontwin.ident.controller import Controller
@@ -82,10 +82,7 @@ def load_model_spec(path: Path | None, *, class_name: str | None = None, modelic
                         continue
             source = f"start values of {path}"
         elif path.suffix.lower() == ".json":
-            try:
-                doc = json.loads(path.read_text(encoding="utf-8"))
-            except json.JSONDecodeError as exc:
-                raise ValueError(f"{path}, line {exc.lineno}, column {exc.colno}: invalid JSON ({exc.msg})") from None
+            doc = load_json(path)
             if not isinstance(doc, dict) or not isinstance(doc.get("parameters"), dict):
                 raise ValueError(f"{path}: field 'parameters' (an object of name: value) missing")
             for key, value in doc["parameters"].items():

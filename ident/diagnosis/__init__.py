@@ -5,6 +5,9 @@ from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
+
+from motiontwin.fmus.limits import load_json
 
 from motiontwin.ident.diagnosis.bundle import BundleError, make_bundle, read_bundle
 from motiontwin.ident.diagnosis.pipeline import Diagnosis, diagnose, diagnose_bundle, diagnose_bundle_object
@@ -19,6 +22,9 @@ def run(bundle: str, out: str, quiet: bool = False, allow_outside_paths: bool = 
     named in its experiment.json must lie inside it unless ``allow_outside_paths``)."""
     progress = None if quiet else (lambda msg: print(msg, file=sys.stderr, flush=True))
     try:
+        experiment = Path(bundle) / "experiment.json"
+        if experiment.is_file():   # size, UTF-8 and nesting checked before the bundle reader parses it
+            load_json(experiment, BundleError)
         doc = diagnose_bundle_object(read_bundle(bundle, allow_outside_paths), progress).write(out)
     except BundleError as exc:
         print(f"motiontwin diagnose: bad bundle: {exc}", file=sys.stderr)
