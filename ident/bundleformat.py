@@ -1,5 +1,6 @@
 """The diagnosis bundle format as text: a module without heavy imports, so that ``motiontwin --help``
 stays fast (the CLI prints it in ``motiontwin diagnose --help``)."""
+from motiontwin.fmus.limits import limits_help
 
 #: The bundle format, as ``motiontwin diagnose --help`` prints it.
 BUNDLE_FORMAT = """\
@@ -23,4 +24,6 @@ train.csv, validation.csv: columns time [s], r [m], u [N], q [m], optional u_ext
 controller's instants (step Ts); closed loop: u = controller output + u_ext is the force the plant got.
 Every file named in experiment.json must resolve (symbolic links followed) inside the bundle folder.
 The recordings may start while the loop is moving.
+
 """
+BUNDLE_FORMAT += limits_help().replace("; ", ";\n  ") + "\n"
