@@ -98,13 +98,17 @@ class FMUInstance:
                       modelIdentifier=md.coSimulation.modelIdentifier, instanceName=name)
         # loggingOn = False still passes warnings and errors to the logger (FMI 2.0/3.0), without
         # the per-call debug messages some exporters emit when it is on.
-        if self.fmi3:
-            self.slave = FMU3Slave(**kwargs)
-            self.slave.instantiate(loggingOn=debug_logging, logMessage=self._log3)
-        else:
-            self.slave = FMU2Slave(**kwargs)
-            self._callbacks = _fmi2_callbacks(self)
-            self.slave.instantiate(callbacks=self._callbacks, loggingOn=debug_logging)
+        try:
+            if self.fmi3:
+                self.slave = FMU3Slave(**kwargs)
+                self.slave.instantiate(loggingOn=debug_logging, logMessage=self._log3)
+            else:
+                self.slave = FMU2Slave(**kwargs)
+                self._callbacks = _fmi2_callbacks(self)
+                self.slave.instantiate(callbacks=self._callbacks, loggingOn=debug_logging)
+        except Exception as exc:   # fmpy raises a bare Exception when the FMU's instantiate returns NULL
+            logged = "; ".join(self.messages) or "the FMU logged no message"
+            raise ValueError(f"FMU '{name}' ({self.path}): {exc} ({logged}); the FMU cannot run here") from None
         self.initialized = False
         self.initial_state: tuple[Any, Any] | None = None
 

@@ -100,12 +100,16 @@ def _read_hdf5(path: Path, matlab: bool) -> dict[str, np.ndarray]:
     except ImportError:
         raise RecordingError(f"{path}: reading HDF5 (and MATLAB v7.3) files needs h5py (pip install h5py)") from None
     out: dict[str, np.ndarray] = {}
-    with h5py.File(path, "r") as handle:
-        def visit(name: str, obj: Any) -> None:
-            if isinstance(obj, h5py.Dataset) and obj.dtype.kind in "iuf":
-                key = name.replace("/", ".") if matlab else "/" + name
-                _flatten(obj[()], key, out, matlab)
-        handle.visititems(visit)
+
+    def visit(name: str, obj: Any) -> None:
+        if isinstance(obj, h5py.Dataset) and obj.dtype.kind in "iuf":
+            key = name.replace("/", ".") if matlab else "/" + name
+            _flatten(obj[()], key, out, matlab)
+    try:
+        with h5py.File(path, "r") as handle:
+            handle.visititems(visit)
+    except OSError as exc:   # h5py's errors name neither the file nor, often, the problem in plain words
+        raise RecordingError(f"{path}: not a readable HDF5 file ({exc})") from None
     return out
 
 

@@ -211,7 +211,7 @@ def validate_recording(rec: Recording, required: Iterable[str] = ("time",), sour
         if off.size:
             i = int(off[0]) + 1
             problems.append((i, 0, (
-                f"column 'time': step {float(steps[i - 1])!r} s differs from sample_time {sample_time!r} s"
+                f"column 'time': step {steps[i - 1]:.9g} s differs from sample_time {sample_time:.9g} s"
             )))
     if problems:
         i, _, message = min(problems)

@@ -227,6 +227,8 @@ def system_from_dict(data: dict[str, Any], source: str | Path | None = None, tex
         for pname, value in parameters.items():
             if not isinstance(value, (bool, int, float, str)):
                 raise ctx.error(f"[fmus.{name}.parameters] {pname}", f"unsupported value {value!r}", pname)
+            if isinstance(value, float) and not is_finite_number(value):
+                raise ctx.error(f"[fmus.{name}.parameters] {pname}", f"must be a finite number, got {value!r}", pname)
         ts_parameter = table.get("ts_parameter", "Ts")
         if not isinstance(ts_parameter, str):
             raise ctx.error(f"{where} ts_parameter", f"expected a variable name, got {ts_parameter!r}", needle)

@@ -234,6 +234,14 @@ def validate(model: symbolic.SymbolicModel, spec: ModelSpec, rec: Recording, *, 
     if unknown:
         raise KeyError(f"{spec.source}: class {spec.class_name} has no parameter {', '.join(map(repr, unknown))}; "
                        f"its parameters are {', '.join(names)}")
+    for var in model.parameters:
+        value = spec.values.get(var.name)
+        if value is not None and not var.min <= value <= var.max:
+            bound = f"below its minimum {var.min:g}" if value < var.min else f"above its maximum {var.max:g}"
+            raise ValueError(f"{spec.source}: parameter {var.name} = {value:g} is {bound} (class {spec.class_name})")
+    if isinstance(lags, bool) or not isinstance(lags, (int, np.integer)) or not 1 <= lags < rec.time.size // 2:
+        raise ValueError(f"lags = {lags}: must be a whole number from 1 to {rec.time.size // 2 - 1} (half the "
+                         f"{rec.time.size} samples)")
     needed = [signals.output, signals.input] + ([signals.reference] if controller is not None else [])
     missing = [c for c in needed if c not in rec.columns]
     if missing:
@@ -243,8 +251,8 @@ def validate(model: symbolic.SymbolicModel, spec: ModelSpec, rec: Recording, *, 
     bad = np.flatnonzero(np.abs(steps - ts) > 1e-3 * ts)
     if bad.size:
         i = int(bad[0])
-        raise ValueError(f"recording row {i + 3}, column 'time': step {steps[i]!r} s differs from the sample period "
-                         f"{ts} s (the re-simulation needs uniform sampling)")
+        raise ValueError(f"recording row {i + 3}, column 'time': step {steps[i]:.9g} s differs from the sample period "
+                         f"{ts:.9g} s (the re-simulation needs uniform sampling)")
     loop = oe.build_loop(model, controller, signals.output, [], dict(spec.values), rec.time.size, ts=ts,
                          signals=signals, input_name=signals.input if signals.input in
                          [v.name for v in model.inputs] else None)
