@@ -158,7 +158,7 @@ def check_run_length(start_time: float, stop_time: float, step: float, where: st
     when it exceeds :data:`MAX_STEPS` (a typo like 1e300 s would otherwise exhaust memory)."""
     steps = (stop_time - start_time) / step
     if not steps <= MAX_STEPS:
-        raise ValueError(f"{where} = {stop_time!r} s gives {steps:.3g} steps of {step!r} s, more than the limit of "
+        raise ValueError(f"{where} = {stop_time:.9g} s gives {steps:.3g} steps of {step:.9g} s, more than the limit of "
                          f"{MAX_STEPS:.0e}; shorten the run or lengthen the step")
     return round(steps)
 

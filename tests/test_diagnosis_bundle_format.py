@@ -1,5 +1,6 @@
 """The bundle format (issue 13): the JSON Schema shipped in the package, errors naming the field, the plant
-by library class name or by a path outside the bundle (only when allowed), and the format in ``motiontwin diagnose --help``.
+by library class name or by a path outside the bundle (only when allowed), and the format in
+``motiontwin diagnose --help``.
 
 References: jsonschema's own meta-schema check (Draft 2020-12), the generator's experiment.json, and the
 library class's equations (the same states and parameters as the flat plant file)."""
