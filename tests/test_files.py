@@ -87,13 +87,36 @@ def test_build_into_a_mount_point(mount_point, capsys) -> None:
     assert [p.name for p in mount_point.rglob("*") if p.name.startswith(".")] == []
 
 
-def test_full_disk_names_the_file_and_keeps_the_earlier_one(full_mount, capsys) -> None:
+def test_full_disk_names_the_file_and_keeps_the_earlier_one(full_mount) -> None:
     target = full_mount / "x.csv"
     with pytest.raises(OSError) as caught:
         atomic_write_texts({target: "a" * 100_000})
     assert caught.value.errno == errno.ENOSPC and caught.value.filename == str(target)
     assert not target.exists()
-    assert main(["excite", str(EXPERIMENT), "--out", str(target)]) == 1
+    assert sorted(p.name for p in full_mount.iterdir()) == ["filler"]
+
+
+@pytest.mark.parametrize("command", ["excite", "build", "writeback", "import"])
+def test_full_disk_is_one_line_naming_the_output(command, full_mount, tmp_path, capsys) -> None:
+    import numpy as np
+    import scipy.io
+
+    from motiontwin.fmus import build
+
+    fmu = build.build(["MotionTwin.Plants.LinearMotorJoint"], out_dir=tmp_path / "fmus", fmi_versions=("2.0",),
+                      workers=1)[0].path
+    scipy.io.savemat(tmp_path / "lab.mat", {"time": np.arange(100) * 1e-3, "q": np.zeros(100)})
+    argv, named = {
+        "excite": (["excite", str(EXPERIMENT), "--out", str(full_mount / "x.csv")], full_mount / "x.csv"),
+        "build": (["build", "MotionTwin.Plants.LinearMotorJoint", "--fmi", "2.0", "--out", str(full_mount / "f")],
+                  full_mount / "f"),
+        "writeback": (["writeback", str(fmu), "--set", "m=3", "--out", str(full_mount / "w.fmu")],
+                      full_mount / "w.fmu"),
+        "import": (["import", str(tmp_path / "lab.mat"), "--out", str(full_mount / "lab.csv")],
+                   full_mount / "lab.csv"),
+    }[command]
+    capsys.readouterr()
+    assert main(argv) == 1
     err = capsys.readouterr().err
-    assert err == f"motiontwin excite: {target}: no space left on the device; free space and run again\n"
+    assert err == f"motiontwin {command}: {named}: no space left on the device; free space and run again\n"
     assert sorted(p.name for p in full_mount.iterdir()) == ["filler"]

@@ -12,11 +12,13 @@ from __future__ import annotations
 import argparse
 import errno
 import os
+import re
 from pathlib import Path
 
 __all__ = ["PathProblem", "os_error_message", "preflight"]
 
 _INTERNAL_SUFFIXES = (".tmp", ".part", ".bak")  # temporary files of the atomic writers
+_STAGING = re.compile(r"\.(.+?)(?:-staging-|\.work-)\w+")  # staging folders beside an output folder
 
 
 class PathProblem(ValueError):
@@ -24,10 +26,15 @@ class PathProblem(ValueError):
 
 
 def _shown_path(name: str | os.PathLike | None) -> str | None:
-    """The path a user knows: an atomic writer's hidden temporary file is reported as its folder."""
+    """The path a user knows: an atomic writer's hidden temporary file is reported as its folder, a file in a
+    staging folder (``.OUT-staging-*``, ``.OUT.work-*``) as the output folder ``OUT``."""
     if name is None:
         return None
     path = Path(os.fsdecode(name))
+    for k, part in enumerate(path.parts):
+        staged = _STAGING.fullmatch(part)
+        if staged:
+            return str(Path(*path.parts[:k], staged.group(1)))
     if path.name.startswith(".") and path.name.endswith(_INTERNAL_SUFFIXES):
         return str(path.parent)
     return str(path)
