@@ -85,7 +85,8 @@ class FMUInstance:
         self.name = name
         self.path = Path(path)
         if not self.path.is_file():
-            raise FileNotFoundError(f"FMU '{name}': file not found: {self.path}")
+            what = "a folder, not an FMU file" if self.path.is_dir() else "file not found"
+            raise FileNotFoundError(f"FMU '{name}': {what}: {self.path}")
         self.model_description = md = read_description(self.path)
         if md.coSimulation is None:
             raise ValueError(f"FMU '{name}' ({self.path}) does not support Co-Simulation")

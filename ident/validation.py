@@ -68,7 +68,7 @@ def load_model_spec(path: Path | None, *, class_name: str | None = None, modelic
     if path is not None:
         path = Path(path)
         if not path.is_file():
-            raise FileNotFoundError(f"{path}: model file not found")
+            raise FileNotFoundError(f"{path}: model file not found" + (" (it is a folder)" if path.is_dir() else ""))
         if path.suffix.lower() == ".fmu":
             import fmpy
 

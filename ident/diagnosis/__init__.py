@@ -23,7 +23,7 @@ def run(bundle: str, out: str, quiet: bool = False, allow_outside_paths: bool = 
     progress = None if quiet else (lambda msg: print(msg, file=sys.stderr, flush=True))
     try:
         experiment = Path(bundle) / "experiment.json"
-        if experiment.is_file():   # size, UTF-8 and nesting checked before the bundle reader parses it
+        if experiment.exists():   # a folder, size, UTF-8 and nesting checked before the bundle reader parses it
             load_json(experiment, BundleError)
         doc = diagnose_bundle_object(read_bundle(bundle, allow_outside_paths), progress).write(out)
     except BundleError as exc:
