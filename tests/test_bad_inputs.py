@@ -101,6 +101,12 @@ def _linked_bundle(root: Path) -> Path:
     return folder
 
 
+def _huge_bundle(root: Path) -> Path:
+    folder = _bundle(root)
+    (folder / "experiment.json").write_text("[" + "0," * 8_500_000 + "0]")
+    return folder
+
+
 def _long_bundle(root: Path) -> Path:
     folder = _bundle(root)
     (folder / "train.csv").write_text("time,r,u,q\n" + "0,0,0,0\n" * 1_000_000)
@@ -173,6 +179,17 @@ CASES: dict[str, tuple[Callable[[Path, Path], list[str]], int, str]] = {
         lambda d, f: ["diagnose", str(_long_bundle(d)), "--out", str(d / "o")],
         2, "train.csv: 1000000 rows, too many (the limit for the samples of one recording read is 500000 rows; "
            "raise it with MOTIONTWIN_MAX_ROWS=1000000"),
+    "diagnose: a 17 MB experiment.json": (
+        lambda d, f: ["diagnose", str(_huge_bundle(d)), "--out", str(d / "o")],
+        2, "experiment.json: 17.0 MB, too large (the limit for a JSON, TOML or Modelica input file is 16 MB; "
+           "raise it with MOTIONTWIN_MAX_TEXT_MB=18 if intended)"),
+    "diagnose: experiment.json is a folder": (
+        lambda d, f: ["diagnose", str((d / "b" / "experiment.json").mkdir(parents=True) or d / "b"), "--out",
+                      str(d / "o")],
+        2, "experiment.json: is a folder, expected a file"),
+    "run: an FMU path that is a folder": (
+        lambda d, f: ["run", str(_system(d, d)), "--out", str(d / "o.csv")],
+        1, "FMU 'pi': a folder, not an FMU file"),
     "sweep: colliding sanitised case names": (
         lambda d, f: ["sweep", str(_sweep(d, f, '[[case]]\nname = "a b"\n[[case]]\nname = "a_b"\n')),
                       "--out", str(d / "o")],
