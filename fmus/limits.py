@@ -72,7 +72,7 @@ def check_size(path: str | os.PathLike, kind: str, error: type[Exception] = Valu
     try:
         size = path.stat().st_size
     except FileNotFoundError:
-        raise error(f"{path}: file not found") from None
+        raise error(f"{path}: not found; check the path") from None
     if path.is_dir():
         raise error(f"{path}: is a folder, expected a file")
     if size > limit(kind) * 1e6:
