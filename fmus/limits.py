@@ -32,6 +32,8 @@ LIMITS = {
     "text": Limit("MOTIONTWIN_MAX_TEXT_MB", 16, "MB", "a JSON, TOML or Modelica input file"),
     "recording": Limit("MOTIONTWIN_MAX_RECORDING_MB", 256, "MB", "a recording or lab data file (CSV, MAT, HDF5)"),
     "rows": Limit("MOTIONTWIN_MAX_ROWS", 500_000, "rows", "the samples of one recording read"),
+    "steps": Limit("MOTIONTWIN_MAX_STEPS", 1e8, "steps", "the base steps (or samples) of one run or "
+                                                          "experiment (800 MB per logged signal)"),
     "memory": Limit("MOTIONTWIN_MAX_MEMORY_MB", 0, "MB", "a generated signal table (0: half the memory "
                                                          "available)"),
 }
@@ -61,7 +63,7 @@ def _how_to_raise(name: str, needed: float | None = None) -> str:
 def limits_help() -> str:
     """The limits and their environment variables, for ``--help``."""
     return "limits (environment variables): " + "; ".join(
-        f"{s.variable} ({s.bounds}, default {s.default:g}{'' if s.unit == 'rows' else ' ' + s.unit})"
+        f"{s.variable} ({s.bounds}, default {s.default:g} {s.unit})"
         for s in LIMITS.values())
 
 

@@ -51,7 +51,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from motiontwin.fmus.limits import load_toml
+from motiontwin.fmus.limits import LIMITS, limit, load_toml
 from motiontwin.harness.numbers import is_finite_number
 
 INPUT_NAMESPACE = "input"
@@ -150,16 +150,15 @@ class _Context:
         return SystemFileError(f"{name}{line}: {where}: {message}")
 
 
-MAX_STEPS = 100_000_000  # base steps (or samples) one run may have: 800 MB per logged or input signal
-
-
 def check_run_length(start_time: float, stop_time: float, step: float, where: str) -> int:
     """The number of steps of ``step`` from ``start_time`` to ``stop_time``; ValueError naming ``where``
-    when it exceeds :data:`MAX_STEPS` (a typo like 1e300 s would otherwise exhaust memory)."""
+    when it exceeds the ``steps`` limit of :mod:`fmus.limits` (a typo like 1e300 s would otherwise exhaust
+    memory)."""
     steps = (stop_time - start_time) / step
-    if not steps <= MAX_STEPS:
+    most = limit("steps")
+    if not steps <= most:
         raise ValueError(f"{where} = {stop_time:.9g} s gives {steps:.3g} steps of {step:.9g} s, more than the limit of "
-                         f"{MAX_STEPS:.0e}; shorten the run or lengthen the step")
+                         f"{most:.0e}; shorten the run or lengthen the step (or raise {LIMITS['steps'].variable})")
     return round(steps)
 
 
