@@ -82,7 +82,8 @@ def staging_folder(out: Path) -> Iterator[Path]:
     ``out`` when its parent is writable, else (``out`` is e.g. a mount point under a read-only folder) a
     hidden folder inside ``out``. Move the finished files in with :func:`move_file`."""
     out.parent.mkdir(parents=True, exist_ok=True)
-    inside = out.is_dir() and not os.access(out.parent, os.W_OK | os.X_OK)
+    inside = out.is_dir() and not os.access(out.parent, os.W_OK | os.X_OK,
+                                            effective_ids=os.access in os.supports_effective_ids)
     with tempfile.TemporaryDirectory(prefix=f".{out.name}-staging-", dir=out if inside else out.parent) as tmp:
         yield Path(tmp)
 

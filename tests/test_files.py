@@ -16,7 +16,7 @@ import pytest
 
 from motiontwin.cli import main
 from motiontwin.fmus.files import atomic_write_texts, move_file
-from tests.test_cli_errors import EXPERIMENT
+from tests.test_cli_errors import EXPERIMENT, world_readable_dir  # noqa: F401 (a fixture)
 
 
 def _mount(point: Path, size: str) -> Iterator[Path]:
@@ -120,3 +120,25 @@ def test_full_disk_is_one_line_naming_the_output(command, full_mount, tmp_path, 
     err = capsys.readouterr().err
     assert err == f"motiontwin {command}: {named}: no space left on the device; free space and run again\n"
     assert sorted(p.name for p in full_mount.iterdir()) == ["filler"]
+
+
+def test_staging_goes_inside_an_output_folder_whose_parent_is_read_only(world_readable_dir) -> None:
+    from motiontwin.fmus.files import staging_folder
+    from tests.test_cli_errors import _unprivileged
+
+    parent = world_readable_dir / "ro"
+    out = parent / "out"
+    out.mkdir(parents=True)
+    out.chmod(0o777)
+    parent.chmod(0o555)
+    try:
+        with _unprivileged():
+            with staging_folder(out) as staging:
+                assert staging.parent == out and staging.name.startswith(".out-staging-")
+                (staging / "a.fmu").write_bytes(b"fmu")
+                move_file(staging / "a.fmu", out / "a.fmu")
+            assert [p.name for p in out.iterdir()] == ["a.fmu"]
+            with staging_folder(out / "new") as staging:   # the usual case: beside the folder
+                assert staging.parent == out and staging.name.startswith(".new-staging-")
+    finally:
+        parent.chmod(0o755)
