@@ -107,6 +107,12 @@ def _huge_bundle(root: Path) -> Path:
     return folder
 
 
+def _huge_plant_bundle(root: Path) -> Path:
+    folder = _bundle(root, plant={"modelica": "plant.mo", "class": "P"})
+    (folder / "plant.mo").write_text("model P\n" + "  // padding\n" * 1_307_000 + "end P;\n")
+    return folder
+
+
 def _long_bundle(root: Path) -> Path:
     folder = _bundle(root)
     (folder / "train.csv").write_text("time,r,u,q\n" + "0,0,0,0\n" * 1_000_000)
@@ -183,6 +189,9 @@ CASES: dict[str, tuple[Callable[[Path, Path], list[str]], int, str]] = {
         lambda d, f: ["diagnose", str(_huge_bundle(d)), "--out", str(d / "o")],
         2, "experiment.json: 17.0 MB, too large (the limit for a JSON, TOML or Modelica input file is 16 MB; "
            "raise it with MOTIONTWIN_MAX_TEXT_MB=18 if intended)"),
+    "diagnose: a 17 MB plant Modelica file": (
+        lambda d, f: ["diagnose", str(_huge_plant_bundle(d)), "--out", str(d / "o")],
+        2, "plant.mo: 17.0 MB, too large (the limit for a JSON, TOML or Modelica input file is 16 MB"),
     "diagnose: experiment.json is a folder": (
         lambda d, f: ["diagnose", str((d / "b" / "experiment.json").mkdir(parents=True) or d / "b"), "--out",
                       str(d / "o")],
