@@ -108,8 +108,8 @@ class FMUInstance:
                 self._callbacks = _fmi2_callbacks(self)
                 self.slave.instantiate(callbacks=self._callbacks, loggingOn=debug_logging)
         except Exception as exc:   # fmpy raises a bare Exception when the FMU's instantiate returns NULL
-            logged = "; ".join(self.messages) or "the FMU logged no message"
-            raise ValueError(f"FMU '{name}' ({self.path}): {exc} ({logged}); the FMU cannot run here") from None
+            logged = "; ".join(self.messages) or "nothing"
+            raise ValueError(f"FMU '{name}' ({self.path}): {exc}; it logged: {logged}") from None
         self.initialized = False
         self.initial_state: tuple[Any, Any] | None = None
 
