@@ -152,7 +152,7 @@ CASES: dict[str, tuple[Callable[[Path, Path], list[str]], int, str]] = {
         1, "row 42, column 'time': step 0.0012 s differs from the sample period 0.0005 s"),
     "run: a third-party FMU that fails to instantiate": (
         lambda d, f: ["run", str(_system(d, _wrong_guid(d, f))), "--out", str(d / "o.csv")],
-        1, "third_party.fmu): Failed to instantiate model"),
+        1, "third_party.fmu): Failed to instantiate model; it logged: [ERROR] logStatusError: Instantiate: token"),
     "run: text for a numeric system-file parameter": (
         lambda d, f: ["run", str(_system(d, f, **{"Kp = 2000.0": "m = \"big\""})), "--out", str(d / "o.csv")],
         1, "loop.toml: [fmus.pi.parameters] m = 'big': expected a number"),
