@@ -241,12 +241,15 @@ def _parse_csv(path: Path) -> tuple[list[str], np.ndarray, RecordingError | None
     """
     limits.check_size(path, "recording", RecordingError)
     raw = path.read_bytes()
-    limits.check_rows(path, raw.count(b"\n") - 1, RecordingError)
+    limits.check_rows(path, max(raw.count(b"\n"), raw.count(b"\r")) - 1, RecordingError)
     try:
         text = raw.decode("utf-8")
     except UnicodeDecodeError as exc:
         raise RecordingError(f"{path}: not UTF-8 text (byte {exc.start}: {exc.reason})") from None
-    rows = list(csv.reader(io.StringIO(text)))
+    try:
+        rows = list(csv.reader(io.StringIO(text, newline=None)))   # universal newlines: a lone \r ends a line
+    except csv.Error as exc:
+        raise RecordingError(f"{path}: not a CSV file ({exc})") from None
     while rows and not any(cell.strip() for cell in rows[-1]):
         rows.pop()
     if not rows:

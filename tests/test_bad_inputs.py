@@ -267,18 +267,21 @@ def _readers():
     from motiontwin.fmus.limits import load_json
     from motiontwin.harness.excitation import load_experiment
     from motiontwin.harness.recording import read_recording
+    from motiontwin.harness.labdata import read_lab_file
     from motiontwin.harness.system import load_system
+    from motiontwin.ident.controller import load_controller
     from motiontwin.ident.startvalues import read_values_file
 
-    return {"values.json": read_values_file, "any.json": load_json, "system.toml": load_system,
-            "experiment.toml": load_experiment, "recording.csv": read_recording}
+    return {"values.json": read_values_file, "any.json": load_json, "controller.json": load_controller,
+            "system.toml": load_system, "experiment.toml": load_experiment, "recording.csv": read_recording,
+            "lab.csv": read_lab_file}
 
 
 SEEDS = [NESTED.encode(), b"{" * 5000, b"a = " + b"[" * 5000, b"time,q\n0,1\n0,1e999\n", b"time\n" + b"0\n" * 3,
-         b'{"parameters": {"m": "big"}}', b"[fmus.a]\npath = 3\n", b"\xff\xfe"]
+         b'{"parameters": {"m": "big"}}', b"[fmus.a]\npath = 3\n", b"\xff\xfe", b"\r0", b'"time\r",q\n0,1\n']
 
 
-@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@settings(max_examples=100, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(content=st.one_of(st.sampled_from(SEEDS), st.binary(max_size=300),
                          st.text(alphabet='[]{}=",.:0123456789abtimeq\n -', max_size=300)),
        reader=st.sampled_from(sorted(_readers())))
