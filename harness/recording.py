@@ -280,6 +280,11 @@ def _parse_csv(path: Path) -> tuple[list[str], np.ndarray, RecordingError | None
     return header, data, None
 
 
+_SIDECAR_TYPES = {"version": (int, "an integer"), "columns": (list, "a list of column names"),
+                  "fmus": ((list, dict, type(None)), "a list or an object"),
+                  "parameters": ((dict, type(None)), "an object"), "metadata": ((dict, type(None)), "an object")}
+
+
 def _read_sidecar(path: Path) -> dict[str, Any] | None:
     if not path.exists():
         return None
@@ -288,6 +293,9 @@ def _read_sidecar(path: Path) -> dict[str, Any] | None:
         raise RecordingError(f"{path}: the sidecar must be a JSON object")
     if doc.get("format", FORMAT_NAME) != FORMAT_NAME:
         raise RecordingError(f"{path}: field 'format' is {doc['format']!r}, expected {FORMAT_NAME!r}")
+    for key, (kinds, wanted) in _SIDECAR_TYPES.items():
+        if key in doc and (isinstance(doc[key], bool) or not isinstance(doc[key], kinds)):
+            raise RecordingError(f"{path}: field {key!r} must be {wanted}, got {json.dumps(doc[key])[:40]}")
     if doc.get("version", FORMAT_VERSION) > FORMAT_VERSION:
         raise RecordingError(f"{path}: field 'version' {doc['version']} is newer than supported {FORMAT_VERSION}")
     units = doc.get("units", {})
