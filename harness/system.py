@@ -233,6 +233,10 @@ def system_from_dict(data: dict[str, Any], source: str | Path | None = None, tex
             raise ctx.error(f"{where} ts_parameter", f"expected a variable name, got {ts_parameter!r}", needle)
         fmus[name] = FMUSpec(name, path, step, sampled, dict(parameters), ts_parameter)
 
+    for key, kind, wanted in (("inputs", dict, "a table [inputs.NAME]"), ("connections", list, "an array of tables "
+                              "[[connections]]"), ("log", list, "an array of tables [[log]]")):
+        if data.get(key) is not None and not isinstance(data[key], kind):
+            raise ctx.error(key, f"must be {wanted}, got {data[key]!r}", key)
     inputs: dict[str, InputSpec] = {}
     for name, table in (data.get("inputs") or {}).items():
         where = f"[inputs.{name}]"
@@ -293,7 +297,7 @@ def system_from_dict(data: dict[str, Any], source: str | Path | None = None, tex
 
     order = data.get("order")
     if order is not None:
-        if not isinstance(order, list) or sorted(order) != sorted(fmus):
+        if not isinstance(order, list) or not all(isinstance(n, str) for n in order) or sorted(order) != sorted(fmus):
             raise ctx.error("order", f"must list every FMU instance exactly once: {sorted(fmus)}", "order")
         order = tuple(order)
 

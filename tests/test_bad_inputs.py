@@ -7,7 +7,10 @@ Each case writes its inputs into a fresh folder; the messages were a RecursionEr
 """
 from __future__ import annotations
 
+import contextlib
+import copy
 import json
+import math
 import os
 import re
 import zipfile
@@ -311,3 +314,41 @@ def test_readers_on_the_known_hostile_inputs(content: bytes, tmp_path: Path) -> 
        reader=st.sampled_from(sorted(_readers())))
 def test_readers_never_raise_anything_but_their_error(content: bytes | str, reader: str, tmp_path: Path) -> None:
     _read_one(reader, content, tmp_path)
+
+
+SYSTEM = {"base_step": 1e-4, "stop_time": 0.3, "fmus": {"pi": {"path": "a.fmu", "parameters": {"Kp": 1.0}},
+                                                        "plant": {"path": "b.fmu"}},
+          "inputs": {"r": {"unit": "m"}, "u_ext": {"unit": "N", "default": 0.0}},
+          "connections": [{"from": ["input.r", "plant.q"], "gains": [1.0, -1.0], "to": "pi.e"},
+                          {"from": ["pi.y", "input.u_ext"], "to": "plant.u"}],
+          "log": [{"signals": ["plant.q", "pi.y"]}], "order": ["pi", "plant"]}
+VALUES = [None, True, 0, -1, 1e300, math.nan, math.inf, "x", "", "input.r", [], ["x"], [1, "a"], {}, {"a": 1},
+          [{"a": 1}], [[1]]]
+
+
+def _places(doc, prefix: tuple = ()):
+    """Every key path of a nested dict/list document."""
+    items = doc.items() if isinstance(doc, dict) else enumerate(doc) if isinstance(doc, list) else ()
+    for key, value in items:
+        yield prefix + (key,)
+        yield from _places(value, prefix + (key,))
+
+
+@settings(max_examples=150, deadline=None)
+@given(edits=st.lists(st.tuples(st.sampled_from(list(_places(SYSTEM))), st.sampled_from(VALUES)), min_size=1,
+                      max_size=3))
+def test_system_file_structure_errors_name_the_file(edits) -> None:
+    """A system document with values of any type anywhere: accepted, or SystemFileError naming the file."""
+    from motiontwin.harness.system import SystemFileError, system_from_dict
+
+    doc = copy.deepcopy(SYSTEM)
+    for place, value in edits:   # an earlier edit may have replaced the container: then this one is skipped
+        with contextlib.suppress(KeyError, IndexError, TypeError):
+            target = doc
+            for key in place[:-1]:
+                target = target[key]
+            target[place[-1]] = copy.deepcopy(value)
+    try:
+        system_from_dict(doc, source=Path("/bundle/s.toml"))
+    except SystemFileError as exc:
+        assert str(exc).startswith("/bundle/s.toml"), exc
