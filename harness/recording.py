@@ -437,10 +437,9 @@ def read_mat(
     rename: foreign variable name -> recording column name (e.g. ``{"pos": "q", "force": "u"}``).
     """
     path = Path(path)
+    limits.check_size(path, "recording", RecordingError)
     try:
         raw = scipy.io.loadmat(path)
-    except FileNotFoundError:
-        raise RecordingError(f"{path}: file not found") from None
     except NotImplementedError:
         raise RecordingError(f"{path}: MATLAB v7.3 (HDF5) file; save it with save(..., '-v7') to import") from None
     except (ValueError, TypeError, OSError) as exc:
