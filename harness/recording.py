@@ -38,7 +38,7 @@ import json
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterable, Sequence
+from typing import Any, Iterable, Iterator, Sequence
 
 import numpy as np
 import scipy.io
@@ -233,28 +233,38 @@ def sidecar_path(csv_path: str | os.PathLike) -> Path:
     return Path(csv_path).with_suffix(".json")
 
 
+def _csv_rows(path: Path, raw: bytes) -> Iterator[list[str]]:
+    """The rows of the CSV text ``raw`` one at a time (universal newlines: a lone CR ends a line too)."""
+    try:
+        yield from csv.reader(io.TextIOWrapper(io.BytesIO(raw), encoding="utf-8", newline=None))
+    except csv.Error as exc:
+        raise RecordingError(f"{path}: not a CSV file ({exc})") from None
+
+
+def _blank(row: list[str]) -> bool:
+    return not any(cell.strip() for cell in row)
+
+
 def _parse_csv(path: Path) -> tuple[list[str], np.ndarray, RecordingError | None]:
     """Read header and numbers up to the first malformed line or field.
 
     Returns the header, the rows before the first malformed one, and the error for that row (or None), so the
     caller can still report an earlier problem in the well-formed rows (e.g. time going backwards) first.
+    Size and rows are checked first; the rows are parsed one at a time into the array (never a list of rows
+    of text), so the peak memory is about the file's size plus 8 bytes per value.
     """
     limits.check_size(path, "recording", RecordingError)
     raw = path.read_bytes()
     limits.check_rows(path, max(raw.count(b"\n"), raw.count(b"\r")) - 1, RecordingError)
     try:
-        text = raw.decode("utf-8")
+        raw.decode("utf-8")
     except UnicodeDecodeError as exc:
         raise RecordingError(f"{path}: not UTF-8 text (byte {exc.start}: {exc.reason})") from None
-    try:
-        rows = list(csv.reader(io.StringIO(text, newline=None)))   # universal newlines: a lone \r ends a line
-    except csv.Error as exc:
-        raise RecordingError(f"{path}: not a CSV file ({exc})") from None
-    while rows and not any(cell.strip() for cell in rows[-1]):
-        rows.pop()
-    if not rows:
+    rows = _csv_rows(path, raw)
+    first = next(rows, None)
+    if first is None or (_blank(first) and all(_blank(row) for row in rows)):
         raise RecordingError(f"{path}, row 1: empty file, expected a header line")
-    header = [cell.strip() for cell in rows[0]]
+    header = [cell.strip() for cell in first]
     if "time" not in header:   # not a recording: nothing of its content is echoed (it may be any file)
         raise RecordingError(f"{path}, row 1: required column 'time' missing; not a recording (a recording "
                              f"starts with a header line of column names, 'time' among them)")
@@ -263,21 +273,30 @@ def _parse_csv(path: Path) -> tuple[list[str], np.ndarray, RecordingError | None
             raise RecordingError(f"{path}, row 1, column {j + 1}: empty column name in the header")
         if name in header[:j]:
             raise RecordingError(f"{path}, row 1, column {name!r}: duplicate column name")
-    if len(rows) < 2:
-        raise RecordingError(f"{path}, row 2: no data rows after the header")
-    data = np.empty((len(rows) - 1, len(header)))
-    for i, row in enumerate(rows[1:]):
-        line = i + 2
-        if len(row) != len(header):
-            error = RecordingError(f"{path}, row {line}: {len(row)} fields, the header has {len(header)}")
-            return header, data[:i], error
-        for j, cell in enumerate(row):
-            try:
-                data[i, j] = float(cell)
-            except ValueError:
-                error = RecordingError(f"{path}, row {line}, column {header[j]!r}: {cell.strip()!r} is not a number")
+    data = np.empty((raw.count(b"\n") + raw.count(b"\r") + 1, len(header)))   # an upper bound, not touched
+    i = 0
+    pending: list[list[str]] = []   # blank rows are an error only when a data row follows them
+    for row in rows:
+        if _blank(row):
+            pending.append(row)
+            continue
+        for cells in [*pending, row]:
+            line = i + 2
+            if len(cells) != len(header):
+                error = RecordingError(f"{path}, row {line}: {len(cells)} fields, the header has {len(header)}")
                 return header, data[:i], error
-    return header, data, None
+            for j, cell in enumerate(cells):
+                try:
+                    data[i, j] = float(cell)
+                except ValueError:
+                    error = RecordingError(f"{path}, row {line}, column {header[j]!r}: {cell.strip()!r} is not a "
+                                           f"number")
+                    return header, data[:i], error
+            i += 1
+        pending = []
+    if i == 0:
+        raise RecordingError(f"{path}, row 2: no data rows after the header")
+    return header, data[:i], None
 
 
 _SIDECAR_TYPES = {"version": (int, "an integer"), "columns": (list, "a list of column names"),
