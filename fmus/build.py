@@ -14,6 +14,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from motiontwin.fmus import codegen, description, frontend, layout, package, symbolic
+from motiontwin.fmus.files import move_file, staging_folder
 
 from motiontwin.fmus import DEFAULT_OUT, FMI_VERSIONS, MODELICA_DIR  # noqa: F401 (re-exported)
 
@@ -108,13 +109,13 @@ def build(classes: list[str], modelica: Path | str = MODELICA_DIR, out_dir: Path
           fmi_versions: tuple[str, ...] = FMI_VERSIONS, workers: int | None = None) -> list[BuiltFmu]:
     """Build every class in ``classes`` for every FMI version, one class per process (default: all cores).
 
-    Every class goes through the front end and the compiler in a staging folder beside ``out_dir``; the FMUs
-    move into ``out_dir`` only when all of them built, so a Modelica or compiler error leaves nothing behind.
+    Every class goes through the front end and the compiler in a staging folder (:func:`files.staging_folder`);
+    the FMUs move into ``out_dir`` only when all of them built, so a Modelica or compiler error leaves nothing
+    behind, and a move onto another file system (``out_dir`` a mount point) copies, then renames.
     """
     out_dir = Path(out_dir)
-    out_dir.parent.mkdir(parents=True, exist_ok=True)
-    with tempfile.TemporaryDirectory(prefix=f".{out_dir.name}-staging-", dir=out_dir.parent) as staging:
-        jobs = [(c, str(modelica), staging, tuple(fmi_versions)) for c in classes]
+    with staging_folder(out_dir) as staging:
+        jobs = [(c, str(modelica), str(staging), tuple(fmi_versions)) for c in classes]
         workers = min(workers or os.cpu_count() or 1, len(jobs))
         if workers <= 1:
             staged = [fmu for job in jobs for fmu in _build_versions(job)]
@@ -125,6 +126,6 @@ def build(classes: list[str], modelica: Path | str = MODELICA_DIR, out_dir: Path
         for fmu in staged:
             target = out_dir / fmu.path.relative_to(staging)
             target.parent.mkdir(parents=True, exist_ok=True)
-            os.replace(fmu.path, target)
+            move_file(fmu.path, target)
             built.append(BuiltFmu(target, fmu.identifier, fmu.fmi_version))
     return built

@@ -14,6 +14,8 @@ import subprocess
 import tempfile
 from pathlib import Path
 
+from motiontwin.fmus.files import move_file
+
 CFLAGS = ("-O2", "-shared", "-fPIC", "-std=c99", "-ffp-contract=off")
 
 
@@ -58,5 +60,5 @@ def cached_library(sources: dict[str, str], folder: str, prefix: str, flags: tup
         proc = subprocess.run([cc, *flags, *files, "-o", str(out), "-lm"], capture_output=True, text=True)
         if proc.returncode != 0:
             raise CompileError(f"compiling {', '.join(sorted(sources))} failed:\n{proc.stderr[-2000:]}")
-        os.replace(out, library)
+        move_file(out, library)
     return library

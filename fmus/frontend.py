@@ -17,6 +17,8 @@ from typing import Any
 
 import casadi as ca
 
+from motiontwin.fmus import limits
+
 for _cls in (ca.MX, ca.SX, ca.DM):  # pymoca 0.12 looks operators and Modelica built-ins up by these names
     _cls.__div__ = _cls.__truediv__
     _cls.atan, _cls.asin, _cls.acos = _cls.arctan, _cls.arcsin, _cls.arccos
@@ -92,11 +94,20 @@ def _import_pymoca() -> tuple[Any, Any, Any]:
 
 
 def _mo_text(path: Path, data: bytes | None = None) -> str:
-    """The text of a Modelica file (``data``: its bytes, already read); ModelicaError naming it when not UTF-8."""
+    """The text of a Modelica file (``data``: its bytes, already read after :func:`_mo_bytes`); ModelicaError
+    naming it when it is not UTF-8 or beyond the size limit."""
+    if data is None:
+        return limits.read_text(path, ModelicaError)
     try:
-        return (path.read_bytes() if data is None else data).decode("utf-8")
+        return data.decode("utf-8")
     except UnicodeDecodeError as exc:
         raise ModelicaError(f"{path}: not UTF-8 text (byte {exc.start}: {exc.reason})") from None
+
+
+def _mo_bytes(path: Path) -> bytes:
+    """The bytes of a Modelica file within the text size limit (ModelicaError naming it otherwise)."""
+    limits.check_size(path, "text", ModelicaError)
+    return path.read_bytes()
 
 
 def _mo_files(source: Path) -> list[Path]:
@@ -264,7 +275,7 @@ def load(source: str | os.PathLike[str], class_name: str, libraries: tuple[Path,
     source = Path(source)
     libraries = tuple(Path(lib) for lib in libraries)
     files = _source_files(source, libraries)
-    data = {path: path.read_bytes() for path in files}
+    data = {path: _mo_bytes(path) for path in files}
     roots = [source.parent if source.is_file() else source, *libraries]
     named = [(_relative_name(path, roots), raw) for path, raw in data.items()]
     digest = modelcache.key(named, class_name, [Path(__file__), Path(modelcache.__file__)])

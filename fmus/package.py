@@ -6,12 +6,12 @@ import os
 import re
 import shutil
 import subprocess
-import tempfile
 import zipfile
 from pathlib import Path
 
 
 from motiontwin.fmus import clib
+from motiontwin.fmus.files import atomic_path
 
 RUNTIME_DIR = Path(__file__).parent / "runtime"
 FMI_HEADERS = {
@@ -59,10 +59,8 @@ def compile_binary(src_dir: Path, c_files: list[str], output: Path) -> None:
         key.update((src_dir / name).read_bytes())
         obj = cache / f"{key.hexdigest()}.o"
         if not obj.exists():
-            fd, tmp = tempfile.mkstemp(suffix=".o.part", dir=cache)
-            os.close(fd)
-            _run([cc, *flags, f"-I{src_dir}", "-c", str(src_dir / name), "-o", tmp], f"compiling {name}")
-            os.replace(tmp, obj)
+            with atomic_path(obj) as tmp:
+                _run([cc, *flags, f"-I{src_dir}", "-c", str(src_dir / name), "-o", str(tmp)], f"compiling {name}")
         objects.append(str(obj))
     _run([cc, "-shared", "-static-libgcc", *objects, "-o", str(output), "-lm"], f"linking {output.name}")
 
@@ -89,30 +87,14 @@ def _run(cmd: list[str], what: str) -> None:
         raise BuildError(f"{what} failed:\n{proc.stderr.strip()}")
 
 
-def ordinary_file_mode() -> int:
-    """The permissions ``open()`` would give a new file under the current umask (0o644 under umask 022);
-    ``tempfile.mkstemp`` creates 0o600, which atomic writers correct with this before the rename."""
-    umask = os.umask(0)
-    os.umask(umask)
-    return 0o666 & ~umask
-
-
 def pack(staging: Path, fmu_path: Path) -> Path:
     """Zip the folder ``staging`` into ``fmu_path`` through a temporary file in the same folder; the FMU
-    gets the ordinary permissions of a new file (:func:`ordinary_file_mode`)."""
+    gets the ordinary permissions of a new file (:func:`motiontwin.fmus.files.ordinary_file_mode`)."""
     fmu_path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{fmu_path.stem}-", suffix=".fmu.part", dir=fmu_path.parent)
-    os.fchmod(fd, ordinary_file_mode())
-    os.close(fd)
-    try:
-        with zipfile.ZipFile(tmp, "w", zipfile.ZIP_DEFLATED) as zf:
-            for path in sorted(staging.rglob("*")):
-                if path.is_file():
-                    zf.write(path, path.relative_to(staging).as_posix())
-        os.replace(tmp, fmu_path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    with atomic_path(fmu_path) as tmp, zipfile.ZipFile(tmp, "w", zipfile.ZIP_DEFLATED) as zf:
+        for path in sorted(staging.rglob("*")):
+            if path.is_file():
+                zf.write(path, path.relative_to(staging).as_posix())
     return fmu_path
 
 

@@ -89,7 +89,8 @@ class FMUInstance:
         self.name = name
         self.path = Path(path)
         if not self.path.is_file():
-            raise FileNotFoundError(f"FMU '{name}': file not found: {self.path}")
+            what = "a folder, not an FMU file" if self.path.is_dir() else "file not found"
+            raise FileNotFoundError(f"FMU '{name}': {what}: {self.path}")
         self.model_description = md = read_description(self.path)
         if md.coSimulation is None:
             raise ValueError(f"FMU '{name}' ({self.path}) does not support Co-Simulation")
@@ -102,13 +103,17 @@ class FMUInstance:
                       modelIdentifier=md.coSimulation.modelIdentifier, instanceName=name)
         # loggingOn = False still passes warnings and errors to the logger (FMI 2.0/3.0), without
         # the per-call debug messages some exporters emit when it is on.
-        if self.fmi3:
-            self.slave = FMU3Slave(**kwargs)
-            self.slave.instantiate(loggingOn=debug_logging, logMessage=self._log3)
-        else:
-            self.slave = FMU2Slave(**kwargs)
-            self._callbacks = _fmi2_callbacks(self)
-            self.slave.instantiate(callbacks=self._callbacks, loggingOn=debug_logging)
+        try:
+            if self.fmi3:
+                self.slave = FMU3Slave(**kwargs)
+                self.slave.instantiate(loggingOn=debug_logging, logMessage=self._log3)
+            else:
+                self.slave = FMU2Slave(**kwargs)
+                self._callbacks = _fmi2_callbacks(self)
+                self.slave.instantiate(callbacks=self._callbacks, loggingOn=debug_logging)
+        except Exception as exc:   # fmpy raises a bare Exception when the FMU's instantiate returns NULL
+            logged = "; ".join(self.messages) or "nothing"
+            raise ValueError(f"FMU '{name}' ({self.path}): {exc}; it logged: {logged}") from None
         self.initialized = False
         self.initial_state: tuple[Any, Any] | None = None
 

@@ -37,6 +37,7 @@ from typing import Any
 
 import numpy as np
 
+from motiontwin.fmus.limits import check_rows, check_size, read_text
 from motiontwin.harness import recording
 from motiontwin.harness.recording import DEFAULT_UNITS, Recording, RecordingError
 from motiontwin.harness.units import si_scale, units_compatible
@@ -100,21 +101,22 @@ def _read_hdf5(path: Path, matlab: bool) -> dict[str, np.ndarray]:
     except ImportError:
         raise RecordingError(f"{path}: reading HDF5 (and MATLAB v7.3) files needs h5py (pip install h5py)") from None
     out: dict[str, np.ndarray] = {}
-    with h5py.File(path, "r") as handle:
-        def visit(name: str, obj: Any) -> None:
-            if isinstance(obj, h5py.Dataset) and obj.dtype.kind in "iuf":
-                key = name.replace("/", ".") if matlab else "/" + name
-                _flatten(obj[()], key, out, matlab)
-        handle.visititems(visit)
+
+    def visit(name: str, obj: Any) -> None:
+        if isinstance(obj, h5py.Dataset) and obj.dtype.kind in "iuf":
+            key = name.replace("/", ".") if matlab else "/" + name
+            _flatten(obj[()], key, out, matlab)
+    try:
+        with h5py.File(path, "r") as handle:
+            handle.visititems(visit)
+    except OSError as exc:   # h5py's errors name neither the file nor, often, the problem in plain words
+        raise RecordingError(f"{path}: not a readable HDF5 file ({exc})") from None
     return out
 
 
 def _read_text(path: Path) -> LabSource:
-    try:
-        text = path.read_text(encoding="utf-8")
-    except UnicodeDecodeError as exc:
-        raise RecordingError(f"{path}: not UTF-8 text ({exc})") from None
-    lines = text.splitlines()
+    lines = read_text(path, RecordingError, "recording").splitlines()
+    check_rows(path, len(lines) - 1, RecordingError)
     first = 0
     while first < len(lines) and (not lines[first].strip() or lines[first].lstrip()[:1] in ("#", "%")):
         first += 1
@@ -157,8 +159,7 @@ def read_lab_file(path: str | Path) -> LabSource:
     A .mat in the layout :func:`harness.recording.write_mat` writes is read with its names and units.
     """
     path = Path(path)
-    if not path.is_file():
-        raise RecordingError(f"{path}: file not found")
+    check_size(path, "recording", RecordingError)
     suffix = path.suffix.lower()
     if suffix in (".h5", ".hdf5", ".hdf"):
         return LabSource(path, "hdf5", _read_hdf5(path, matlab=False))

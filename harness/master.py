@@ -173,6 +173,7 @@ class Master:
         try:
             for spec in sys_.fmus.values():
                 self.instances[spec.name] = FMUInstance(spec.name, spec.path, debug_logging)
+                self._check_parameter_types(spec.name)
             self._plan()
         except BaseException:
             self.close()
@@ -182,6 +183,15 @@ class Master:
 
     def _where(self) -> str:
         return f"{self.system.source}: " if self.system.source else ""
+
+    def _check_parameter_types(self, name: str) -> None:
+        """A text or true/false in the system file for a numeric FMU parameter is named by file and field."""
+        variables = self.instances[name].variables
+        for pname, value in self.system.fmus[name].parameters.items():
+            v = variables.get(pname)
+            if v is not None and v.type not in ("String", "Boolean") and isinstance(value, (str, bool)):
+                raise PortError(f"{self._where()}[fmus.{name}.parameters] {pname} = {value!r}: expected a number "
+                                f"(the FMU's variable has type {v.type})")
 
     def _resolve(self, port: str, role: str) -> tuple[str, str]:
         """Check a port name; role is 'source', 'input' (a connection target) or 'log'."""

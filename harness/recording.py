@@ -36,20 +36,19 @@ import csv
 import io
 import json
 import os
-import shutil
-import tempfile
-import uuid
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterable, Sequence
+from typing import Any, Iterable, Iterator, Sequence
 
 import numpy as np
+
+from motiontwin.fmus import limits
+from motiontwin.fmus.files import atomic_path, atomic_write_texts
 
 FORMAT_NAME = "motiontwin-recording"
 FORMAT_VERSION = 1
 META_KEYS = ("sample_time", "excited", "fmus", "parameters", "seed", "metadata")
 DEFAULT_UNITS = {"time": "s", "r": "m", "q": "m", "u": "N", "u_ext": "N", "v": "m/s", "a": "m/s2"}
-FILE_MODE = 0o644  # permissions of written files (tempfile.mkstemp would leave 0o600)
 SAMPLE_TIME_TOLERANCE = 1e-3  # relative deviation of a time step from sample_time that is accepted
 
 
@@ -211,7 +210,7 @@ def validate_recording(rec: Recording, required: Iterable[str] = ("time",), sour
         if off.size:
             i = int(off[0]) + 1
             problems.append((i, 0, (
-                f"column 'time': step {float(steps[i - 1])!r} s differs from sample_time {sample_time!r} s"
+                f"column 'time': step {steps[i - 1]:.9g} s differs from sample_time {sample_time:.9g} s"
             )))
     if problems:
         i, _, message = min(problems)
@@ -233,57 +232,88 @@ def sidecar_path(csv_path: str | os.PathLike) -> Path:
     return Path(csv_path).with_suffix(".json")
 
 
+def _csv_rows(path: Path, raw: bytes) -> Iterator[list[str]]:
+    """The rows of the CSV text ``raw`` one at a time (universal newlines: a lone CR ends a line too)."""
+    try:
+        yield from csv.reader(io.TextIOWrapper(io.BytesIO(raw), encoding="utf-8", newline=None))
+    except csv.Error as exc:
+        raise RecordingError(f"{path}: not a CSV file ({exc})") from None
+
+
+def _blank(row: list[str]) -> bool:
+    return not any(cell.strip() for cell in row)
+
+
 def _parse_csv(path: Path) -> tuple[list[str], np.ndarray, RecordingError | None]:
     """Read header and numbers up to the first malformed line or field.
 
     Returns the header, the rows before the first malformed one, and the error for that row (or None), so the
     caller can still report an earlier problem in the well-formed rows (e.g. time going backwards) first.
+    Size and rows are checked first; the rows are parsed one at a time into the array (never a list of rows
+    of text), so the peak memory is about the file's size plus 8 bytes per value.
     """
+    limits.check_size(path, "recording", RecordingError)
+    raw = path.read_bytes()
+    limits.check_rows(path, max(raw.count(b"\n"), raw.count(b"\r")) - 1, RecordingError)
     try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise RecordingError(f"{path}: file not found") from None
+        raw.decode("utf-8")
     except UnicodeDecodeError as exc:
-        raise RecordingError(f"{path}: not UTF-8 text ({exc})") from None
-    rows = list(csv.reader(io.StringIO(text)))
-    while rows and not any(cell.strip() for cell in rows[-1]):
-        rows.pop()
-    if not rows:
+        raise RecordingError(f"{path}: not UTF-8 text (byte {exc.start}: {exc.reason})") from None
+    rows = _csv_rows(path, raw)
+    first = next(rows, None)
+    if first is None or (_blank(first) and all(_blank(row) for row in rows)):
         raise RecordingError(f"{path}, row 1: empty file, expected a header line")
-    header = [cell.strip() for cell in rows[0]]
+    header = [cell.strip() for cell in first]
+    if "time" not in header:   # not a recording: nothing of its content is echoed (it may be any file)
+        raise RecordingError(f"{path}, row 1: required column 'time' missing; not a recording (a recording "
+                             f"starts with a header line of column names, 'time' among them)")
     for j, name in enumerate(header):
         if not name:
             raise RecordingError(f"{path}, row 1, column {j + 1}: empty column name in the header")
         if name in header[:j]:
             raise RecordingError(f"{path}, row 1, column {name!r}: duplicate column name")
-    if len(rows) < 2:
-        raise RecordingError(f"{path}, row 2: no data rows after the header")
-    data = np.empty((len(rows) - 1, len(header)))
-    for i, row in enumerate(rows[1:]):
-        line = i + 2
-        if len(row) != len(header):
-            error = RecordingError(f"{path}, row {line}: {len(row)} fields, the header has {len(header)}")
-            return header, data[:i], error
-        for j, cell in enumerate(row):
-            try:
-                data[i, j] = float(cell)
-            except ValueError:
-                error = RecordingError(f"{path}, row {line}, column {header[j]!r}: {cell.strip()!r} is not a number")
+    data = np.empty((raw.count(b"\n") + raw.count(b"\r") + 1, len(header)))   # an upper bound, not touched
+    i = 0
+    pending: list[list[str]] = []   # blank rows are an error only when a data row follows them
+    for row in rows:
+        if _blank(row):
+            pending.append(row)
+            continue
+        for cells in [*pending, row]:
+            line = i + 2
+            if len(cells) != len(header):
+                error = RecordingError(f"{path}, row {line}: {len(cells)} fields, the header has {len(header)}")
                 return header, data[:i], error
-    return header, data, None
+            for j, cell in enumerate(cells):
+                try:
+                    data[i, j] = float(cell)
+                except ValueError:
+                    error = RecordingError(f"{path}, row {line}, column {header[j]!r}: {cell.strip()!r} is not a "
+                                           f"number")
+                    return header, data[:i], error
+            i += 1
+        pending = []
+    if i == 0:
+        raise RecordingError(f"{path}, row 2: no data rows after the header")
+    return header, data[:i], None
+
+
+_SIDECAR_TYPES = {"version": (int, "an integer"), "columns": (list, "a list of column names"),
+                  "fmus": ((list, dict, type(None)), "a list or an object"),
+                  "parameters": ((dict, type(None)), "an object"), "metadata": ((dict, type(None)), "an object")}
 
 
 def _read_sidecar(path: Path) -> dict[str, Any] | None:
     if not path.exists():
         return None
-    try:
-        doc = json.loads(path.read_text(encoding="utf-8"))
-    except json.JSONDecodeError as exc:
-        raise RecordingError(f"{path}, line {exc.lineno}, column {exc.colno}: invalid JSON ({exc.msg})") from None
+    doc = limits.load_json(path, RecordingError)
     if not isinstance(doc, dict):
         raise RecordingError(f"{path}: the sidecar must be a JSON object")
     if doc.get("format", FORMAT_NAME) != FORMAT_NAME:
         raise RecordingError(f"{path}: field 'format' is {doc['format']!r}, expected {FORMAT_NAME!r}")
+    for key, (kinds, wanted) in _SIDECAR_TYPES.items():
+        if key in doc and (isinstance(doc[key], bool) or not isinstance(doc[key], kinds)):
+            raise RecordingError(f"{path}: field {key!r} must be {wanted}, got {json.dumps(doc[key])[:40]}")
     if doc.get("version", FORMAT_VERSION) > FORMAT_VERSION:
         raise RecordingError(f"{path}: field 'version' {doc['version']} is newer than supported {FORMAT_VERSION}")
     units = doc.get("units", {})
@@ -344,58 +374,6 @@ def _csv_text(rec: Recording) -> str:
     return buffer.getvalue()
 
 
-def atomic_write_texts(files: dict[Path, str | bytes]) -> None:
-    """Write several files (text, or bytes written as they are) so that either all new contents appear or none do.
-
-    Each text goes to a temporary file in the target's directory (flushed and fsynced), then all are moved into
-    place with os.replace. If a move fails, targets already replaced are restored from hard-link backups of
-    their previous contents (or removed if they did not exist), so no partial set of files is left behind.
-    """
-    temps: dict[Path, str] = {}
-    backups: dict[Path, str | None] = {}
-    done: list[Path] = []
-    try:
-        for target, text in files.items():
-            # the name is recorded before the file exists, so an interrupt at any point leaves no temporary file
-            temps[target] = tmp = str(target.parent / f".{target.name}.{uuid.uuid4().hex}.tmp")
-            fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, FILE_MODE)
-            os.fchmod(fd, FILE_MODE)
-            binary = isinstance(text, bytes)
-            with (os.fdopen(fd, "wb") if binary else os.fdopen(fd, "w", encoding="utf-8", newline="")) as handle:
-                handle.write(text)
-                handle.flush()
-                os.fsync(handle.fileno())
-        for target in files:
-            if target.exists():
-                backups[target] = backup = str(target.parent / f".{target.name}.{uuid.uuid4().hex}.bak")
-                try:
-                    os.link(target, backup)
-                except OSError:
-                    shutil.copy2(target, backup)
-                backups[target] = backup
-            else:
-                backups[target] = None
-        for target in files:
-            os.replace(temps[target], target)
-            del temps[target]
-            done.append(target)
-    except BaseException:
-        for target in done:
-            backup = backups.get(target)
-            if backup is None:
-                target.unlink(missing_ok=True)
-            else:
-                os.replace(backup, target)
-                backups[target] = None
-        raise
-    finally:
-        for tmp in temps.values():
-            Path(tmp).unlink(missing_ok=True)
-        for backup in backups.values():
-            if backup is not None:
-                Path(backup).unlink(missing_ok=True)
-
-
 def write_figure(path: str | os.PathLike, fig: Any, dpi: int = 110) -> Path:
     """Save a matplotlib figure as a PNG at ``path`` atomically (all or nothing, ordinary file mode)."""
     buffer = io.BytesIO()
@@ -438,16 +416,8 @@ def write_mat(path: str | os.PathLike, rec: Recording) -> Path:
     }
     import scipy.io  # here: scipy.io costs its import (0.7 s), and only .mat files need it
 
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        os.fchmod(fd, FILE_MODE)
-        with os.fdopen(fd, "wb") as handle:
-            scipy.io.savemat(handle, contents, do_compression=False, oned_as="column")
-            handle.flush()
-            os.fsync(handle.fileno())
-        os.replace(tmp, path)
-    finally:
-        Path(tmp).unlink(missing_ok=True)
+    with atomic_path(path) as tmp:
+        scipy.io.savemat(tmp, contents, do_compression=False, oned_as="column")
     return path
 
 
@@ -489,10 +459,9 @@ def read_mat(
     import scipy.io
 
     path = Path(path)
+    limits.check_size(path, "recording", RecordingError)
     try:
         raw = scipy.io.loadmat(path)
-    except FileNotFoundError:
-        raise RecordingError(f"{path}: file not found") from None
     except NotImplementedError:
         raise RecordingError(f"{path}: MATLAB v7.3 (HDF5) file; save it with save(..., '-v7') to import") from None
     except (ValueError, TypeError, OSError) as exc:

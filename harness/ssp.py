@@ -20,13 +20,12 @@ The archive is written to a temporary file and moved into place (atomic).
 
 from __future__ import annotations
 
-import os
-import tempfile
 import xml.etree.ElementTree as ET
 import zipfile
 from pathlib import Path
 
 from motiontwin.fmus.archive import read_description
+from motiontwin.fmus.files import atomic_path
 
 from .units import canonical_unit
 from .system import INPUT_NAMESPACE, System, load_system, split_port
@@ -165,15 +164,8 @@ def export_ssp(system: System | str | Path, path: str | Path, drop_external_in_s
     root = system_structure(system, drop_external_in_sums)
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    os.close(fd)
-    try:
-        with zipfile.ZipFile(tmp, "w", compression=zipfile.ZIP_DEFLATED) as zf:
-            zf.writestr("SystemStructure.ssd", ET.tostring(root, encoding="utf-8", xml_declaration=True))
-            for name, spec in system.fmus.items():
-                zf.write(spec.path, f"resources/{name}.fmu")
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    with atomic_path(path) as tmp, zipfile.ZipFile(tmp, "w", compression=zipfile.ZIP_DEFLATED) as zf:
+        zf.writestr("SystemStructure.ssd", ET.tostring(root, encoding="utf-8", xml_declaration=True))
+        for name, spec in system.fmus.items():
+            zf.write(spec.path, f"resources/{name}.fmu")
     return path

@@ -115,6 +115,9 @@ def safe_name(label: str) -> str:
     return _UNSAFE.sub("_", label).lstrip(".") or "_"
 
 
+MAX_CASE_NAME = 200
+
+
 def load_sweep(path: str | Path) -> Sweep:
     """Read a sweep file and expand its cases (see the module docstring)."""
     path = Path(path)
@@ -206,9 +209,15 @@ def load_sweep(path: str | Path) -> Sweep:
                                                  system.base_step, std, int(offset) + seed)
                 label = safe_name(table["name"] + suffix + (f"-s{seed}" if count > 1 else ""))
                 cases.append(SweepCase(label, runs, overrides))
-    if len({c.name for c in cases}) != len(cases):
-        raise SweepError(f"{path}: case names must be unique (after replacing characters other than letters, "
-                         f"digits and ._=+- by _)")
+    seen: set[str] = set()
+    for case in cases:
+        if case.name in seen:
+            raise SweepError(f"{path}: case name {case.name!r} occurs twice; case names must be unique (after "
+                             f"replacing characters other than letters, digits and ._=+- by _)")
+        if len(case.name) > MAX_CASE_NAME:   # NAME.csv and NAME.json must be valid file names (255 bytes)
+            raise SweepError(f"{path}: case name {case.name[:40]!r}... has {len(case.name)} characters, more than "
+                             f"{MAX_CASE_NAME}; shorten the case's name or its grid")
+        seen.add(case.name)
     log = data.get("log")
     if log is not None and not isinstance(log, str):
         raise SweepError(f"{path}: log must be the name of a log group")

@@ -47,11 +47,11 @@ Errors name the file, the TOML table/field and, when it can be found, the line.
 from __future__ import annotations
 
 import json
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from motiontwin.fmus.limits import LIMITS, limit, load_toml
 from motiontwin.harness.numbers import is_finite_number
 
 INPUT_NAMESPACE = "input"
@@ -150,16 +150,15 @@ class _Context:
         return SystemFileError(f"{name}{line}: {where}: {message}")
 
 
-MAX_STEPS = 100_000_000  # base steps (or samples) one run may have: 800 MB per logged or input signal
-
-
 def check_run_length(start_time: float, stop_time: float, step: float, where: str) -> int:
     """The number of steps of ``step`` from ``start_time`` to ``stop_time``; ValueError naming ``where``
-    when it exceeds :data:`MAX_STEPS` (a typo like 1e300 s would otherwise exhaust memory)."""
+    when it exceeds the ``steps`` limit of :mod:`fmus.limits` (a typo like 1e300 s would otherwise exhaust
+    memory)."""
     steps = (stop_time - start_time) / step
-    if not steps <= MAX_STEPS:
-        raise ValueError(f"{where} = {stop_time!r} s gives {steps:.3g} steps of {step!r} s, more than the limit of "
-                         f"{MAX_STEPS:.0e}; shorten the run or lengthen the step")
+    most = limit("steps")
+    if not steps <= most:
+        raise ValueError(f"{where} = {stop_time:.9g} s gives {steps:.3g} steps of {step:.9g} s, more than the limit of "
+                         f"{most:.0e}; shorten the run or lengthen the step (or raise {LIMITS['steps'].variable})")
     return round(steps)
 
 
@@ -227,11 +226,17 @@ def system_from_dict(data: dict[str, Any], source: str | Path | None = None, tex
         for pname, value in parameters.items():
             if not isinstance(value, (bool, int, float, str)):
                 raise ctx.error(f"[fmus.{name}.parameters] {pname}", f"unsupported value {value!r}", pname)
+            if isinstance(value, float) and not is_finite_number(value):
+                raise ctx.error(f"[fmus.{name}.parameters] {pname}", f"must be a finite number, got {value!r}", pname)
         ts_parameter = table.get("ts_parameter", "Ts")
         if not isinstance(ts_parameter, str):
             raise ctx.error(f"{where} ts_parameter", f"expected a variable name, got {ts_parameter!r}", needle)
         fmus[name] = FMUSpec(name, path, step, sampled, dict(parameters), ts_parameter)
 
+    for key, kind, wanted in (("inputs", dict, "a table [inputs.NAME]"), ("connections", list, "an array of tables "
+                              "[[connections]]"), ("log", list, "an array of tables [[log]]")):
+        if data.get(key) is not None and not isinstance(data[key], kind):
+            raise ctx.error(key, f"must be {wanted}, got {data[key]!r}", key)
     inputs: dict[str, InputSpec] = {}
     for name, table in (data.get("inputs") or {}).items():
         where = f"[inputs.{name}]"
@@ -292,7 +297,7 @@ def system_from_dict(data: dict[str, Any], source: str | Path | None = None, tex
 
     order = data.get("order")
     if order is not None:
-        if not isinstance(order, list) or sorted(order) != sorted(fmus):
+        if not isinstance(order, list) or not all(isinstance(n, str) for n in order) or sorted(order) != sorted(fmus):
             raise ctx.error("order", f"must list every FMU instance exactly once: {sorted(fmus)}", "order")
         order = tuple(order)
 
@@ -302,13 +307,7 @@ def system_from_dict(data: dict[str, Any], source: str | Path | None = None, tex
 def load_system(path: str | Path) -> System:
     """Read and validate a TOML system description file."""
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-        data = tomllib.loads(text)
-    except UnicodeDecodeError as exc:
-        raise SystemFileError(f"{path}: not UTF-8 text (byte {exc.start}: {exc.reason})") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise SystemFileError(f"{path}: {exc}") from None
+    data, text = load_toml(path, SystemFileError)
     return system_from_dict(data, source=path, text=text)
 
 

@@ -1,12 +1,13 @@
 """The diagnosis bundle format as text: a module without heavy imports, so that ``motiontwin --help``
 stays fast (the CLI prints it in ``motiontwin diagnose --help``)."""
+from motiontwin.fmus.limits import limits_help
 
 #: The bundle format, as ``motiontwin diagnose --help`` prints it.
 BUNDLE_FORMAT = """\
 A bundle is a folder with experiment.json, train.csv and validation.csv.
 
 experiment.json:
-  {"plant": {"modelica": "plant.mo",       Modelica file, relative to the bundle or any absolute path
+  {"plant": {"modelica": "plant.mo",       Modelica file inside the bundle (elsewhere: --allow-outside-paths)
              "class": "LinearAxis",        class with a force input and a position output (a state, an
                                            alias of one or an affine expression: gear ratio, sensor offset)
              "input": "u", "output": "q",  optional (these defaults); other inputs are held at their start
@@ -21,5 +22,8 @@ experiment.json:
 
 train.csv, validation.csv: columns time [s], r [m], u [N], q [m], optional u_ext [N], sampled at the
 controller's instants (step Ts); closed loop: u = controller output + u_ext is the force the plant got.
+Every file named in experiment.json must resolve (symbolic links followed) inside the bundle folder.
 The recordings may start while the loop is moving.
+
 """
+BUNDLE_FORMAT += limits_help().replace("; ", ";\n  ") + "\n"

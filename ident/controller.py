@@ -16,7 +16,6 @@ matrices map the reference and the measured position [m] to the force [N].
 from __future__ import annotations
 
 import functools
-import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -26,6 +25,7 @@ import casadi as ca
 import numpy as np
 
 from motiontwin.fmus import frontend, symbolic
+from motiontwin.fmus.limits import load_json
 from motiontwin.harness.numbers import is_finite_number
 
 CONTROLLER_KINDS = ("discrete_state_space",)
@@ -212,12 +212,7 @@ def read_multivariable(doc: dict, where: str, inputs: list[str], outputs: list[s
 def load_controller(path: str | Path) -> Controller:
     """Read a controller JSON file: the controller object itself or an experiment.json holding one."""
     path = Path(path)
-    try:
-        doc = json.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise ControllerError(f"{path}: file not found") from None
-    except json.JSONDecodeError as exc:
-        raise ControllerError(f"{path}, line {exc.lineno}, column {exc.colno}: invalid JSON ({exc.msg})") from None
+    doc = load_json(path, ControllerError)
     if isinstance(doc, dict) and "kind" not in doc and isinstance(doc.get("controller"), dict):
         return read_controller(doc["controller"], f"{path}: controller")
     return read_controller(doc, str(path))

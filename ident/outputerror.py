@@ -843,8 +843,8 @@ def identify(model: symbolic.SymbolicModel, rec: Recording, free: list[str], con
     bad = np.flatnonzero(np.abs(steps - ts) > 1e-3 * ts)
     if bad.size:
         i = int(bad[0])
-        raise ValueError(f"recording row {i + 3}, column 'time': step {steps[i]!r} s differs from the sample "
-                         f"period {ts} s (the refit needs uniform sampling at the controller's instants)")
+        raise ValueError(f"recording row {i + 3}, column 'time': step {steps[i]:.9g} s differs from the sample "
+                         f"period {ts:.9g} s (the refit needs uniform sampling at the controller's instants)")
     values = {v.name: float(v.start) for v in model.parameters}
     values.update(start or {})
     if input_name is None and signals.input in [v.name for v in model.inputs]:

@@ -14,7 +14,6 @@ Units: SI (s, m, N), those of the Modelica model.
 """
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
 
@@ -22,6 +21,7 @@ import casadi as ca
 import numpy as np
 
 from motiontwin.fmus import symbolic
+from motiontwin.fmus.limits import load_json
 from motiontwin.ident.plant_states import velocity_state
 from motiontwin.ident.signals import lowpass_differentiate
 
@@ -40,13 +40,7 @@ class DivergenceError(ValueError):
 def read_values_file(path: Path) -> dict[str, float]:
     """Parameter values from JSON: ``{"parameters": {NAME: VALUE}}`` (as ``identify --out`` writes) or a flat
     ``{NAME: VALUE}``. Errors name the file, line/column or the field."""
-    path = Path(path)
-    try:
-        doc = json.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise StartValueError(f"{path}: values file not found") from None
-    except json.JSONDecodeError as exc:
-        raise StartValueError(f"{path}, line {exc.lineno}, column {exc.colno}: invalid JSON ({exc.msg})") from None
+    doc = load_json(path, StartValueError)
     values = doc.get("parameters", doc) if isinstance(doc, dict) else None
     if not isinstance(values, dict):
         raise StartValueError(f"{path}: expected a JSON object {{\"parameters\": {{NAME: VALUE}}}}")

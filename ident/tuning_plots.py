@@ -121,7 +121,7 @@ def write_loop_figure(path: str | os.PathLike, parameters: dict[str, float],
                       plants: Sequence[JointModel | control.LTI], delay_samples: int = 1,
                       labels: Sequence[str] | None = None, title: str = "", spec: TuningSpec | None = None,
                       margins: Sequence[LoopMargins] | None = None) -> Path:
-    """Render :func:`loop_figure` to a PNG at ``path`` atomically (temporary file + os.replace)."""
+    """Render :func:`loop_figure` to a PNG at ``path`` atomically (through :func:`harness.recording.write_figure`)."""
     import matplotlib.pyplot as plt
 
     fig = loop_figure(parameters, plants, delay_samples, labels, title, spec, margins)
@@ -167,13 +167,12 @@ def replot_design(design: Path | str, out: Path | str) -> list[Path]:
     ValueError
         When the file is not JSON (naming line and column) or a field is missing or unusable.
     """
-    import json
+    from motiontwin.fmus.limits import load_json
 
     design, out = Path(design), Path(out)
-    try:
-        doc = json.loads(design.read_text(encoding="utf-8"))
-    except json.JSONDecodeError as err:
-        raise ValueError(f"{design}: line {err.lineno}, column {err.colno}: {err.msg}") from None
+    doc = load_json(design)
+    if not isinstance(doc, dict):
+        raise ValueError(f"{design}: expected a JSON object (a design written by tune --out)")
     joints = ({f"manipulator_{k}": v for k, v in doc["joints"].items()} if "joints" in doc else {"joint": doc})
     written = []
     for name, joint in joints.items():

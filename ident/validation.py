@@ -23,7 +23,6 @@ Units: those of the recording and model (SI).
 """
 from __future__ import annotations
 
-import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -32,6 +31,7 @@ from typing import Any
 import numpy as np
 
 from motiontwin.fmus import symbolic
+from motiontwin.fmus.limits import load_json
 from motiontwin.harness.recording import Recording, write_figure
 from motiontwin.ident import outputerror as oe
 from motiontwin.ident.controller import Controller
@@ -67,7 +67,7 @@ def load_model_spec(path: Path | None, *, class_name: str | None = None, modelic
     if path is not None:
         path = Path(path)
         if not path.is_file():
-            raise FileNotFoundError(f"{path}: model file not found")
+            raise FileNotFoundError(f"{path}: model file not found" + (" (it is a folder)" if path.is_dir() else ""))
         if path.suffix.lower() == ".fmu":
             import fmpy
 
@@ -81,10 +81,7 @@ def load_model_spec(path: Path | None, *, class_name: str | None = None, modelic
                         continue
             source = f"start values of {path}"
         elif path.suffix.lower() == ".json":
-            try:
-                doc = json.loads(path.read_text(encoding="utf-8"))
-            except json.JSONDecodeError as exc:
-                raise ValueError(f"{path}, line {exc.lineno}, column {exc.colno}: invalid JSON ({exc.msg})") from None
+            doc = load_json(path)
             if not isinstance(doc, dict) or not isinstance(doc.get("parameters"), dict):
                 raise ValueError(f"{path}: field 'parameters' (an object of name: value) missing")
             for key, value in doc["parameters"].items():
@@ -238,6 +235,14 @@ def validate(model: symbolic.SymbolicModel, spec: ModelSpec, rec: Recording, *, 
     if unknown:
         raise KeyError(f"{spec.source}: class {spec.class_name} has no parameter {', '.join(map(repr, unknown))}; "
                        f"its parameters are {', '.join(names)}")
+    for var in model.parameters:
+        value = spec.values.get(var.name)
+        if value is not None and not var.min <= value <= var.max:
+            bound = f"below its minimum {var.min:g}" if value < var.min else f"above its maximum {var.max:g}"
+            raise ValueError(f"{spec.source}: parameter {var.name} = {value:g} is {bound} (class {spec.class_name})")
+    if isinstance(lags, bool) or not isinstance(lags, (int, np.integer)) or not 1 <= lags < rec.time.size // 2:
+        raise ValueError(f"lags = {lags}: must be a whole number from 1 to {rec.time.size // 2 - 1} (half the "
+                         f"{rec.time.size} samples)")
     needed = [signals.output, signals.input] + ([signals.reference] if controller is not None else [])
     missing = [c for c in needed if c not in rec.columns]
     if missing:
@@ -247,8 +252,8 @@ def validate(model: symbolic.SymbolicModel, spec: ModelSpec, rec: Recording, *, 
     bad = np.flatnonzero(np.abs(steps - ts) > 1e-3 * ts)
     if bad.size:
         i = int(bad[0])
-        raise ValueError(f"recording row {i + 3}, column 'time': step {steps[i]!r} s differs from the sample period "
-                         f"{ts} s (the re-simulation needs uniform sampling)")
+        raise ValueError(f"recording row {i + 3}, column 'time': step {steps[i]:.9g} s differs from the sample period "
+                         f"{ts:.9g} s (the re-simulation needs uniform sampling)")
     loop = oe.build_loop(model, controller, signals.output, [], dict(spec.values), rec.time.size, ts=ts,
                          signals=signals, input_name=signals.input if signals.input in
                          [v.name for v in model.inputs] else None)

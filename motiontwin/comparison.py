@@ -57,6 +57,7 @@ from motiontwin.harness.excitation import end_effector_point_to_point
 from motiontwin.harness.master import Master
 from motiontwin.harness.recording import Recording, atomic_write_texts, make_recording, write_figure, write_recording
 from motiontwin.fmus.archive import read_description
+from motiontwin.fmus.limits import load_json
 from motiontwin.harness.system import System, system_from_dict
 
 PLANT_CLASS = "MotionTwin.Plants.CheungManipulator"
@@ -206,12 +207,7 @@ def read_designs(paths: Sequence[str | Path], ts: float = TS) -> list[dict[str, 
         raise ValueError(f"give one design JSON for all joints or four (d1, d3, d5, d7), got {len(paths)}")
     docs = []
     for path in paths:
-        try:
-            doc = json.loads(Path(path).read_text(encoding="utf-8"))
-        except json.JSONDecodeError as err:
-            raise ValueError(f"{path}: line {err.lineno}, column {err.colno}: {err.msg}") from None
-        except UnicodeDecodeError as err:
-            raise ValueError(f"{path}: not UTF-8 text (byte {err.start}: {err.reason})") from None
+        doc = load_json(path)
         params = doc.get("parameters") if isinstance(doc, dict) else None
         if not isinstance(params, dict):
             raise ValueError(f"{path}: field 'parameters' (an object of controller parameters) is missing")

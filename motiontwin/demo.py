@@ -14,6 +14,7 @@ import fmpy
 import numpy as np
 
 from motiontwin.fmus import build
+from motiontwin.harness.recording import write_figure
 
 JOINT = "MotionTwin.Plants.LinearMotorJoint"
 
@@ -71,7 +72,7 @@ def fmu_step_response(out: Path) -> dict[str, float]:
     ax.set_title(f"{JOINT}: step force {force} N")
     ax.legend()
     fig.tight_layout()
-    fig.savefig(out / "step_response.png", dpi=120)
+    write_figure(out / "step_response.png", fig, dpi=120)
     plt.close(fig)
     for fmu in fmus:
         print(fmu.path)

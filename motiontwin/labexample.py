@@ -26,15 +26,13 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import os
 import sys
-import tempfile
 from pathlib import Path
 
 import numpy as np
 import scipy.io
 
-from motiontwin.harness.recording import atomic_write_texts
+from motiontwin.fmus.files import atomic_path, atomic_write_texts
 from motiontwin.ident.controller import controller_document
 from motiontwin.ident.diagnosis import benchmark
 from motiontwin.harness.excitation import fourier_trajectory
@@ -93,13 +91,8 @@ def lab_recording(seed: int, periods: int = 6, extra: float = 3.3,
 
 def _write_mat(path: Path, variables: dict[str, np.ndarray]) -> None:
     """A .mat file as a lab PC would save it (column vectors), written atomically."""
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as handle:
-            scipy.io.savemat(handle, variables, oned_as="column")
-        os.replace(tmp, path)
-    finally:
-        Path(tmp).unlink(missing_ok=True)
+    with atomic_path(path) as tmp:
+        scipy.io.savemat(tmp, variables, oned_as="column")
 
 
 def generate(out: Path, periods: int = 6, extra: float = 3.3, fmu_dir: Path | None = None) -> list[Path]:

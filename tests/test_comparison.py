@@ -114,7 +114,7 @@ def test_design_files_one_for_all_joints_and_clear_errors(tmp_path):
         assert d["Kv"] * 20 == pytest.approx(5.0)
     bad = tmp_path / "bad.json"
     bad.write_text('{"parameters": {\n  "Kp": ,}}')
-    with pytest.raises(ValueError, match=r"bad.json: line 2, column"):
+    with pytest.raises(ValueError, match=r"bad.json, line 2, column \d+: invalid JSON"):
         comparison.load_designs([bad], [1.0] * 4, 5.0)
     path.write_text(json.dumps({"parameters": {"Kp": 1.0}}))
     with pytest.raises(ValueError, match="lacks"):

@@ -1,5 +1,6 @@
 """The bundle format (issue 13): the JSON Schema shipped in the package, errors naming the field, the plant
-by library class name or by a path outside the bundle, and the format in ``motiontwin diagnose --help``.
+by library class name or by a path outside the bundle (only when allowed), and the format in
+``motiontwin diagnose --help``.
 
 References: jsonschema's own meta-schema check (Draft 2020-12), the generator's experiment.json, and the
 library class's equations (the same states and parameters as the flat plant file)."""
@@ -64,7 +65,10 @@ def test_plant_by_path_outside_the_bundle(bundle, tmp_path):
     shutil.copy(bundle / "plant.mo", elsewhere)
     folder = _edited(bundle, tmp_path, lambda d: d["plant"].update(modelica=str(elsewhere)))
     (folder / "plant.mo").unlink()
-    b = read_bundle(folder)
+    with pytest.raises(BundleError, match="field 'plant.modelica' names .* outside the bundle folder .* pass "
+                                          "--allow-outside-paths"):
+        read_bundle(folder)
+    b = read_bundle(folder, allow_outside_paths=True)
     assert b.plant.source == elsewhere and b.plant.position_state == "x" and b.plant.velocity_state == "v"
 
 
@@ -91,6 +95,6 @@ def test_format_in_diagnose_help(capsys):
     with pytest.raises(SystemExit):
         cli_main(["diagnose", "--help"])
     text = capsys.readouterr().out
-    for needle in ("experiment.json", "\"parameters\"", "u_ext", "discrete_state_space", "absolute path",
+    for needle in ("experiment.json", "\"parameters\"", "u_ext", "discrete_state_space", "--allow-outside-paths",
                    "moving"):
         assert needle in text, needle

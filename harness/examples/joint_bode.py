@@ -14,6 +14,7 @@ import numpy as np
 
 from motiontwin.fmus import build
 from motiontwin.harness.linearize import linearize
+from motiontwin.harness.recording import write_figure
 
 CLASS = "MotionTwin.Plants.CheungJoint"
 
@@ -66,8 +67,7 @@ def main(argv: list[str] | None = None) -> dict[str, float]:
     ax_mag.legend()
     ax_mag.set_title(CLASS)
     fig.tight_layout()
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(args.out, dpi=120)
+    write_figure(args.out, fig, dpi=120)
     plt.close(fig)
     result = {"resonance_hz": float(peak_hz), "antiresonance_hz": float(dip_hz),
               "omega_hz": params["omega"] / (2 * np.pi), "omega_bar_hz": params["omega_bar"] / (2 * np.pi),

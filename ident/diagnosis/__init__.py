@@ -5,20 +5,25 @@ from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
+
+from motiontwin.fmus.limits import check_size, load_json
 
 from motiontwin.ident.diagnosis.bundle import BundleError, make_bundle, read_bundle
-from motiontwin.ident.diagnosis.pipeline import Diagnosis, diagnose, diagnose_bundle
+from motiontwin.ident.diagnosis.pipeline import Diagnosis, diagnose, diagnose_bundle, diagnose_bundle_object
 from motiontwin.ident.startvalues import DivergenceError
 
 __all__ = ["BundleError", "Diagnosis", "DivergenceError", "diagnose", "diagnose_bundle", "main", "make_bundle",
            "read_bundle"]
 
 
-def run(bundle: str, out: str, quiet: bool = False) -> int:
-    """Diagnose ``bundle`` into ``out``; print a one-line summary; exit code 0, or 2 on a bad bundle."""
+def run(bundle: str, out: str, quiet: bool = False, allow_outside_paths: bool = False) -> int:
+    """Diagnose ``bundle`` into ``out``; print a one-line summary; exit code 0, or 2 on a bad bundle (files
+    named in its experiment.json must lie inside it unless ``allow_outside_paths``)."""
     progress = None if quiet else (lambda msg: print(msg, file=sys.stderr, flush=True))
     try:
-        doc = diagnose_bundle(bundle, out, progress=progress)
+        _check_sizes(Path(bundle))
+        doc = diagnose_bundle_object(read_bundle(bundle, allow_outside_paths), progress).write(out)
     except BundleError as exc:
         print(f"motiontwin diagnose: bad bundle: {exc}", file=sys.stderr)
         return 2
@@ -38,6 +43,19 @@ def run(bundle: str, out: str, quiet: bool = False) -> int:
     print(f"effects: {names}; validation RMS {_metres(val['nominal_rms'])} -> {_metres(val['augmented_rms'])}"
           f"{per_axis}; report: {out}/report.md")
     return 0
+
+
+def _check_sizes(bundle: Path) -> None:
+    """experiment.json (a folder, size, UTF-8, nesting) and the plant's Modelica file (size) checked before the
+    bundle reader reads them (the recordings' sizes and rows are checked by their reader)."""
+    experiment = bundle / "experiment.json"
+    if not experiment.exists():
+        return
+    doc = load_json(experiment, BundleError)
+    plant = doc.get("plant") if isinstance(doc, dict) else None
+    modelica = plant.get("modelica") if isinstance(plant, dict) else None
+    if isinstance(modelica, str) and (bundle / modelica).is_file():
+        check_size(bundle / modelica, "text", BundleError)
 
 
 def _metres(value: float | None) -> str:

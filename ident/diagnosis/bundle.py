@@ -405,8 +405,22 @@ def check_recording(rec: Recording, path: Path | str, ts: float, axes: list[Plan
     return rec
 
 
-def read_bundle(bundle_dir: str | Path) -> Bundle:
-    """Read and validate everything in ``bundle_dir``; raises :class:`BundleError` on the first problem."""
+def check_paths_inside(experiment: dict, bundle_dir: Path, exp_path: Path) -> None:
+    """Refuse a file field of experiment.json (``plant.modelica``, ``recordings.*``) that resolves, symbolic
+    links followed, outside ``bundle_dir``: a bundle from elsewhere must not read arbitrary files."""
+    plant = experiment.get("plant") if isinstance(experiment.get("plant"), dict) else {}
+    recordings = experiment.get("recordings") if isinstance(experiment.get("recordings"), dict) else {}
+    fields = {"plant.modelica": plant.get("modelica"), **{f"recordings.{k}": v for k, v in recordings.items()}}
+    inside = bundle_dir.resolve()
+    for name, value in fields.items():
+        if isinstance(value, str) and not (bundle_dir / Path(value).expanduser()).resolve().is_relative_to(inside):
+            raise BundleError(f"{exp_path}: field {name!r} names {value!r}, a file outside the bundle folder "
+                              f"{inside}; copy it into the bundle, or pass --allow-outside-paths to read it")
+
+
+def read_bundle(bundle_dir: str | Path, allow_outside_paths: bool = False) -> Bundle:
+    """Read and validate everything in ``bundle_dir``; raises :class:`BundleError` on the first problem.
+    Files named in experiment.json must lie inside ``bundle_dir`` unless ``allow_outside_paths``."""
     bundle_dir = Path(bundle_dir)
     exp_path = bundle_dir / "experiment.json"
     if not exp_path.is_file():
@@ -418,6 +432,8 @@ def read_bundle(bundle_dir: str | Path) -> Bundle:
     if not isinstance(experiment, dict):
         raise BundleError(f"{exp_path}: must hold a JSON object")
     validate_experiment(experiment, exp_path)
+    if not allow_outside_paths:
+        check_paths_inside(experiment, bundle_dir, exp_path)
     plant_doc = _field(experiment, "plant", str(exp_path), dict)
     controller_doc = _field(experiment, "controller", str(exp_path), dict)
     if "axes" in plant_doc:

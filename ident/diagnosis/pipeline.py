@@ -24,6 +24,7 @@ from scipy import stats
 from motiontwin.ident.diagnosis import effects as effect_models
 from motiontwin.ident.diagnosis import empirical
 from motiontwin.ident.diagnosis import evidence
+from motiontwin.fmus.files import move_file
 from motiontwin.ident import outputerror
 from motiontwin.ident import startvalues
 from motiontwin.ident.plant_states import alias_state
@@ -851,5 +852,5 @@ def _publish(staging: Path, out: Path) -> None:
             continue
         target = out / src.relative_to(staging)
         target.parent.mkdir(parents=True, exist_ok=True)
-        os.replace(src, target)
+        move_file(src, target)
     shutil.rmtree(staging, ignore_errors=True)

@@ -21,7 +21,9 @@ SUBCOMMAND_MODULES = (build, simulate, labdata, identify, validate, writeback, t
 
 def parser() -> argparse.ArgumentParser:
     """The ``motiontwin`` argument parser with every subcommand."""
-    top = argparse.ArgumentParser(prog="motiontwin", description=__doc__.splitlines()[0])
+    from motiontwin.fmus.limits import limits_help
+
+    top = argparse.ArgumentParser(prog="motiontwin", description=__doc__.splitlines()[0], epilog=limits_help())
     sub = top.add_subparsers(dest="command", required=True)
     for module in SUBCOMMAND_MODULES:
         module.register(sub)

@@ -8,7 +8,7 @@ from pathlib import Path
 def _diagnose(args: argparse.Namespace) -> int:
     from motiontwin.ident import diagnosis
 
-    return diagnosis.run(str(args.bundle), str(args.out), args.quiet)
+    return diagnosis.run(str(args.bundle), str(args.out), args.quiet, args.allow_outside_paths)
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -22,4 +22,6 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("bundle", type=Path, help="bundle folder with experiment.json, plant .mo, train/validation CSV")
     p.add_argument("--out", type=Path, required=True, help="output folder (diagnosis.json, report.md, FMU, ...)")
     p.add_argument("--quiet", action="store_true", help="do not print progress")
-    p.set_defaults(func=_diagnose, output_folders=("out",))
+    p.add_argument("--allow-outside-paths", action="store_true",
+                   help="read files that experiment.json names outside the bundle folder (refused by default)")
+    p.set_defaults(func=_diagnose, output_folders=("out",), staged_folders=("out",))

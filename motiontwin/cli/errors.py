@@ -2,7 +2,8 @@
 that run before a subcommand does any work.
 
 A subcommand declares its paths with ``set_defaults``: ``output_files`` and ``output_folders`` (names of
-arguments that are written), ``input_fmus`` (arguments that must be FMU archives). :func:`preflight` checks
+arguments that are written; ``staged_folders`` those of them whose contents are staged in the folder above
+and moved in at the end), ``input_fmus`` (arguments that must be FMU archives). :func:`preflight` checks
 them, so a read-only target, a file where a folder is expected or a non-zip ``.fmu`` fail in milliseconds,
 before a build or a simulation, and nothing is written.
 """
@@ -11,11 +12,13 @@ from __future__ import annotations
 import argparse
 import errno
 import os
+import re
 from pathlib import Path
 
 __all__ = ["PathProblem", "os_error_message", "preflight"]
 
 _INTERNAL_SUFFIXES = (".tmp", ".part", ".bak")  # temporary files of the atomic writers
+_STAGING = re.compile(r"\.(.+?)(?:-staging-|\.work-)\w+")  # staging folders beside an output folder
 
 
 class PathProblem(ValueError):
@@ -23,10 +26,15 @@ class PathProblem(ValueError):
 
 
 def _shown_path(name: str | os.PathLike | None) -> str | None:
-    """The path a user knows: an atomic writer's hidden temporary file is reported as its folder."""
+    """The path a user knows: an atomic writer's hidden temporary file is reported as its folder, a file in a
+    staging folder (``.OUT-staging-*``, ``.OUT.work-*``) as the output folder ``OUT``."""
     if name is None:
         return None
     path = Path(os.fsdecode(name))
+    for k, part in enumerate(path.parts):
+        staged = _STAGING.fullmatch(part)
+        if staged:
+            return str(Path(*path.parts[:k], staged.group(1)))
     if path.name.startswith(".") and path.name.endswith(_INTERNAL_SUFFIXES):
         return str(path.parent)
     return str(path)
@@ -83,19 +91,21 @@ def _writable_location(option: str, path: Path, folder: bool) -> None:
                           f"change its permissions")
 
 
+def _declared(args: argparse.Namespace, kind: str) -> list[tuple[str, str]]:
+    """(option, value) of the arguments a subcommand declared as ``kind`` and the user gave."""
+    return [("--" + name.replace("_", "-"), getattr(args, name)) for name in getattr(args, kind, ())
+            if getattr(args, name, None) is not None]
+
+
 def preflight(args: argparse.Namespace) -> None:
     """Check the output and FMU arguments a subcommand declared (see the module docstring)."""
-    for name in getattr(args, "output_files", ()):
-        value = getattr(args, name, None)
-        if value is not None:
-            _writable_location("--" + name.replace("_", "-"), Path(value), folder=False)
-    for name in getattr(args, "output_folders", ()):
-        value = getattr(args, name, None)
-        if value is not None:
-            _writable_location("--" + name.replace("_", "-"), Path(value), folder=True)
-    for name in getattr(args, "input_fmus", ()):
-        value = getattr(args, name, None)
-        if value is not None:
-            from motiontwin.fmus.archive import read_description  # imports fmpy: only for a command given an FMU
+    for option, value in _declared(args, "output_files"):
+        _writable_location(option, Path(value), folder=False)
+    for option, value in _declared(args, "output_folders"):
+        _writable_location(option, Path(value), folder=True)
+    for option, value in _declared(args, "staged_folders"):
+        _writable_location(f"{option} (staged in the folder above)", Path(value).absolute().parent, folder=True)
+    for _, value in _declared(args, "input_fmus"):
+        from motiontwin.fmus.archive import read_description  # imports fmpy: only for a command given an FMU
 
-            read_description(value)
+        read_description(value)

@@ -8,6 +8,7 @@ from pathlib import Path
 def _validate(args: argparse.Namespace) -> int:
     import json
 
+    from motiontwin.cli.arguments import name_values
     from motiontwin.fmus import build
     from motiontwin.harness.recording import atomic_write_texts, read_recording
     from motiontwin.ident import validation
@@ -16,10 +17,7 @@ def _validate(args: argparse.Namespace) -> int:
 
     values: dict[str, float] = {}
     for item in args.set:
-        name, sep, value = item.partition("=")
-        if not sep:
-            raise ValueError(f"--set {item!r}: expected NAME=VALUE")
-        values[name.strip()] = float(value)
+        values |= name_values(item, "--set")
     model_path = None if args.model == "-" else Path(args.model)
     spec = validation.load_model_spec(model_path, class_name=args.class_name, modelica=args.modelica, values=values)
     controller = load_controller(args.controller) if args.controller else None

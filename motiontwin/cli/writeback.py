@@ -12,13 +12,15 @@ def _writeback(args: argparse.Namespace) -> int:
 
     from motiontwin.fmus import writeback
     from motiontwin.fmus.archive import read_description
+    from motiontwin.fmus.limits import load_json
     from motiontwin.harness.recording import atomic_write_texts
+    from motiontwin.ident.startvalues import read_values_file
 
     values: dict[str, float] = {}
     provenance: dict[str, object] = {}
     if args.values:
-        doc = json.loads(args.values.read_text())
-        values = dict(doc.get("parameters", doc))
+        values = read_values_file(args.values)   # a checked JSON object, read again for the provenance
+        doc = load_json(args.values)
         provenance = {k: doc[k] for k in ("method", "recording", "names", "std", "covariance") if k in doc}
         provenance["values_file"] = str(args.values)
     for item in args.set:
