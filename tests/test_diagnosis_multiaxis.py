@@ -15,10 +15,10 @@ import scipy.linalg
 
 from motiontwin.fmus import frontend, symbolic
 from motiontwin.harness.recording import make_recording
-from motiontwin.ident import outputerror
+from motiontwin.ident import oeloop, outputerror
 from motiontwin.ident.controller import Controller, block_diagonal
 from motiontwin.ident.diagnosis import diagnose_bundle, multiaxis, read_bundle
-from motiontwin.ident.diagnosis import multiaxis_truth as truth
+from motiontwin.ident.benchmarks import multi_axis_truth as truth
 from motiontwin.ident.diagnosis.bundle import BundleError
 
 TS = 5e-4
@@ -132,7 +132,7 @@ def test_called_rhs_loop_equals_inlined_loop(tmp_path, monkeypatch):
     tracking = {"v2": "dq:q2"}
     loops = []
     for limit in (10 ** 9, 0):          # inlined SX, then called MX
-        monkeypatch.setattr(outputerror, "CALL_INSTRUCTIONS", limit)
+        monkeypatch.setattr(oeloop, "CALL_INSTRUCTIONS", limit)
         loops.append(outputerror.build_loop(model, ctrl, "q1", ["m1", "kc", "d"], values, n, substeps=2,
                                             axes=signals, tracking=tracking))
     s0 = outputerror.initial_state(loops[0], rec)

@@ -7,7 +7,8 @@ import argparse
 import sys
 
 from motiontwin.ident.diagnosis.bundle import BundleError, make_bundle, read_bundle
-from motiontwin.ident.diagnosis.pipeline import Diagnosis, diagnose, diagnose_bundle
+from motiontwin.ident.diagnosis.engine import diagnose, diagnose_bundle
+from motiontwin.ident.diagnosis.pipeline import Diagnosis
 from motiontwin.ident.startvalues import DivergenceError
 
 __all__ = ["BundleError", "Diagnosis", "DivergenceError", "diagnose", "diagnose_bundle", "main", "make_bundle",

@@ -26,6 +26,7 @@ from motiontwin.fmus.build import MODELICA_DIR
 from motiontwin.ident.diagnosis.plant_roles import PlantFormError, PlantRoles, declaration_line
 
 LIBRARY = MODELICA_DIR / "MotionTwin"
+AUGMENTED_CLASS = "Augmented"   # the class of the augmented model the diagnosis writes
 FRICTION = "friction"
 
 

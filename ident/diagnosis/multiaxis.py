@@ -31,7 +31,6 @@ import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable
 
 import casadi as ca
 import numpy as np
@@ -702,9 +701,3 @@ def report_markdown(doc: dict, bundle: Bundle) -> str:
               f"is copied beside it); its FMU (FMI 2.0, ME + CS, the fitted start values): `{doc['augmented_fmu']}`. "
               f"Runtime {doc['runtime_s']} s.", ""]
     return "\n".join(lines)
-
-
-def diagnose_bundle_object(bundle: Bundle, progress: Callable[[str], None] | None = None) -> MultiAxisDiagnosis:
-    """The multi-axis diagnosis of a read bundle (working files in a temporary folder)."""
-    with pipeline._CASADI_LOCK, tempfile.TemporaryDirectory(prefix="motiontwin-diagnosis-") as tmp:
-        return MultiAxisDiagnosis.from_result(run(bundle, Path(tmp), progress))

@@ -28,12 +28,11 @@ from motiontwin.ident import outputerror
 from motiontwin.ident import startvalues
 from motiontwin.ident.plant_states import alias_state
 from motiontwin.harness.recording import Recording
-from motiontwin.ident.controller import Controller
-from motiontwin.ident.diagnosis.bundle import Bundle, BundleError, make_bundle, read_bundle
+from motiontwin.ident.diagnosis.bundle import Bundle, BundleError
 from motiontwin.ident.diagnosis.plant_roles import PlantFormError, output_map
 
-AUGMENTED_CLASS = "Augmented"
-VALIDATION_GAIN = 0.9        # an effect must reduce the validation RMS by at least 10 %
+AUGMENTED_CLASS = effect_models.AUGMENTED_CLASS
+VALIDATION_GAIN = evidence.VALIDATION_GAIN
 MAX_EFFECTS = 3
 BOOTSTRAP_COUNT = 30
 SCREEN_NFEV = 4             # cheap fit of every candidate, to rank them
@@ -501,9 +500,6 @@ def explain_remainder(bundle: Bundle, final: ModelFit, weights: outputerror.Weig
     return trial, check
 
 
-#: one diagnosis at a time per process: CasADi's symbolic layer is not thread-safe (see :func:`diagnose`)
-_CASADI_LOCK = threading.Lock()
-
 #: screening jobs by token (the function fitting one candidate by name): forked workers inherit the table and
 #: are sent only (token, name); every call adds its own token and removes it, so concurrent diagnoses do not collide
 _SCREEN_JOBS: dict[int, tuple] = {}
@@ -791,56 +787,6 @@ class Diagnosis:
             document = report.write_all(result, staging, out)
             _publish(staging, out)
         return document
-
-
-def diagnose(plant: str | Path, controller: Controller | dict, train: Recording, validation: Recording, *,
-             plant_class: str | None = None, parameters: dict[str, float] | None = None,
-             pole_pitch: float | None = None, progress: Callable[[str], None] | None = None,
-             axes: list[dict] | None = None) -> Diagnosis:
-    """Diagnose the mismatch between a nominal plant and two closed-loop recordings (in memory).
-
-    Parameters
-    ----------
-    plant : Modelica file or Modelica source text of the nominal plant (input u [N], output q [m]).
-    controller : the sampled controller (:class:`ident.controller.Controller` or its experiment.json object).
-    train, validation : :class:`harness.recording.Recording` with time [s], r [m], u [N], q [m][, u_ext [N]].
-    plant_class : the plant class (default: the first ``model`` in the source).
-    parameters : start values of plant parameters (default: Modelica values and inverse dynamics).
-    pole_pitch : the motor's magnet pole pitch [m] (enables the ``cogging`` candidate), or None.
-    progress : called with one line per step.
-    axes : a multi-axis plant (``[{"input": "u1", "output": "q1"}, ...]``, see :func:`bundle.make_bundle`);
-        the result then names each effect's axis and the validation RMS per axis.
-
-    Returns
-    -------
-    Diagnosis
-        Effects, parameters and validation; ``.write(folder)`` writes the report and the FMU.
-
-    Re-entrant: every call compiles its own loops (no module-level cache), so repeated calls and calls from
-    several threads give the same result as one call. Calls from several threads run one at a time: CasADi's
-    symbolic layer shares reference-counted constants between expressions and is not thread-safe (parallel
-    diagnoses belong in separate processes).
-    """
-    bundle = make_bundle(plant, controller, train, validation, plant_class, parameters, pole_pitch=pole_pitch,
-                         axes=axes)
-    return diagnose_bundle_object(bundle, progress)
-
-
-def diagnose_bundle_object(bundle: Bundle, progress: Callable[[str], None] | None = None) -> Diagnosis:
-    """:func:`diagnose` of an already read :class:`Bundle` (working files in a temporary folder); a
-    multi-axis bundle goes to :mod:`ident.diagnosis.multiaxis`."""
-    if bundle.multi_axis:
-        from motiontwin.ident.diagnosis import multiaxis
-
-        return multiaxis.diagnose_bundle_object(bundle, progress)
-    with _CASADI_LOCK, tempfile.TemporaryDirectory(prefix="motiontwin-diagnosis-") as tmp:
-        return Diagnosis.from_result(run(bundle, Path(tmp), progress))
-
-
-def diagnose_bundle(bundle_dir: str | os.PathLike, out_dir: str | os.PathLike, progress=None) -> dict:
-    """Diagnose a bundle folder and write diagnosis.json, validation_prediction.csv, report.md (+ PNGs), the
-    augmented Modelica model and its FMU into ``out_dir``. Nothing is written when the input is bad."""
-    return diagnose_bundle_object(read_bundle(bundle_dir), progress).write(out_dir)
 
 
 def _publish(staging: Path, out: Path) -> None:

@@ -15,7 +15,9 @@ import numpy as np  # noqa: E402
 from motiontwin.fmus.build import build_fmu  # noqa: E402
 from motiontwin.ident.diagnosis import evidence  # noqa: E402
 from motiontwin.ident.diagnosis.empirical import POWER_SHARE  # noqa: E402
-from motiontwin.ident.diagnosis.pipeline import AUGMENTED_CLASS, EMPIRICAL_EFFECT, VALIDATION_GAIN  # noqa: E402
+from motiontwin.ident.diagnosis.effects import AUGMENTED_CLASS  # noqa: E402
+from motiontwin.ident.diagnosis.empirical import EMPIRICAL as EMPIRICAL_EFFECT  # noqa: E402
+from motiontwin.ident.diagnosis.evidence import VALIDATION_GAIN  # noqa: E402
 
 
 #: units of the effects' parameters as the report states them (the contract's names)

@@ -17,7 +17,7 @@ import numpy as np
 from motiontwin.harness.recording import atomic_write_texts, make_recording, write_recording
 from motiontwin.ident import outputerror
 from motiontwin.ident.controller import Controller
-from motiontwin.ident.diagnosis import benchmark
+from motiontwin.ident.benchmarks import single_axis as benchmark
 from motiontwin.ident.diagnosis import effects as effect_models
 from motiontwin.ident.diagnosis import multiaxis
 from motiontwin.ident.diagnosis.bundle import read_axes_controller, read_axes_plant
