@@ -17,7 +17,7 @@ from motiontwin.fmus import frontend, symbolic
 from motiontwin.harness.recording import make_recording
 from motiontwin.ident import oeloop, outputerror
 from motiontwin.ident.controller import Controller, block_diagonal
-from motiontwin.ident.diagnosis import diagnose_bundle, multiaxis, read_bundle
+from motiontwin.ident.diagnosis import diagnose_bundle, read_bundle, structure
 from motiontwin.ident.benchmarks import multi_axis_truth as truth
 from motiontwin.ident.diagnosis.bundle import BundleError
 
@@ -261,11 +261,11 @@ def test_effect_on_axis_renames_parameters_and_states():
 
     ctx = effect_models.Context(TS, 0.0, 0.1, 0.1, 1.0)
     roles = PlantRoles("u3", "q3", "d3", "v3")
-    placed = multiaxis.on_axis(effect_models.VOCABULARY["coulomb_friction"](ctx), roles)
+    placed = structure.on_axis(effect_models.VOCABULARY["coulomb_friction"](ctx), roles)
     assert placed.force == "MotionTwin.Effects.CoulombFriction(plant.v3, q3_coulomb_Fc, q3_coulomb_v_eps)"
     assert [p.name for p in placed.params] == ["q3_coulomb_Fc", "q3_coulomb_v_eps"]
     assert placed.contract({"q3_coulomb_Fc": 0.7}, ctx) == {"Fc": 0.7}
-    delay = multiaxis.on_axis(effect_models.VOCABULARY["resonance"](ctx), roles)
+    delay = structure.on_axis(effect_models.VOCABULARY["resonance"](ctx), roles)
     assert "der(q3_resonance_x2) = q3_resonance_v2" in delay.equations
 
 
@@ -298,3 +298,54 @@ def test_free_restricts_the_nominal_refit(small_bundle, tmp_path):
     bundle = read_bundle(_edited(small_bundle, tmp_path, lambda d, f: d["plant"].update(free=["m1"])))
     free, bounds = pipeline._nominal_bounds(bundle, "plant.")
     assert free == ["plant.m1"] and list(bounds) == ["plant.m1"]
+
+
+def test_location_sentence_names_the_axis(coulomb_q2):
+    """The location of an effect on q2 is a sentence about q2 (not the single-axis 'x')."""
+    doc, _ = coulomb_q2
+    text = doc["effects"][0]["location_text"]
+    assert text.startswith("Strongest on axis q2 ")
+    assert "moving in +q2" in text or "moving in -q2" in text or "around standstill" in text
+    assert " x " not in text and "-x " not in text and "+x " not in text
+
+
+def test_pole_pitch_is_given_per_axis(small_bundle, tmp_path):
+    """plant.axes[k].pole_pitch is that axis's pitch (the others have none); a plant-wide pole_pitch on a
+    multi-axis bundle, a bad per-axis value and pole_pitch with axes in memory are refused naming the field."""
+    from motiontwin.harness.recording import read_recording
+    from motiontwin.ident.diagnosis import make_bundle
+
+    plant = read_bundle(_edited(small_bundle, tmp_path, lambda d, f: d["plant"]["axes"][1].update(
+        pole_pitch=0.002))).plant
+    assert plant.pitch_of("q2") == 0.002 and plant.pitch_of("q1") is None
+    assert read_bundle(small_bundle).plant.pitch_of("q2") is None
+    with pytest.raises(BundleError, match="field 'plant.pole_pitch' cannot be combined with 'plant.axes'"):
+        read_bundle(_edited(small_bundle, tmp_path / "a", lambda d, f: d["plant"].update(pole_pitch=0.002)))
+    with pytest.raises(BundleError, match=r"experiment\.json: field 'plant\.axes\.1\.pole_pitch'"):
+        read_bundle(_edited(small_bundle, tmp_path / "b", lambda d, f: d["plant"]["axes"][1].update(
+            pole_pitch=-1.0)))
+    doc = json.loads((small_bundle / "experiment.json").read_text())
+    train, validation = (read_recording(small_bundle / f"{part}.csv") for part in ("train", "validation"))
+    with pytest.raises(BundleError, match="plant: pole_pitch cannot be combined with axes"):
+        make_bundle(PLANT, doc["controller"], train, validation, "Coupled2", START, pole_pitch=0.002, axes=AXES)
+    axes = [AXES[0], {**AXES[1], "pole_pitch": 0.002}]
+    memory = make_bundle(PLANT, doc["controller"], train, validation, "Coupled2", START, axes=axes)
+    assert memory.plant.pitch_of("q2") == 0.002
+
+
+def test_cogging_on_one_axis_with_its_pole_pitch(tmp_path):
+    """Cogging (pole pitch 2 mm, 0.5 N fundamental, 0.2 N second harmonic) concealed on q2 of the coupled
+    plant whose bundle gives q2's pole pitch: answered cogging on q2 (not a one-harmonic position_ripple),
+    with the true fundamental amplitude within 10 %, the period of the pitch, and q2 at its noise floor."""
+    pitch, a1, a2 = 0.002, 0.5, 0.2
+    true = truth.TrueEffect("cogging", "q2", {"cogging_a1": a1, "cogging_b1": 0.0, "cogging_a2": 0.0,
+                                              "cogging_b2": a2, "cogging_pitch": pitch, "cogging_n": 1.0})
+    plant = {"class": "Coupled2", "axes": [AXES[0], {**AXES[1], "pole_pitch": pitch}], "parameters": START}
+    folder = tmp_path / "bundle"
+    truth.write_bundle(folder, plant, CONTROLLER, [true], 2.0, 1.0, seed=11, plant_text=PLANT)
+    doc = diagnose_bundle(folder, tmp_path / "out")
+    assert [(e["name"], e["axis"]) for e in doc["effects"]] == [("cogging", "q2")], doc["candidates"]
+    found = doc["effects"][0]["parameters"]
+    assert found["A1"] == pytest.approx(a1, rel=0.1) and found["period"] == pytest.approx(pitch, rel=1e-9)
+    q2 = doc["validation"]["per_axis"]["q2"]
+    assert q2["augmented_rms"] < 1.2 * q2["noise_floor_rms"]

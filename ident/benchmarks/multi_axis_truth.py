@@ -19,7 +19,7 @@ from motiontwin.ident import outputerror
 from motiontwin.ident.controller import Controller
 from motiontwin.ident.benchmarks import single_axis as benchmark
 from motiontwin.ident.diagnosis import effects as effect_models
-from motiontwin.ident.diagnosis import multiaxis
+from motiontwin.ident.diagnosis import structure
 from motiontwin.ident.diagnosis.bundle import read_axes_controller, read_axes_plant
 
 #: a small coupled plant for tests and examples: two carriages with inertial (mc) and elastic (kc) coupling
@@ -113,16 +113,16 @@ def write_bundle(folder: Path, plant_doc: dict, controller_doc: dict, effects: l
     ctx = effect_models.Context(ts, -1.0, 1.0, 0.2, 1.0)
     for true in effects:
         roles = next(a for a in plant.axes if a.output == true.axis)
-        effect = multiaxis.on_axis(effect_models.VOCABULARY[true.name](ctx), roles)
+        effect = structure.on_axis(effect_models.VOCABULARY[true.name](ctx), roles)
         placed.append((true.axis, effect))
         values.update({p.name: float(np.mean(p.bounds)) for p in effect.params})
-        values.update({multiaxis._prefix(true.axis) + k: float(v) for k, v in true.parameters.items()})
+        values.update({structure._prefix(true.axis) + k: float(v) for k, v in true.parameters.items()})
     rng = np.random.default_rng(seed)
     outputs = [a.output for a in plant.axes]
     with tempfile.TemporaryDirectory(prefix="mt-truth-") as tmp:
-        multiaxis.write_structure(plant, placed, values, Path(tmp))
-        model = multiaxis.load_structure(Path(tmp))
-    signals = multiaxis.axes_signals(plant)
+        structure.write_axes_structure(plant, placed, values, Path(tmp))
+        model = structure.load_structure(Path(tmp))
+    signals = structure.axes_signals(plant)
     pre = int(round(PREROLL / ts))
     parts = {}
     for part, duration in (("train", train_s), ("validation", validation_s)):

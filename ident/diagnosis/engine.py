@@ -1,5 +1,5 @@
-"""The diagnosis's entry points: :func:`diagnose` (in memory), :func:`diagnose_bundle` (a bundle folder); one
-axis runs :mod:`ident.diagnosis.pipeline`, several :mod:`ident.diagnosis.multiaxis`."""
+"""The diagnosis's entry points: :func:`diagnose` (in memory), :func:`diagnose_bundle` (a bundle folder); the
+stages run by :mod:`ident.diagnosis.pipeline`."""
 from __future__ import annotations
 
 import os
@@ -10,7 +10,7 @@ from typing import Callable
 
 from motiontwin.harness.recording import Recording
 from motiontwin.ident.controller import Controller
-from motiontwin.ident.diagnosis import multiaxis, pipeline
+from motiontwin.ident.diagnosis import pipeline
 from motiontwin.ident.diagnosis.bundle import Bundle, make_bundle, read_bundle
 
 #: one diagnosis at a time per process: CasADi's symbolic layer is not thread-safe (see :func:`diagnose`)
@@ -20,7 +20,7 @@ _CASADI_LOCK = threading.Lock()
 def diagnose(plant: str | Path, controller: Controller | dict, train: Recording, validation: Recording, *,
              plant_class: str | None = None, parameters: dict[str, float] | None = None,
              pole_pitch: float | None = None, progress: Callable[[str], None] | None = None,
-             axes: list[dict] | None = None) -> pipeline.Diagnosis | multiaxis.MultiAxisDiagnosis:
+             axes: list[dict] | None = None) -> pipeline.Diagnosis | pipeline.MultiAxisDiagnosis:
     """Diagnose the mismatch between a nominal plant and two closed-loop recordings (in memory).
 
     Parameters
@@ -51,12 +51,11 @@ def diagnose(plant: str | Path, controller: Controller | dict, train: Recording,
 
 
 def diagnose_bundle_object(bundle: Bundle, progress: Callable[[str], None] | None = None
-                           ) -> pipeline.Diagnosis | multiaxis.MultiAxisDiagnosis:
-    """:func:`diagnose` of an already read :class:`Bundle` (working files in a temporary folder); a
-    multi-axis bundle goes to :mod:`ident.diagnosis.multiaxis`."""
+                           ) -> pipeline.Diagnosis | pipeline.MultiAxisDiagnosis:
+    """:func:`diagnose` of an already read :class:`Bundle` (working files in a temporary folder)."""
     with _CASADI_LOCK, tempfile.TemporaryDirectory(prefix="motiontwin-diagnosis-") as tmp:
         if bundle.multi_axis:
-            return multiaxis.MultiAxisDiagnosis.from_result(multiaxis.run(bundle, Path(tmp), progress))
+            return pipeline.MultiAxisDiagnosis.from_result(pipeline.run_axes(bundle, Path(tmp), progress))
         return pipeline.Diagnosis.from_result(pipeline.run(bundle, Path(tmp), progress))
 
 
