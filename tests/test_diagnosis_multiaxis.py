@@ -349,3 +349,24 @@ def test_cogging_on_one_axis_with_its_pole_pitch(tmp_path):
     assert found["A1"] == pytest.approx(a1, rel=0.1) and found["period"] == pytest.approx(pitch, rel=1e-9)
     q2 = doc["validation"]["per_axis"]["q2"]
     assert q2["augmented_rms"] < 1.2 * q2["noise_floor_rms"]
+
+
+def test_multi_axis_report_has_plots_and_the_selection_fields(coulomb_q2):
+    """The one selection loop gives a multi-axis effect what it gives one axis: the equivalent explanations and
+    the rule that picked it, timed candidates; the report draws the per-axis residual and validation plots."""
+    doc, out = coulomb_q2
+    effect = doc["effects"][0]
+    assert isinstance(effect["equivalent_explanations"], list) and "selection_rule" in effect
+    assert all(isinstance(entry["seconds"], float) for entry in doc["candidates"])
+    text = (out / "report.md").read_text()
+    for name in ("residual_time.png", "validation_fit.png"):
+        assert (out / name).stat().st_size > 10_000 and f"![{name}]({name})" in text
+
+
+def test_time_delay_on_one_axis(tmp_path):
+    """An input delay of 0.4 ms concealed on q1 (its Pade states on q1's input only) is answered time_delay on
+    q1 with the delay within 20 %; q2 gets nothing."""
+    folder = _bundle(tmp_path / "bundle", [truth.TrueEffect("time_delay", "q1", {"delay_T": 4e-4})], 13)
+    doc = diagnose_bundle(folder, tmp_path / "out")
+    assert [(e["name"], e["axis"]) for e in doc["effects"]] == [("time_delay", "q1")], doc["candidates"]
+    assert doc["effects"][0]["parameters"]["delay"] == pytest.approx(4e-4, rel=0.2)

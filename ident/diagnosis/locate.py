@@ -16,7 +16,7 @@ from motiontwin.ident.diagnosis import effects as effect_models
 from motiontwin.ident.diagnosis import evidence
 from motiontwin.ident.diagnosis.bundle import Bundle
 from motiontwin.ident.diagnosis.plant_roles import output_map
-from motiontwin.ident.diagnosis.structure import ModelFit, Structure
+from motiontwin.ident.diagnosis.structure import ModelFit
 
 
 def _in_state_coordinates(rec: Recording, gain: float, offset: float) -> Recording:
@@ -130,7 +130,7 @@ def force_residuals(bundle: Bundle, rec: Recording, values: dict[str, float]) ->
     return forces - _needed_force(bundle.plant.model, bundle, plain, x, acc)
 
 
-def locate(bundle: Bundle, current: Structure, weights: outputerror.Weights, seed: int) -> list[AxisEvidence]:
+def locate(bundle: Bundle, current: ModelFit, weights: outputerror.Weights, seed: int) -> list[AxisEvidence]:
     """Every axis's force residual beyond the one the fitted model's own noise-free free run leaves through the
     same filters (the derivative filter's error on a fast excitation, common to model and data), and its
     ratio to the level that the fitted model re-simulated with white encoder noise leaves (same filters,
@@ -160,7 +160,7 @@ def locate(bundle: Bundle, current: Structure, weights: outputerror.Weights, see
     return sorted(found, key=lambda e: -e.score)
 
 
-def axis_context(bundle: Bundle, current: Structure, k: int, force: np.ndarray) -> effect_models.Context:
+def axis_context(bundle: Bundle, current: ModelFit, k: int, force: np.ndarray) -> effect_models.Context:
     """Recorded ranges and inverse-dynamics signals of axis ``k`` in its state coordinates."""
     ts = bundle.controller.Ts
     roles = bundle.plant.axes[k]

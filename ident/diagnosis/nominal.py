@@ -13,7 +13,7 @@ from motiontwin.ident.diagnosis import evidence
 from motiontwin.ident.diagnosis.bundle import Bundle, BundleError
 from motiontwin.ident.diagnosis.locate import _mass_equivalent, _needed_force, _pitch_in_state_coordinates, _states_from
 from motiontwin.ident.diagnosis.plant_roles import PlantFormError, output_map
-from motiontwin.ident.diagnosis.structure import (AUGMENTED_CLASS, ModelFit, Structure, _fmt, _log, _moving_start,
+from motiontwin.ident.diagnosis.structure import (AUGMENTED_CLASS, ModelFit, _fmt, _log, _moving_start,
                                                   _nominal_bounds, build_axes)
 from motiontwin.ident.plant_states import alias_state
 
@@ -116,7 +116,7 @@ def _noise_weights(bundle: Bundle, loop: outputerror.Loop, q: np.ndarray, u: np.
                                np.array([evidence.noise_level(um[k] - u[k], ts) for k in range(len(um))]))
 
 
-def fit_nominal_axes(bundle: Bundle, work: Path, progress=None) -> tuple[Structure, outputerror.Weights]:
+def fit_nominal_axes(bundle: Bundle, work: Path, progress=None) -> tuple[ModelFit, outputerror.Weights]:
     """Closed-loop refit of the nominal parameters on every axis at once."""
     values = {"plant." + k: v for k, v in bundle.start.items()}
     loop, bounds = build_axes(bundle, [], values, work, bundle.train.time.size)
@@ -132,4 +132,4 @@ def fit_nominal_axes(bundle: Bundle, work: Path, progress=None) -> tuple[Structu
     result = outputerror.fit(loop.with_values(result.values), bundle.train, weights, bounds, max_nfev=15)
     _log(progress, f"nominal refit ({', '.join(loop.free)}): "
                    f"{_fmt({k: result.values[k] for k in loop.free})}; rms q {result.rms_q:.3g} m")
-    return Structure([], [], loop.with_values(result.values), result, bounds), weights
+    return ModelFit([], loop.with_values(result.values), result, bounds), weights

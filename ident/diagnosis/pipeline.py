@@ -21,7 +21,7 @@ from motiontwin.ident.diagnosis.locate import context
 from motiontwin.ident.diagnosis.nominal import (_divergence_hint, check_plant_form, fit_nominal, fit_nominal_axes,
                                                 nominal_free, nominal_start)
 from motiontwin.ident.diagnosis.remainder import EMPIRICAL_EFFECT, explain_remainder
-from motiontwin.ident.diagnosis.select import VALIDATION_GAIN, select, select_axes
+from motiontwin.ident.diagnosis.select import VALIDATION_GAIN, select
 from motiontwin.ident.diagnosis.structure import (AUGMENTED_CLASS, LoopCache, _log, _nominal_bounds, build_axes,
                                                   build_structure, validate, validate_axes, validation_floor,
                                                   write_structure)
@@ -45,7 +45,7 @@ def run(bundle: Bundle, work: Path, progress=None) -> dict:
                                {k: v for k, v in nominal.fit.values.items() if k in nominal.loop.free},
                                _divergence_hint(bundle))
     ctx = context(bundle, nominal)
-    final, log = select(bundle, nominal, weights, ctx, work / "trials", progress)
+    final, log, _ = select(bundle, nominal, weights, ctx, work / "trials", progress)
     final, remainder = explain_remainder(bundle, final, weights, ctx, work / "remainder", progress)
     model_dir = work / "final_model"
     values = dict(final.fit.values)
@@ -141,8 +141,8 @@ def run_axes(bundle: Bundle, work: Path, progress=None) -> dict:
                                    f"the refitted nominal closed loop on {bundle.recording_path('validation')}, "
                                    f"axis {a.output}", {n: nominal.fit.values[n] for n in nominal.loop.free},
                                    _divergence_hint(bundle))
-    final, log, located = select_axes(bundle, nominal, weights, work / "trials", progress)
-    if not final.val_rms:
+    final, log, located = select(bundle, nominal, weights, None, work / "trials", progress)
+    if not final.val_axes:
         validate_axes(bundle, final, work / "v_final")
     loop, _ = build_axes(bundle, final.placed, final.fit.values, work / "final", bundle.validation.time.size,
                          with_jacobian=False, min_substeps=final.loop.substeps)
@@ -168,7 +168,7 @@ class MultiAxisDiagnosis:
     def from_result(cls, result: dict) -> "MultiAxisDiagnosis":
         bundle, nominal, final = result["bundle"], result["nominal"], result["final"]
         floor = np.atleast_1d(result["validation_floor"])
-        per_axis = {a.output: {"nominal_rms": nominal.val_rms[a.output], "augmented_rms": final.val_rms[a.output],
+        per_axis = {a.output: {"nominal_rms": nominal.val_axes[a.output], "augmented_rms": final.val_axes[a.output],
                                "noise_floor_rms": float(floor[k] if floor.size > 1 else floor[0])}
                     for k, a in enumerate(bundle.plant.axes)}
         rec = bundle.validation
@@ -220,7 +220,7 @@ class MultiAxisDiagnosis:
             np.savetxt(staging / "validation_prediction.csv", table, delimiter=",", fmt="%.17g", header=header,
                        comments="")
             (staging / "diagnosis.json").write_text(json.dumps(doc, indent=2), encoding="utf-8")
-            markdown = report.report_markdown(doc, bundle)
+            markdown = report.report_markdown(doc, bundle, report.axis_plots(result, staging))
             (staging / "report.md").write_text(markdown, encoding="utf-8")
             (staging / "report.html").write_text(report.html_from_markdown(markdown), encoding="utf-8")
             _publish(staging, out)

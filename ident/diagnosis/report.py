@@ -21,7 +21,7 @@ from motiontwin.ident.diagnosis.empirical import POWER_SHARE  # noqa: E402
 from motiontwin.ident.diagnosis.effects import AUGMENTED_CLASS  # noqa: E402
 from motiontwin.ident.diagnosis.empirical import EMPIRICAL as EMPIRICAL_EFFECT  # noqa: E402
 from motiontwin.ident.diagnosis.evidence import VALIDATION_GAIN  # noqa: E402
-from motiontwin.ident.diagnosis.structure import Structure, write_axes_structure  # noqa: E402
+from motiontwin.ident.diagnosis.structure import ModelFit, write_axes_structure  # noqa: E402
 
 
 #: units of the effects' parameters as the report states them (the contract's names)
@@ -440,7 +440,7 @@ def _jsonable(obj):
     return obj
 
 
-def write_product(plant: PlantInfo, final: "Structure", staging: Path) -> Path:
+def write_product(plant: PlantInfo, final: "ModelFit", staging: Path) -> Path:
     """Write the final augmented model into ``staging/augmented_model`` with the MotionTwin library copied
     beside it (self-contained: it loads without the project's library path), and its FMI 2.0 FMU (ME + CS)
     with the fitted start values into ``staging/fmu``; returns the FMU's path relative to ``staging``."""
@@ -456,7 +456,7 @@ def write_product(plant: PlantInfo, final: "Structure", staging: Path) -> Path:
     return built.path.relative_to(staging)
 
 
-def _effect_entry(bundle: Bundle, final: Structure, axis: str, effect: effect_models.Effect) -> dict:
+def _effect_entry(bundle: Bundle, final: ModelFit, axis: str, effect: effect_models.Effect) -> dict:
     info = final.evidence[f"{effect.name}@{axis}"]
     ctx = info["context"]
     params = effect.contract(final.fit.values, ctx)
@@ -476,11 +476,32 @@ def _effect_entry(bundle: Bundle, final: Structure, axis: str, effect: effect_mo
     return {"name": effect.name, "axis": axis, "parameters": {n: float(v) for n, v in params.items()},
             "units": {n: CONTRACT_UNITS.get(n, "") for n in params},
             "location": location, "location_text": location_text(location, axis), "explanation": text,
+            "equivalent_explanations": info.get("equivalents", []), "selection_rule": info.get("rule", ""),
             "evidence": {n: info[n] for n in ("cost_reduction", "null_threshold", "validation_rms_before",
                                               "validation_rms_after", "score")}}
 
 
-def report_markdown(doc: dict, bundle: Bundle) -> str:
+def axis_plots(result: dict, staging: Path) -> list[str]:
+    """The PNG plots of a multi-axis diagnosis, one panel per axis: the training residual of the refitted
+    nominal and of the augmented model, and the validation error of both."""
+    bundle, nominal, final = result["bundle"], result["nominal"], result["final"]
+    axes = [a.output for a in bundle.plant.axes]
+    names = []
+    for rec, (q_nominal, q_final), name, title in (
+            (bundle.train, (nominal.fit.q_sim, final.fit.q_sim), "residual_time.png", "Training residual"),
+            (bundle.validation, (nominal.val_q, final.val_q), "validation_fit.png", "Validation error")):
+        fig, panels = plt.subplots(len(axes), 1, figsize=(9, 1.8 * len(axes) + 1.2), sharex=True, squeeze=False)
+        for k, (axis, ax) in enumerate(zip(axes, panels[:, 0])):
+            ax.plot(rec.time, (rec[axis] - q_nominal[k]) * 1e6, lw=0.6, label="nominal (refitted)")
+            ax.plot(rec.time, (rec[axis] - q_final[k]) * 1e6, lw=0.6, label="augmented")
+            ax.set_ylabel(f"{axis} [um]"), ax.grid(alpha=0.3)
+        panels[0, 0].legend(), panels[-1, 0].set_xlabel("time [s]")
+        fig.suptitle(f"{title} per axis: nominal and augmented model")
+        names.append(_save(fig, staging, name))
+    return names
+
+
+def report_markdown(doc: dict, bundle: Bundle, plots: list[str] = ()) -> str:
     """report.md of a multi-axis diagnosis: effects by axis, per-axis validation, where it was located."""
     lines = [f"# Mismatch diagnosis: {bundle.plant.class_name}, {len(bundle.plant.axes)} axes", ""]
     if doc["effects"]:
@@ -503,6 +524,8 @@ def report_markdown(doc: dict, bundle: Bundle) -> str:
     for name, value in doc["augmented_parameters"].items():
         nominal = doc["nominal_parameters"].get(name)
         lines.append(f"| {name} | {'' if nominal is None else f'{nominal:.6g}'} | {value:.6g} |")
+    if plots:
+        lines += ["", "## Plots", ""] + [f"![{p}]({p})" for p in plots]
     lines += ["", f"Augmented Modelica model: `{doc['augmented_model']}` (self-contained: the MotionTwin library "
               f"is copied beside it); its FMU (FMI 2.0, ME + CS, the fitted start values): `{doc['augmented_fmu']}`. "
               f"Runtime {doc['runtime_s']} s.", ""]

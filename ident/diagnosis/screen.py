@@ -17,7 +17,7 @@ import numpy as np
 from motiontwin.ident import outputerror
 from motiontwin.ident.diagnosis import effects as effect_models
 from motiontwin.ident.diagnosis.bundle import Bundle
-from motiontwin.ident.diagnosis.structure import ModelFit, Structure, _log, build_axes, build_structure, on_axis
+from motiontwin.ident.diagnosis.structure import ModelFit, _log, build_axes, build_structure, on_axis
 
 SCREEN_NFEV = 4             # cheap fit of every candidate, to rank them
 MAX_NFEV = 15               # full fit of the best-ranked candidates
@@ -31,19 +31,32 @@ def fit_structure(bundle: Bundle, current: ModelFit, candidate: effect_models.Ef
     """Fit the current structure plus ``candidate`` from each of the candidate's starting points."""
     effects = current.effects + [candidate]
     base = dict(current.fit.values) if current.effects else {"plant." + k: v for k, v in current.fit.values.items()}
-    starts = candidate.initial(ctx)
-    if max_nfev <= SCREEN_NFEV and candidate.name not in MULTI_START:
-        starts = starts[:1]
+    starts = _starts(candidate, ctx, max_nfev)
     values = {**base, **{p.name: float(np.mean(p.bounds)) for p in candidate.params if not p.fitted}, **starts[0]}
     loop, bounds = build_structure(bundle, effects, values, folder, bundle.train.time.size,
                                    min_substeps=current.loop.substeps)
+    best = _best_fit(bundle, loop, bounds, weights, base, starts, max_nfev)
+    return ModelFit(effects, loop.with_values(best.values), best, bounds, folder)
+
+
+def _starts(candidate: effect_models.Effect, ctx: effect_models.Context, max_nfev: int) -> list[dict[str, float]]:
+    """The candidate's starting points; a screening fit (``SCREEN_NFEV``) takes only the first unless the
+    effect is nonlinear in a period or frequency (``MULTI_START``)."""
+    starts = candidate.initial(ctx)
+    return starts[:1] if max_nfev <= SCREEN_NFEV and candidate.name not in MULTI_START else starts
+
+
+def _best_fit(bundle: Bundle, loop: outputerror.Loop, bounds: dict[str, tuple[float, float]],
+              weights: outputerror.Weights, base: dict[str, float], starts: list[dict[str, float]],
+              max_nfev: int) -> outputerror.Fit:
+    """The lowest-cost fit of ``loop`` from ``base`` with each start (clipped into its bounds) over it."""
     best = None
     for start in starts:
         clipped = {k: float(np.clip(v, *bounds[k])) for k, v in start.items() if k in bounds}
         result = outputerror.fit(loop, bundle.train, weights, bounds, start={**base, **clipped}, max_nfev=max_nfev)
         if best is None or result.cost < best.cost:
             best = result
-    return ModelFit(effects, loop.with_values(best.values), best, bounds, folder)
+    return best
 
 
 def refine(bundle: Bundle, structure: ModelFit, weights: outputerror.Weights, max_nfev: int = MAX_NFEV) -> ModelFit:
@@ -53,7 +66,7 @@ def refine(bundle: Bundle, structure: ModelFit, weights: outputerror.Weights, ma
     if result.cost >= structure.fit.cost:
         return structure
     return ModelFit(structure.effects, structure.loop.with_values(result.values), result, structure.bounds,
-                    structure.folder, evidence=structure.evidence)
+                    structure.folder, evidence=structure.evidence, axes=structure.axes)
 
 
 #: screening jobs by token (the function fitting one candidate by name): forked workers inherit the table and
@@ -139,47 +152,35 @@ def _close_richer(ranked: list[str], screened: dict, cost: float) -> list[str]:
             and cost - screened[rich][0].cost >= NESTED_SCREEN_SHARE * (cost - screened[simple][0].cost) > 0]
 
 
-#: effects that replace the applied input (an input delay) are not offered per axis yet
-PER_AXIS_EXCLUDED = ("time_delay",)
-
-
-def fit_candidate(bundle: Bundle, current: Structure, effect: effect_models.Effect, axis: str,
+def fit_candidate(bundle: Bundle, current: ModelFit, effect: effect_models.Effect, axis: str,
                   ctx: effect_models.Context, weights: outputerror.Weights, folder: Path,
-                  max_nfev: int) -> Structure:
+                  max_nfev: int) -> ModelFit:
     """The current structure plus ``effect`` on ``axis``, fitted from each of its starting points."""
     roles = next(a for a in bundle.plant.axes if a.output == axis)
     placed = on_axis(effect, roles)
     effects = current.placed + [(axis, placed)]
-    starts = placed.initial(ctx)
-    if max_nfev <= SCREEN_NFEV and effect.name not in MULTI_START:
-        starts = starts[:1]
+    starts = _starts(placed, ctx, max_nfev)
     base = dict(current.fit.values)
     values = {**base, **{p.name: float(np.mean(p.bounds)) for p in placed.params if not p.fitted}, **starts[0]}
     loop, bounds = build_axes(bundle, effects, values, folder, bundle.train.time.size,
                               min_substeps=current.loop.substeps)
-    best = None
-    for start in starts:
-        clipped = {k: float(np.clip(v, *bounds[k])) for k, v in start.items() if k in bounds}
-        result = outputerror.fit(loop, bundle.train, weights, bounds, start={**loop.values, **base, **clipped},
-                                 max_nfev=max_nfev)
-        if best is None or result.cost < best.cost:
-            best = result
-    return Structure(current.effects + [placed], current.axes + [axis], loop.with_values(best.values), best, bounds,
-                     evidence=dict(current.evidence))
+    best = _best_fit(bundle, loop, bounds, weights, {**loop.values, **base}, starts, max_nfev)
+    return ModelFit(current.effects + [placed], loop.with_values(best.values), best, bounds, folder,
+                    evidence=dict(current.evidence), axes=current.axes + [axis])
 
 
-def placed_structure(bundle: Bundle, current: Structure, name: str, axis: str, ctx: effect_models.Context,
-                     fit: outputerror.Fit, substeps: int, folder: Path) -> Structure:
+def placed_structure(bundle: Bundle, current: ModelFit, name: str, axis: str, ctx: effect_models.Context,
+                     fit: outputerror.Fit, substeps: int, folder: Path) -> ModelFit:
     """The structure of a screened candidate (its loop rebuilt here: the compiled library is on disk)."""
     roles = next(a for a in bundle.plant.axes if a.output == axis)
     placed = on_axis(effect_models.VOCABULARY[name](ctx), roles)
     loop, bounds = build_axes(bundle, current.placed + [(axis, placed)], fit.values, folder, bundle.train.time.size,
                               min_substeps=substeps)
-    return Structure(current.effects + [placed], current.axes + [axis], loop.with_values(fit.values), fit, bounds,
-                     evidence=dict(current.evidence))
+    return ModelFit(current.effects + [placed], loop.with_values(fit.values), fit, bounds, folder,
+                    evidence=dict(current.evidence), axes=current.axes + [axis])
 
 
 def candidates(ctx: effect_models.Context, used: set[str]) -> list[str]:
     """The vocabulary's effects offered on an axis (one per family and axis)."""
-    offered = {n: factory(ctx) for n, factory in effect_models.VOCABULARY.items() if n not in PER_AXIS_EXCLUDED}
+    offered = {n: factory(ctx) for n, factory in effect_models.VOCABULARY.items()}
     return [n for n, e in offered.items() if e.applicable and e.family not in used]

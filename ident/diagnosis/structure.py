@@ -26,7 +26,9 @@ FLOOR_REPLICATES = 5         # noise re-simulations for the validation noise flo
 
 @dataclass
 class ModelFit:
-    """One model structure fitted on the training recording."""
+    """One model structure fitted on the training recording: the effects added to the nominal plant (several
+    axes: each renamed for the axis ``axes`` names, :func:`on_axis`), the compiled loop, the fit and its bounds,
+    and the validation free run (``val_rms`` [m] over every axis, ``val_axes`` per axis of several)."""
 
     effects: list[effect_models.Effect]
     loop: outputerror.Loop
@@ -36,10 +38,25 @@ class ModelFit:
     val_rms: float = math.nan
     val_q: np.ndarray | None = None
     evidence: dict = field(default_factory=dict)
+    axes: list[str] = field(default_factory=list)
+    val_axes: dict[str, float] = field(default_factory=dict)
 
     @property
     def names(self) -> list[str]:
         return [e.name for e in self.effects]
+
+    @property
+    def placed(self) -> list[tuple[str, effect_models.Effect]]:
+        """(axis, effect) pairs of a multi-axis structure."""
+        return list(zip(self.axes, self.effects))
+
+    def axis_rms(self, axis: str | None) -> float:
+        """The validation RMS that decides on ``axis`` [m] (None: the one axis)."""
+        return self.val_rms if axis is None else self.val_axes[axis]
+
+    @property
+    def validated(self) -> bool:
+        return not math.isnan(self.val_rms)
 
 
 def _nominal_bounds(bundle: Bundle, prefix: str = "") -> tuple[list[str], dict[str, tuple[float, float]]]:
@@ -170,25 +187,6 @@ def validation_floor(loop: outputerror.Loop, bundle: Bundle, values: dict[str, f
     return np.sqrt(np.mean(power, axis=0)) if per_axis else float(np.sqrt(np.mean(power)))
 
 
-@dataclass
-class Structure:
-    """One multi-axis model structure fitted on the training recording: effects with the axis each acts on."""
-
-    effects: list[effect_models.Effect]   # each renamed for its axis (:func:`on_axis`)
-    axes: list[str]                       # the axis (output name) of each effect
-    loop: outputerror.Loop
-    fit: outputerror.Fit
-    bounds: dict[str, tuple[float, float]]
-    val_rms: dict[str, float] = field(default_factory=dict)    # per axis [m]
-    val_q: np.ndarray | None = None
-    evidence: dict = field(default_factory=dict)
-
-    @property
-    def placed(self) -> list[tuple[str, effect_models.Effect]]:
-        """(axis, effect) pairs."""
-        return list(zip(self.axes, self.effects))
-
-
 def _prefix(axis: str) -> str:
     return f"{axis}_"
 
@@ -315,10 +313,27 @@ def per_axis_rms(bundle: Bundle, rec: Recording, q: np.ndarray) -> dict[str, flo
     return out
 
 
-def validate_axes(bundle: Bundle, structure: Structure, folder: Path) -> None:
-    """Free-run the fitted structure on the validation recording: per-axis RMS in ``val_rms``."""
+def validate_axes(bundle: Bundle, structure: ModelFit, folder: Path) -> None:
+    """Free-run the fitted structure on the validation recording: per-axis RMS in ``val_axes``, over every
+    axis in ``val_rms``."""
     loop, _ = build_axes(bundle, structure.placed, structure.fit.values, folder, bundle.validation.time.size,
                          with_jacobian=False, min_substeps=structure.loop.substeps)
     q, _ = outputerror.simulate(loop, bundle.validation, structure.fit.values)
     structure.val_q = q
-    structure.val_rms = per_axis_rms(bundle, bundle.validation, q)
+    structure.val_axes = per_axis_rms(bundle, bundle.validation, q)
+    err = np.array([bundle.validation[a.output] - q[k] for k, a in enumerate(bundle.plant.axes)])
+    structure.val_rms = float(np.sqrt(np.mean(err ** 2))) if np.all(np.isfinite(err)) else math.inf
+
+
+def validate_any(bundle: Bundle, structure: ModelFit, folder: Path) -> None:
+    """:func:`validate` (one axis) or :func:`validate_axes` (several)."""
+    (validate_axes if bundle.multi_axis else validate)(bundle, structure, folder)
+
+
+def compiled(bundle: Bundle, structure: ModelFit, folder: Path) -> tuple[outputerror.Loop, dict]:
+    """The training loop of ``structure`` recompiled at its fitted values (the RK4 substeps they need)."""
+    if bundle.multi_axis:
+        return build_axes(bundle, structure.placed, structure.fit.values, folder, bundle.train.time.size,
+                          min_substeps=structure.loop.substeps)
+    return build_structure(bundle, structure.effects, structure.fit.values, folder, bundle.train.time.size,
+                           min_substeps=structure.loop.substeps)
