@@ -370,3 +370,25 @@ def test_time_delay_on_one_axis(tmp_path):
     doc = diagnose_bundle(folder, tmp_path / "out")
     assert [(e["name"], e["axis"]) for e in doc["effects"]] == [("time_delay", "q1")], doc["candidates"]
     assert doc["effects"][0]["parameters"]["delay"] == pytest.approx(4e-4, rel=0.2)
+
+
+def test_unexplained_stage_runs_on_several_axes(coulomb_q2):
+    """After the catalogue the unexplained stage asks the located axis too; with the Coulomb friction found
+    nothing significant is left: the check says so and there is no unexplained entry."""
+    doc, _ = coulomb_q2
+    assert doc["residual_check"]["status"] == "none" and doc["residual_check"]["reason"]
+    assert doc["unexplained"] is None
+
+
+def test_outside_law_on_one_axis_is_unexplained_on_that_axis(tmp_path):
+    """Quadratic drag (outside the catalogue, 2000 N s^2/m^2) concealed on q2: no catalogue effect is named and
+    the unexplained stage says "unexplained" on q2, with v*|v| among the terms of the sparse law of q2's force
+    residual (here it does not validate: "unexplained, no term validated")."""
+    drag = truth.TrueEffect("quadratic_drag", "q2", {"empirical_c1": 2000.0})
+    doc = diagnose_bundle(_bundle(tmp_path / "bundle", [drag], 17), tmp_path / "out")
+    assert doc["effects"] == [], doc["candidates"]
+    entry = doc["unexplained"]
+    assert entry is not None and entry["status"].startswith("unexplained") and entry["axis"] == "q2", \
+        doc["residual_check"]
+    term = entry.get("empirical_term") or entry["rejected_term"]
+    assert "v*|v|" in term["terms"] and term["cost_reduction"] > term["null_threshold"]

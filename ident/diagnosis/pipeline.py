@@ -20,7 +20,7 @@ from motiontwin.ident.diagnosis.bundle import Bundle
 from motiontwin.ident.diagnosis.locate import context
 from motiontwin.ident.diagnosis.nominal import (_divergence_hint, check_plant_form, fit_nominal, fit_nominal_axes,
                                                 nominal_free, nominal_start)
-from motiontwin.ident.diagnosis.remainder import EMPIRICAL_EFFECT, explain_remainder
+from motiontwin.ident.diagnosis.remainder import EMPIRICAL_EFFECT, explain_remainder, explain_remainder_axes
 from motiontwin.ident.diagnosis.select import VALIDATION_GAIN, select
 from motiontwin.ident.diagnosis.structure import (AUGMENTED_CLASS, LoopCache, _log, _nominal_bounds, build_axes,
                                                   build_structure, validate, validate_axes, validation_floor,
@@ -142,6 +142,7 @@ def run_axes(bundle: Bundle, work: Path, progress=None) -> dict:
                                    f"axis {a.output}", {n: nominal.fit.values[n] for n in nominal.loop.free},
                                    _divergence_hint(bundle))
     final, log, located = select(bundle, nominal, weights, None, work / "trials", progress)
+    final, remainder = explain_remainder_axes(bundle, final, weights, work / "remainder", progress)
     if not final.val_axes:
         validate_axes(bundle, final, work / "v_final")
     loop, _ = build_axes(bundle, final.placed, final.fit.values, work / "final", bundle.validation.time.size,
@@ -149,7 +150,8 @@ def run_axes(bundle: Bundle, work: Path, progress=None) -> dict:
     floor = validation_floor(loop, bundle, final.fit.values, weights.sigma_q)
     _log(progress, f"diagnosis done in {time.perf_counter() - t0:.1f} s")
     return {"bundle": bundle, "nominal": nominal, "final": final, "weights": weights, "log": log,
-            "located": located, "validation_floor": floor, "seconds": time.perf_counter() - t0}
+            "located": located, "remainder": remainder, "validation_floor": floor,
+            "seconds": time.perf_counter() - t0}
 
 
 @dataclass
@@ -179,16 +181,21 @@ class MultiAxisDiagnosis:
 
         validation = {"nominal_rms": overall(nominal.val_q), "augmented_rms": overall(final.val_q),
                       "noise_floor_rms": float(np.sqrt(np.mean(floor ** 2))), "per_axis": per_axis}
-        return cls([e.name for e in final.effects], list(final.axes),
+        named = [(axis, e) for axis, e in final.placed if e.family != EMPIRICAL_EFFECT]
+        return cls([e.name for _, e in named], [axis for axis, _ in named],
                    report._strip(final.fit.values), report._strip(nominal.fit.values), validation, result)
 
     def document(self, out: Path) -> dict:
         """diagnosis.json's content."""
         result = self.result
         bundle, final = result["bundle"], result["final"]
-        entries = [report._effect_entry(bundle, final, axis, e) for axis, e in final.placed]
+        entries = [report._effect_entry(bundle, final, axis, e) for axis, e in final.placed
+                   if e.family != EMPIRICAL_EFFECT]
+        remainder = result["remainder"]
         return report._jsonable({
-            "effects": entries, "validation": self.validation, "nominal_parameters": self.nominal_parameters,
+            "effects": entries, "unexplained": report.unexplained_entry(remainder),
+            "residual_check": {k: remainder[k] for k in ("status", "reason") if k in remainder},
+            "validation": self.validation, "nominal_parameters": self.nominal_parameters,
             "augmented_parameters": self.parameters,
             "augmented_model": str(out / "augmented_model" / f"{AUGMENTED_CLASS}.mo"), "augmented_fmu": None,
             "noise": {"sigma_q": dict(zip([a.output for a in bundle.plant.axes],

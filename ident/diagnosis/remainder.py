@@ -13,11 +13,11 @@ from motiontwin.ident.diagnosis import effects as effect_models
 from motiontwin.ident.diagnosis import empirical
 from motiontwin.ident.diagnosis import evidence
 from motiontwin.ident.diagnosis.bundle import Bundle
-from motiontwin.ident.diagnosis.locate import _in_state_coordinates
+from motiontwin.ident.diagnosis.locate import _in_state_coordinates, locate
 from motiontwin.ident.diagnosis.plant_roles import output_map
-from motiontwin.ident.diagnosis.screen import MAX_NFEV, fit_structure, refine
-from motiontwin.ident.diagnosis.select import BOOTSTRAP_COUNT, MAX_EFFECTS, VALIDATION_GAIN
-from motiontwin.ident.diagnosis.structure import ModelFit, _log, build_structure, validate
+from motiontwin.ident.diagnosis.screen import MAX_NFEV, fit_candidate, fit_structure, refine
+from motiontwin.ident.diagnosis.select import BOOTSTRAP_COUNT, MAX_EFFECTS, NEXT_ROUND_SCORE, VALIDATION_GAIN
+from motiontwin.ident.diagnosis.structure import ModelFit, _log, build_structure, validate, validate_axes
 
 EMPIRICAL_EFFECT = empirical.EMPIRICAL   # the data-driven term added after the catalogue (not in VOCABULARY)
 
@@ -148,4 +148,73 @@ def explain_remainder(bundle: Bundle, final: ModelFit, weights: outputerror.Weig
     trial.evidence = {**trial.evidence, EMPIRICAL_EFFECT: {
         "cost_reduction": reduction, "null_threshold": threshold, "validation_rms_before": final.val_rms,
         "validation_rms_after": trial.val_rms, "previous": final}}
+    return trial, check
+
+
+def explain_remainder_axes(bundle: Bundle, final: ModelFit, weights: outputerror.Weights, work: Path,
+                           progress=None) -> tuple[ModelFit, dict]:
+    """The unexplained stage on several axes: the axis whose force residual beyond the final model stands
+    highest above its noise reference (:func:`locate.locate`) is the one asked; nothing is tested when none
+    reaches ``NEXT_ROUND_SCORE``. Its force residual is fitted by the sparse law, the law placed on that axis as
+    the effect ``empirical_force`` and refitted by output error with every other parameter, and kept as for one
+    axis: significant beyond the bootstrap null and lowering that axis's validation RMS by the validation
+    rule's margin. Returns the final structure and the check (``status``, ``axis``, where, the term)."""
+    target = locate(bundle, final, weights, seed=100 + MAX_EFFECTS + 1)[0]
+    axis, ctx = target.axis, target.context
+    if target.score < NEXT_ROUND_SCORE:
+        reason = (f"no axis's force residual reaches {NEXT_ROUND_SCORE} times its noise reference (highest: "
+                  f"{axis}, {target.score:.3g})")
+        _log(progress, f"remaining structure: none ({reason})")
+        return final, {"status": empirical.NONE, "reason": reason}
+    signals = {"x": ctx.x, "v": ctx.v, "a": ctx.a, "u": ctx.u}
+    law = empirical.fit_empirical_force(signals, target.force, library=empirical.residual_library())
+    _log(progress, f"remaining force residual on {axis}: {law.describe()}")
+    law = empirical.without_parameter_terms(law)
+    if not law.terms:
+        return final, {"status": empirical.NONE, "reason": f"no library function beyond the nominal parameters' "
+                                                           f"own explains the force residual of {axis}"}
+    effect = empirical.as_effect(law, ctx)
+    try:
+        trial = refine(bundle, fit_candidate(bundle, final, effect, axis, ctx, weights, work / "empirical", MAX_NFEV),
+                       weights)
+    except (RuntimeError, ValueError, np.linalg.LinAlgError) as exc:
+        return final, {"status": empirical.NONE, "reason": f"the empirical term ({', '.join(law.names)}) on {axis} "
+                                                           f"could not be fitted by output error: {exc}"}
+    noisy = lambda n: outputerror.simulate(final.loop, bundle.train, final.fit.values, noise=n)  # noqa: E731
+    null = evidence.bootstrap_residuals(noisy, final.fit.q_sim, final.fit.u_sim, weights.sigma_q, weights.sigma_u,
+                                        bundle.train.time.size, BOOTSTRAP_COUNT, seed=MAX_EFFECTS + 1)
+    null_gain = evidence.projected_gain(trial.fit.jacobian, null) - evidence.projected_gain(final.fit.jacobian, null)
+    dof = sum(p.fitted for p in effect.params)
+    threshold = evidence.null_threshold(null_gain, dof)
+    reduction = final.fit.cost - trial.fit.cost
+    _log(progress, f"  empirical term on {axis}: cost -{reduction:.4g}, null {threshold:.4g} "
+                   f"(x{reduction / threshold:.2f})")
+    if empirical.verdict(reduction, threshold, None, VALIDATION_GAIN) == empirical.NONE:
+        return final, {"status": empirical.NONE, "reason": f"the empirical term ({', '.join(law.names)}) on {axis} "
+                                                           f"is not significant: cost reduction {reduction:.4g} <= "
+                                                           f"null threshold {threshold:.4g}"}
+    validate_axes(bundle, trial, work / "v_empirical")
+    if not final.val_axes:
+        validate_axes(bundle, final, work / "v_before_empirical")
+    before, after = final.val_axes[axis], trial.val_axes[axis]
+    status = empirical.verdict(reduction, threshold, after / before, VALIDATION_GAIN)
+    kept = status == empirical.UNEXPLAINED
+    _log(progress, f"  empirical term on {axis}: validation rms {before:.4g} -> {after:.4g} "
+                   f"({'kept' if kept else 'rejected'})")
+    k = [a.output for a in bundle.plant.axes].index(axis)
+    where = empirical.locate_remainder(trial.fit.q_sim[k] - final.fit.q_sim[k], bundle.train[axis] - final.fit.q_sim[k],
+                                       bundle.train.time, ctx.v * ctx.position_gain, bundle.train[axis],
+                                       float(np.atleast_1d(weights.sigma_q)[k]), bundle.controller.Ts)
+    placed = trial.effects[-1]
+    term = {"terms": law.names, "coefficients": placed.contract(trial.fit.values, ctx),
+            "units": {name: empirical.TERM_UNITS.get(name, "") for name in law.names},
+            "modelica": placed.equations[0], "validation_rms_before": before, "validation_rms_after": after,
+            "validation_gain": after / before, "cost_reduction": reduction, "null_threshold": threshold,
+            "fitted_parameters": dof}
+    check = {"status": status, "axis": axis, **where, "empirical_term" if kept else "rejected_term": term}
+    if not kept:
+        return final, check
+    trial.evidence = {**final.evidence, f"{EMPIRICAL_EFFECT}@{axis}": {
+        "axis": axis, "cost_reduction": reduction, "null_threshold": threshold, "validation_rms_before": before,
+        "validation_rms_after": after, "previous": final}}
     return trial, check

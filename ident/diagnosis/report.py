@@ -513,7 +513,8 @@ def report_markdown(doc: dict, bundle: Bundle, plots: list[str] = ()) -> str:
     else:
         lines += ["## No effect found", "", "Only the nominal parameters were off: no candidate effect on the "
                   "located axes beat the bootstrap null reference and improved validation."]
-    lines += ["", "## Validation RMS per axis", "", "| axis | nominal [m] | augmented [m] | noise floor [m] |",
+    lines += [""] + _unexplained_markdown(doc)
+    lines += ["## Validation RMS per axis", "", "| axis | nominal [m] | augmented [m] | noise floor [m] |",
               "|---|---|---|---|"]
     for axis, v in doc["validation"]["per_axis"].items():
         lines.append(f"| {axis} | {v['nominal_rms']:.3g} | {v['augmented_rms']:.3g} | {v['noise_floor_rms']:.3g} |")
