@@ -392,3 +392,17 @@ def test_outside_law_on_one_axis_is_unexplained_on_that_axis(tmp_path):
         doc["residual_check"]
     term = entry.get("empirical_term") or entry["rejected_term"]
     assert "v*|v|" in term["terms"] and term["cost_reduction"] > term["null_threshold"]
+
+
+def test_diagnose_help_documents_the_multi_axis_format(capsys):
+    """motiontwin diagnose --help shows the multi-axis bundle: axes, per-axis controllers and their signal
+    names, pole pitch per axis, free, and the recordings' column naming."""
+    from motiontwin.cli import main
+
+    with pytest.raises(SystemExit):
+        main(["diagnose", "--help"])
+    text = capsys.readouterr().out
+    for part in ('"axes": [{"input": "u1", "output": "q1"}', '"kind": "per_axis"',
+                 '"inputs": ["r_q1", "r_q2", "q1", "q2"]', '"pole_pitch": 0.032}]', '"free":',
+                 "r_<output> [m], <input> [N], <output> [m]", "u_ext_<input>"):
+        assert part in text, part
