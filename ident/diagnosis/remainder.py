@@ -81,13 +81,8 @@ def explain_remainder(bundle: Bundle, final: ModelFit, weights: outputerror.Weig
         except (RuntimeError, ValueError, np.linalg.LinAlgError) as exc:
             return final, {"status": empirical.NONE, "reason": f"the empirical term ({', '.join(law.names)}) could not "
                                                        f"be fitted by output error: {exc}"}
-    noisy = lambda n: outputerror.simulate(final.loop, bundle.train, final.fit.values, noise=n)  # noqa: E731
-    null = evidence.bootstrap_residuals(noisy, final.fit.q_sim, final.fit.u_sim, weights.sigma_q, weights.sigma_u,
-                                        bundle.train.time.size, BOOTSTRAP_COUNT, seed=MAX_EFFECTS + 1)
-    null_gain = evidence.projected_gain(trial.fit.jacobian, null) - evidence.projected_gain(final.fit.jacobian, null)
     dof = sum(p.fitted for p in effect.params)
-    threshold = evidence.null_threshold(null_gain, dof)
-    reduction = final.fit.cost - trial.fit.cost
+    null, reduction, threshold = _null_test(bundle, final, trial, weights, dof)
     _log(progress, f"  empirical term: cost -{reduction:.4g}, null {threshold:.4g} (x{reduction / threshold:.2f})")
     if empirical.verdict(reduction, threshold, None, VALIDATION_GAIN) == empirical.NONE:
         return final, {"status": empirical.NONE, "reason": f"the empirical term ({', '.join(law.names)}) is not "
@@ -151,6 +146,17 @@ def explain_remainder(bundle: Bundle, final: ModelFit, weights: outputerror.Weig
     return trial, check
 
 
+def _null_test(bundle: Bundle, final: ModelFit, trial: ModelFit, weights: outputerror.Weights,
+               dof: int) -> tuple[np.ndarray, float, float]:
+    """The parametric-bootstrap null residuals of the final model (seeded after the selection's rounds), the
+    empirical term's cost reduction and its 99.9 % null threshold for ``dof`` fitted parameters."""
+    noisy = lambda n: outputerror.simulate(final.loop, bundle.train, final.fit.values, noise=n)  # noqa: E731
+    null = evidence.bootstrap_residuals(noisy, final.fit.q_sim, final.fit.u_sim, weights.sigma_q, weights.sigma_u,
+                                        bundle.train.time.size, BOOTSTRAP_COUNT, seed=MAX_EFFECTS + 1)
+    null_gain = evidence.projected_gain(trial.fit.jacobian, null) - evidence.projected_gain(final.fit.jacobian, null)
+    return null, final.fit.cost - trial.fit.cost, evidence.null_threshold(null_gain, dof)
+
+
 def explain_remainder_axes(bundle: Bundle, final: ModelFit, weights: outputerror.Weights, work: Path,
                            progress=None) -> tuple[ModelFit, dict]:
     """The unexplained stage on several axes: the axis whose force residual beyond the final model stands
@@ -180,13 +186,8 @@ def explain_remainder_axes(bundle: Bundle, final: ModelFit, weights: outputerror
     except (RuntimeError, ValueError, np.linalg.LinAlgError) as exc:
         return final, {"status": empirical.NONE, "reason": f"the empirical term ({', '.join(law.names)}) on {axis} "
                                                            f"could not be fitted by output error: {exc}"}
-    noisy = lambda n: outputerror.simulate(final.loop, bundle.train, final.fit.values, noise=n)  # noqa: E731
-    null = evidence.bootstrap_residuals(noisy, final.fit.q_sim, final.fit.u_sim, weights.sigma_q, weights.sigma_u,
-                                        bundle.train.time.size, BOOTSTRAP_COUNT, seed=MAX_EFFECTS + 1)
-    null_gain = evidence.projected_gain(trial.fit.jacobian, null) - evidence.projected_gain(final.fit.jacobian, null)
     dof = sum(p.fitted for p in effect.params)
-    threshold = evidence.null_threshold(null_gain, dof)
-    reduction = final.fit.cost - trial.fit.cost
+    _, reduction, threshold = _null_test(bundle, final, trial, weights, dof)
     _log(progress, f"  empirical term on {axis}: cost -{reduction:.4g}, null {threshold:.4g} "
                    f"(x{reduction / threshold:.2f})")
     if empirical.verdict(reduction, threshold, None, VALIDATION_GAIN) == empirical.NONE:
