@@ -11,60 +11,18 @@ import math
 import os
 import re
 import types
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import casadi as ca
 
 from motiontwin.fmus import limits
+from motiontwin.fmus.flatmodel import FlatModel, ModelicaError, Variable
 
 for _cls in (ca.MX, ca.SX, ca.DM):  # pymoca 0.12 looks operators and Modelica built-ins up by these names
     _cls.__div__ = _cls.__truediv__
     _cls.atan, _cls.asin, _cls.acos = _cls.arctan, _cls.arcsin, _cls.arccos
     _cls.atan2 = _cls.__arctan2__
-
-
-class ModelicaError(Exception):
-    """A Modelica source cannot be turned into a model; the message names file, line and column."""
-
-
-@dataclass
-class Variable:
-    """One scalar Modelica variable with the attributes the FMU and the identification need."""
-
-    name: str
-    symbol: ca.SX
-    description: str = ""
-    unit: str = ""
-    start: Any = None  # float, or an SX expression of parameters
-    min: float = -math.inf
-    max: float = math.inf
-    nominal: float | None = None
-
-
-@dataclass
-class FlatModel:
-    """A Modelica class as a flat DAE ``residual(der_x, x, z, u, p, t) == 0`` in CasADi SX.
-
-    ``states`` carry ``der_states`` in the same order; ``algebraics`` are the remaining unknowns.
-    ``parameters`` have numeric values; ``calculated`` are parameters bound to expressions of
-    other parameters (substituted into ``residual``, kept so they can be reported).
-    """
-
-    name: str
-    description: str
-    source: Path
-    states: list[Variable]
-    der_states: list[ca.SX]
-    algebraics: list[Variable]
-    inputs: list[Variable]
-    parameters: list[Variable]
-    calculated: list[tuple[Variable, ca.SX]]
-    outputs: list[str]
-    residual: ca.SX
-    time: ca.SX
-    annotation: dict[str, Any] = field(default_factory=dict)
 
 
 def _casadi_proxy() -> types.ModuleType:
@@ -270,7 +228,7 @@ def load(source: str | os.PathLike[str], class_name: str, libraries: tuple[Path,
 
     The result is cached by the contents of the source files (:mod:`fmus.modelcache`); on a miss only the
     files the class needs are parsed (all of them when that subset does not flatten, for the same errors)."""
-    from motiontwin.fmus import modelcache
+    from motiontwin.fmus import flatmodel, modelcache
 
     source = Path(source)
     libraries = tuple(Path(lib) for lib in libraries)
@@ -278,7 +236,7 @@ def load(source: str | os.PathLike[str], class_name: str, libraries: tuple[Path,
     data = {path: _mo_bytes(path) for path in files}
     roots = [source.parent if source.is_file() else source, *libraries]
     named = [(_relative_name(path, roots), raw) for path, raw in data.items()]
-    digest = modelcache.key(named, class_name, [Path(__file__), Path(modelcache.__file__)])
+    digest = modelcache.key(named, class_name, [Path(__file__), Path(flatmodel.__file__), Path(modelcache.__file__)])
     model = modelcache.fetch(digest, source)
     if model is None:
         texts = {path: _mo_text(path, raw) for path, raw in data.items()}

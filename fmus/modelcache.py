@@ -21,7 +21,7 @@ from typing import Any
 import casadi as ca
 
 from motiontwin.fmus.clib import cache_dir
-from motiontwin.fmus.frontend import FlatModel, Variable
+from motiontwin.fmus.flatmodel import FlatModel, Variable
 
 FORMAT = 1
 FOLDER = "flat"

@@ -4,6 +4,6 @@ Plain functions over numpy arrays, one job per module: signals (frequency-domain
 averaging), leastsquares (Gauss-Markov with statistics), joint (serial-joint regressor), frf (FRF estimation
 and model fit), closedloop (projection method), excitation_design (optimal Fourier coefficients of
 harness.excitation.fourier_basis), maximum_likelihood (maximum likelihood with filter cut-off), outputerror and
-multipleshooting (simulation-error refits), tuning (tuning_spec, tuning_margins, tuning_optimisation,
-tuning_table2; controller_fmu writes the result into an FMU), diagnosis (mismatch diagnosis).
+multipleshooting (simulation-error refits), tuning (subpackage: spec, margins, optimisation,
+table2, plots, manipulator; controller_fmu writes the result into an FMU), diagnosis (mismatch diagnosis).
 """

@@ -13,8 +13,11 @@ experiment.json:
              "input": "u", "output": "q",  optional (these defaults); other inputs are held at their start
              "position": "x",              optional: the position and velocity states (default: found from
              "velocity": "v",              the output's derivative chain, der(position) = velocity)
-             "parameters": {"m": 95.0}},   optional start values (default: the Modelica values; the other
+             "parameters": {"m": 95.0},    optional start values (default: the Modelica values; the other
                                            parameters entering the force linearly start from inverse dynamics)
+             "free": ["m", "d"],           optional: the parameters the nominal refit moves (default: every
+                                           non-zero one; the others keep their values)
+             "pole_pitch": 0.032},         optional: the motor's magnet pole pitch [m] (enables cogging)
    "controller": {"kind": "discrete_state_space", "Ts": 0.0005, "inputs": ["r", "q"], "outputs": ["u"],
                   "A": [[...]], "B": [[...]], "C": [[...]], "D": [[...]]}
               or {"kind": "MotionTwin.Controllers.RobustJointController", "parameters": {"Kp": 2e5, ...}},
@@ -25,5 +28,18 @@ controller's instants (step Ts); closed loop: u = controller output + u_ext is t
 Every file named in experiment.json must resolve (symbolic links followed) inside the bundle folder.
 The recordings may start while the loop is moving.
 
+Several axes (a gantry, a coupled mechanism in actuator coordinates): plant.axes instead of input/output,
+one entry per axis, named by its output; "parameters" and "free" stay plant-wide:
+  "plant": {"modelica": "plant.mo", "class": "Gantry",
+            "axes": [{"input": "u1", "output": "q1"},                        per axis optional: "position",
+                     {"input": "u2", "output": "q2", "pole_pitch": 0.032}],  "velocity", "pole_pitch"
+            "free": ["m1", "m2", "d"]}
+  "controller": {"kind": "per_axis", "axes": [CONTROLLER_1, CONTROLLER_2]}   one single-axis controller per
+                                           axis (either form above, inputs ["r", "q"], the same Ts), or one
+                {"kind": "discrete_state_space", "Ts": ..., "inputs": ["r_q1", "r_q2", "q1", "q2"],
+                 "outputs": ["u1", "u2"], "A": ..., "B": ..., "C": ..., "D": ...}   multivariable
+  train.csv, validation.csv: columns time [s] and per axis r_<output> [m], <input> [N], <output> [m],
+  optional u_ext_<input> [N], e.g. time,r_q1,u1,q1,r_q2,u2,q2.
+Each effect found names its axis; the validation RMS is given per axis.
 """
 BUNDLE_FORMAT += limits_help().replace("; ", ";\n  ") + "\n"

@@ -12,7 +12,7 @@ from pathlib import Path
 
 from motiontwin.fmus import build, writeback
 from motiontwin.fmus.archive import read_description
-from motiontwin.ident.tuning_spec import CONTROLLER_CLASS, TuningError
+from motiontwin.ident.tuning.spec import CONTROLLER_CLASS, TuningError
 
 __all__ = ["write_controller_fmu", "sample_period_of"]
 

@@ -27,7 +27,8 @@ import casadi as ca
 import numpy as np
 
 from motiontwin.harness.recording import Recording
-from motiontwin.ident import outputerror as oe
+from motiontwin.ident import oefit as oe
+from motiontwin.ident import oeloop
 
 __all__ = ["fit", "initial_state_function", "IPOPT_OPTIONS"]
 
@@ -37,7 +38,7 @@ CONVERGED = ("Solve_Succeeded", "Solved_To_Acceptable_Level")
 STALLED = ("Search_Direction_Becomes_Too_Small",)   # converged within round-off when the segments join
 
 
-def initial_state_function(loop: oe.Loop, rec: Recording, values: dict[str, float],
+def initial_state_function(loop: oeloop.Loop, rec: Recording, values: dict[str, float],
                            known: dict[str, float], estimate_initial: list[str] | tuple[str, ...]) -> ca.Function:
     """(theta, x_init) -> loop state at t_0, symbolic: :func:`ident.outputerror.initial_state`, with the
     plant states it does not set from the recording (or ``known``, or the estimated ``x_init``) at the
@@ -50,7 +51,7 @@ def initial_state_function(loop: oe.Loop, rec: Recording, values: dict[str, floa
     x0 = ca.Function("x0", [model.p], [model.x0()])(p)
     base = oe.initial_state(loop, rec, values, known)
     states = [v.name for v in model.states]
-    i_out = oe.output_state(model, loop.position_state)
+    i_out = oeloop.output_state(model, loop.position_state)
     preset = {loop.position_state, *loop.tracking, *known, *([] if i_out is None else [states[i_out]])}
     entries = [x0[i] if name not in preset else base[i] for i, name in enumerate(states)]
     for k, i in enumerate(oe.state_indices(loop, estimate_initial)):
@@ -68,7 +69,7 @@ def _gauss_newton_hessian(v: ca.MX, r: ca.MX, n_g: int) -> ca.Function:
                        ["x", "p", "lam_f", "lam_g"], ["triu_hess_gamma_x_x"])
 
 
-def fit(loop: oe.Loop, rec: Recording, weights: oe.Weights, segments: int,
+def fit(loop: oeloop.Loop, rec: Recording, weights: oe.Weights, segments: int,
         bounds: dict[str, tuple[float, float]] | None = None, start: dict[str, float] | None = None,
         q_meas: np.ndarray | None = None, u_meas: np.ndarray | None = None,
         estimate_initial: list[str] | tuple[str, ...] = (), initial: dict[str, float] | None = None,

@@ -34,7 +34,7 @@ def run(out: Path) -> dict[str, float]:
 def concealed_friction(out: Path) -> dict[str, float]:
     """Write a concealed Coulomb-friction bundle (6 s + 3 s at 2 kHz) and diagnose it."""
     from motiontwin.ident import diagnosis
-    from motiontwin.ident.diagnosis import benchmark
+    from motiontwin.ident.benchmarks import single_axis as benchmark
 
     bundle = out / "bundle" / "coulomb_friction"
     benchmark.write_bundle(bundle, "coulomb_friction", seed=21, durations=(6.0, 3.0))

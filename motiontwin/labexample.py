@@ -4,7 +4,7 @@ lab data").
 The truth is a heavy prismatic axis, ``MotionTwin.Plants.PrismaticAxis`` with m = 95 kg, viscous d = 60 N.s/m,
 Coulomb Fc = 20.6 N (tanh over 1 mm/s) and a constant force F0 = -3.2 N, in a sampled PID loop at 1 kHz
 (``MotionTwin.Benchmarks.LoopController``) with an incremental encoder (``MotionTwin.Benchmarks.Encoder``, 0.1 um
-counts, 50 nm noise), co-simulated by :class:`harness.master.Master` (ident.diagnosis.benchmark's loop). The
+counts, 50 nm noise), co-simulated by :class:`harness.master.Master` (ident.benchmarks.single_axis's loop). The
 reference is a periodic Fourier trajectory (f0 = 0.25 Hz, 10 harmonics, within 232-248 mm, up to 0.08 m/s and
 0.9 m/s2). What makes it lab-like:
 
@@ -34,7 +34,7 @@ import scipy.io
 
 from motiontwin.fmus.files import atomic_path, atomic_write_texts
 from motiontwin.ident.controller import controller_document
-from motiontwin.ident.diagnosis import benchmark
+from motiontwin.ident.benchmarks import single_axis as benchmark
 from motiontwin.harness.excitation import fourier_trajectory
 
 PLANT = "MotionTwin.Plants.PrismaticAxis"

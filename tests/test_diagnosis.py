@@ -12,7 +12,7 @@ import scipy.signal as sps
 
 from motiontwin.harness.recording import make_recording
 from motiontwin.ident.diagnosis import BundleError, main, read_bundle
-from motiontwin.ident.diagnosis import benchmark as bench
+from motiontwin.ident.benchmarks import single_axis as bench
 from motiontwin.ident import outputerror
 
 

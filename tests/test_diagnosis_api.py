@@ -16,7 +16,7 @@ import pytest
 from motiontwin.harness.recording import read_recording
 from motiontwin.ident.controller import load_controller
 from motiontwin.ident.diagnosis import BundleError, Diagnosis, diagnose
-from motiontwin.ident.diagnosis import benchmark as bench
+from motiontwin.ident.benchmarks import single_axis as bench
 
 
 @pytest.fixture(scope="module")

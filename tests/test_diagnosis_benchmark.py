@@ -14,7 +14,7 @@ import pytest
 from fmpy.fmi2 import FMU2Slave
 
 from motiontwin.harness import measurement
-from motiontwin.ident.diagnosis import benchmark as bench
+from motiontwin.ident.benchmarks import single_axis as bench
 from motiontwin.ident.diagnosis.bundle import read_bundle
 
 

@@ -16,8 +16,8 @@ import pytest
 from motiontwin.fmus import build
 from motiontwin.harness import measurement
 from motiontwin.harness.recording import read_recording
-from motiontwin.ident.diagnosis import benchmark as single
-from motiontwin.ident.diagnosis import benchmark_multiaxis as mb
+from motiontwin.ident.benchmarks import single_axis as single
+from motiontwin.ident.benchmarks import multi_axis as mb
 
 PLANT = mb.CHEUNG
 

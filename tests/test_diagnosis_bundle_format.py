@@ -15,7 +15,7 @@ import pytest
 
 from motiontwin.cli import main as cli_main
 from motiontwin.ident.diagnosis import effects as effect_models
-from motiontwin.ident.diagnosis import benchmark as bench
+from motiontwin.ident.benchmarks import single_axis as bench
 from motiontwin.ident.diagnosis.bundle import SCHEMA_PATH, BundleError, read_bundle
 
 

@@ -26,7 +26,7 @@ import scipy.signal as sps
 from motiontwin.fmus import build
 from motiontwin.harness.recording import make_recording
 from motiontwin.ident import outputerror
-from motiontwin.ident.diagnosis import benchmark as bench
+from motiontwin.ident.benchmarks import single_axis as bench
 from motiontwin.ident.diagnosis.plant_roles import PlantRoles
 from motiontwin.ident.diagnosis import effects as effect_models
 from motiontwin.ident.diagnosis import pipeline

@@ -15,10 +15,10 @@ import scipy.linalg
 
 from motiontwin.fmus import frontend, symbolic
 from motiontwin.harness.recording import make_recording
-from motiontwin.ident import outputerror
+from motiontwin.ident import oeloop, outputerror
 from motiontwin.ident.controller import Controller, block_diagonal
-from motiontwin.ident.diagnosis import diagnose_bundle, multiaxis, read_bundle
-from motiontwin.ident.diagnosis import multiaxis_truth as truth
+from motiontwin.ident.diagnosis import diagnose_bundle, read_bundle, structure
+from motiontwin.ident.benchmarks import multi_axis_truth as truth
 from motiontwin.ident.diagnosis.bundle import BundleError
 
 TS = 5e-4
@@ -132,7 +132,7 @@ def test_called_rhs_loop_equals_inlined_loop(tmp_path, monkeypatch):
     tracking = {"v2": "dq:q2"}
     loops = []
     for limit in (10 ** 9, 0):          # inlined SX, then called MX
-        monkeypatch.setattr(outputerror, "CALL_INSTRUCTIONS", limit)
+        monkeypatch.setattr(oeloop, "CALL_INSTRUCTIONS", limit)
         loops.append(outputerror.build_loop(model, ctrl, "q1", ["m1", "kc", "d"], values, n, substeps=2,
                                             axes=signals, tracking=tracking))
     s0 = outputerror.initial_state(loops[0], rec)
@@ -261,11 +261,11 @@ def test_effect_on_axis_renames_parameters_and_states():
 
     ctx = effect_models.Context(TS, 0.0, 0.1, 0.1, 1.0)
     roles = PlantRoles("u3", "q3", "d3", "v3")
-    placed = multiaxis.on_axis(effect_models.VOCABULARY["coulomb_friction"](ctx), roles)
+    placed = structure.on_axis(effect_models.VOCABULARY["coulomb_friction"](ctx), roles)
     assert placed.force == "MotionTwin.Effects.CoulombFriction(plant.v3, q3_coulomb_Fc, q3_coulomb_v_eps)"
     assert [p.name for p in placed.params] == ["q3_coulomb_Fc", "q3_coulomb_v_eps"]
     assert placed.contract({"q3_coulomb_Fc": 0.7}, ctx) == {"Fc": 0.7}
-    delay = multiaxis.on_axis(effect_models.VOCABULARY["resonance"](ctx), roles)
+    delay = structure.on_axis(effect_models.VOCABULARY["resonance"](ctx), roles)
     assert "der(q3_resonance_x2) = q3_resonance_v2" in delay.equations
 
 
@@ -298,3 +298,111 @@ def test_free_restricts_the_nominal_refit(small_bundle, tmp_path):
     bundle = read_bundle(_edited(small_bundle, tmp_path, lambda d, f: d["plant"].update(free=["m1"])))
     free, bounds = pipeline._nominal_bounds(bundle, "plant.")
     assert free == ["plant.m1"] and list(bounds) == ["plant.m1"]
+
+
+def test_location_sentence_names_the_axis(coulomb_q2):
+    """The location of an effect on q2 is a sentence about q2 (not the single-axis 'x')."""
+    doc, _ = coulomb_q2
+    text = doc["effects"][0]["location_text"]
+    assert text.startswith("Strongest on axis q2 ")
+    assert "moving in +q2" in text or "moving in -q2" in text or "around standstill" in text
+    assert " x " not in text and "-x " not in text and "+x " not in text
+
+
+def test_pole_pitch_is_given_per_axis(small_bundle, tmp_path):
+    """plant.axes[k].pole_pitch is that axis's pitch (the others have none); a plant-wide pole_pitch on a
+    multi-axis bundle, a bad per-axis value and pole_pitch with axes in memory are refused naming the field."""
+    from motiontwin.harness.recording import read_recording
+    from motiontwin.ident.diagnosis import make_bundle
+
+    plant = read_bundle(_edited(small_bundle, tmp_path, lambda d, f: d["plant"]["axes"][1].update(
+        pole_pitch=0.002))).plant
+    assert plant.pitch_of("q2") == 0.002 and plant.pitch_of("q1") is None
+    assert read_bundle(small_bundle).plant.pitch_of("q2") is None
+    with pytest.raises(BundleError, match="field 'plant.pole_pitch' cannot be combined with 'plant.axes'"):
+        read_bundle(_edited(small_bundle, tmp_path / "a", lambda d, f: d["plant"].update(pole_pitch=0.002)))
+    with pytest.raises(BundleError, match=r"experiment\.json: field 'plant\.axes\.1\.pole_pitch'"):
+        read_bundle(_edited(small_bundle, tmp_path / "b", lambda d, f: d["plant"]["axes"][1].update(
+            pole_pitch=-1.0)))
+    doc = json.loads((small_bundle / "experiment.json").read_text())
+    train, validation = (read_recording(small_bundle / f"{part}.csv") for part in ("train", "validation"))
+    with pytest.raises(BundleError, match="plant: pole_pitch cannot be combined with axes"):
+        make_bundle(PLANT, doc["controller"], train, validation, "Coupled2", START, pole_pitch=0.002, axes=AXES)
+    axes = [AXES[0], {**AXES[1], "pole_pitch": 0.002}]
+    memory = make_bundle(PLANT, doc["controller"], train, validation, "Coupled2", START, axes=axes)
+    assert memory.plant.pitch_of("q2") == 0.002
+
+
+def test_cogging_on_one_axis_with_its_pole_pitch(tmp_path):
+    """Cogging (pole pitch 2 mm, 0.5 N fundamental, 0.2 N second harmonic) concealed on q2 of the coupled
+    plant whose bundle gives q2's pole pitch: answered cogging on q2 (not a one-harmonic position_ripple),
+    with the true fundamental amplitude within 10 %, the period of the pitch, and q2 at its noise floor."""
+    pitch, a1, a2 = 0.002, 0.5, 0.2
+    true = truth.TrueEffect("cogging", "q2", {"cogging_a1": a1, "cogging_b1": 0.0, "cogging_a2": 0.0,
+                                              "cogging_b2": a2, "cogging_pitch": pitch, "cogging_n": 1.0})
+    plant = {"class": "Coupled2", "axes": [AXES[0], {**AXES[1], "pole_pitch": pitch}], "parameters": START}
+    folder = tmp_path / "bundle"
+    truth.write_bundle(folder, plant, CONTROLLER, [true], 2.0, 1.0, seed=11, plant_text=PLANT)
+    doc = diagnose_bundle(folder, tmp_path / "out")
+    assert [(e["name"], e["axis"]) for e in doc["effects"]] == [("cogging", "q2")], doc["candidates"]
+    found = doc["effects"][0]["parameters"]
+    assert found["A1"] == pytest.approx(a1, rel=0.1) and found["period"] == pytest.approx(pitch, rel=1e-9)
+    q2 = doc["validation"]["per_axis"]["q2"]
+    assert q2["augmented_rms"] < 1.2 * q2["noise_floor_rms"]
+
+
+def test_multi_axis_report_has_plots_and_the_selection_fields(coulomb_q2):
+    """The one selection loop gives a multi-axis effect what it gives one axis: the equivalent explanations and
+    the rule that picked it, timed candidates; the report draws the per-axis residual and validation plots."""
+    doc, out = coulomb_q2
+    effect = doc["effects"][0]
+    assert isinstance(effect["equivalent_explanations"], list) and "selection_rule" in effect
+    assert all(isinstance(entry["seconds"], float) for entry in doc["candidates"])
+    text = (out / "report.md").read_text()
+    for name in ("residual_time.png", "validation_fit.png"):
+        assert (out / name).stat().st_size > 10_000 and f"![{name}]({name})" in text
+
+
+def test_time_delay_on_one_axis(tmp_path):
+    """An input delay of 0.4 ms concealed on q1 (its Pade states on q1's input only) is answered time_delay on
+    q1 with the delay within 20 %; q2 gets nothing."""
+    folder = _bundle(tmp_path / "bundle", [truth.TrueEffect("time_delay", "q1", {"delay_T": 4e-4})], 13)
+    doc = diagnose_bundle(folder, tmp_path / "out")
+    assert [(e["name"], e["axis"]) for e in doc["effects"]] == [("time_delay", "q1")], doc["candidates"]
+    assert doc["effects"][0]["parameters"]["delay"] == pytest.approx(4e-4, rel=0.2)
+
+
+def test_unexplained_stage_runs_on_several_axes(coulomb_q2):
+    """After the catalogue the unexplained stage asks the located axis too; with the Coulomb friction found
+    nothing significant is left: the check says so and there is no unexplained entry."""
+    doc, _ = coulomb_q2
+    assert doc["residual_check"]["status"] == "none" and doc["residual_check"]["reason"]
+    assert doc["unexplained"] is None
+
+
+def test_outside_law_on_one_axis_is_unexplained_on_that_axis(tmp_path):
+    """Quadratic drag (outside the catalogue, 2000 N s^2/m^2) concealed on q2: no catalogue effect is named and
+    the unexplained stage says "unexplained" on q2, with v*|v| among the terms of the sparse law of q2's force
+    residual (here it does not validate: "unexplained, no term validated")."""
+    drag = truth.TrueEffect("quadratic_drag", "q2", {"empirical_c1": 2000.0})
+    doc = diagnose_bundle(_bundle(tmp_path / "bundle", [drag], 17), tmp_path / "out")
+    assert doc["effects"] == [], doc["candidates"]
+    entry = doc["unexplained"]
+    assert entry is not None and entry["status"].startswith("unexplained") and entry["axis"] == "q2", \
+        doc["residual_check"]
+    term = entry.get("empirical_term") or entry["rejected_term"]
+    assert "v*|v|" in term["terms"] and term["cost_reduction"] > term["null_threshold"]
+
+
+def test_diagnose_help_documents_the_multi_axis_format(capsys):
+    """motiontwin diagnose --help shows the multi-axis bundle: axes, per-axis controllers and their signal
+    names, pole pitch per axis, free, and the recordings' column naming."""
+    from motiontwin.cli import main
+
+    with pytest.raises(SystemExit):
+        main(["diagnose", "--help"])
+    text = capsys.readouterr().out
+    for part in ('"axes": [{"input": "u1", "output": "q1"}', '"kind": "per_axis"',
+                 '"inputs": ["r_q1", "r_q2", "q1", "q2"]', '"pole_pitch": 0.032}]', '"free":',
+                 "r_<output> [m], <input> [N], <output> [m]", "u_ext_<input>"):
+        assert part in text, part

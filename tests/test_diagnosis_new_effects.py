@@ -17,7 +17,7 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from motiontwin.ident.diagnosis import benchmark as bench
+from motiontwin.ident.benchmarks import single_axis as bench
 from motiontwin.ident.diagnosis import effects as effect_models
 from motiontwin.ident.diagnosis import pipeline
 from motiontwin.ident.diagnosis.bundle import BundleError, make_bundle, read_bundle

@@ -17,7 +17,7 @@ import pytest
 
 from motiontwin.cli import main as cli_main
 from motiontwin.ident import startvalues
-from motiontwin.ident.diagnosis import benchmark as bench
+from motiontwin.ident.benchmarks import single_axis as bench
 from motiontwin.ident.diagnosis import main as diagnose_main
 from motiontwin.ident.diagnosis import pipeline
 from motiontwin.ident.diagnosis.bundle import BundleError, read_bundle

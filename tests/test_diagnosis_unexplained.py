@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 
 from motiontwin.ident import outputerror
-from motiontwin.ident.diagnosis import benchmark as bench
+from motiontwin.ident.benchmarks import single_axis as bench
 from motiontwin.ident.diagnosis import empirical, pipeline, report
 from motiontwin.ident.diagnosis.bundle import read_bundle
 

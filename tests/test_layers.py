@@ -10,8 +10,8 @@ ROOT = Path(__file__).resolve().parents[1]
 # Library modules that may parse a command line: scripts run with ``python -m``, not library API.
 ARGPARSE_ALLOWED = {
     "harness/examples/joint_bode.py": "example script (python -m motiontwin.harness.examples.joint_bode)",
-    "ident/diagnosis/benchmark.py": "benchmark script (python -m motiontwin.ident.diagnosis.benchmark)",
-    "ident/diagnosis/benchmark_multiaxis.py": "benchmark script (python -m motiontwin.ident.diagnosis.benchmark_multiaxis)",
+    "ident/benchmarks/single_axis.py": "benchmark script (python -m motiontwin.ident.benchmarks.single_axis)",
+    "ident/benchmarks/multi_axis.py": "benchmark script (python -m motiontwin.ident.benchmarks.multi_axis)",
     "ident/diagnosis/__init__.py": "python -m motiontwin.ident.diagnosis; the diagnosis work moves it to the app",
 }
 # What each library layer may import of the project (itself and the layers below it).
@@ -49,6 +49,84 @@ def test_the_layer_check_sees_a_forbidden_import(tmp_path: Path) -> None:
     source = tmp_path / "m.py"
     source.write_text("def f():\n    from motiontwin.ident import tuning\n    from motiontwin import cli\n")
     assert _project_imports(source) == {"motiontwin.ident", "motiontwin.cli"}
+
+
+LAYER_PACKAGES = {"fmus": "motiontwin.fmus", "harness": "motiontwin.harness", "ident": "motiontwin.ident",
+                  "motiontwin": "motiontwin"}
+
+
+def _module_name(root: Path, path: Path) -> str:
+    """The import name of a source file of the checkout (``ident/diagnosis/bundle.py`` ->
+    ``motiontwin.ident.diagnosis.bundle``, a package's ``__init__.py`` -> the package)."""
+    rel = path.relative_to(root)
+    parts = [LAYER_PACKAGES[rel.parts[0]], *rel.parts[1:-1]] + ([] if rel.stem == "__init__" else [rel.stem])
+    return ".".join(parts)
+
+
+def import_graph(root: Path, layers: dict[str, str] = LAYER_PACKAGES) -> dict[str, set[str]]:
+    """Module -> the project modules it imports (lazy imports too; ``from package import module`` is an edge to
+    the module, ``from module import name`` to the module)."""
+    files = {_module_name(root, path): path for layer in layers if (root / layer).is_dir()
+             for path in (root / layer).rglob("*.py")}
+    graph: dict[str, set[str]] = {}
+    for name, path in files.items():
+        targets = set()
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"), str(path))):
+            if isinstance(node, ast.Import):
+                targets.update(alias.name for alias in node.names)
+            elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+                targets.update(f"{node.module}.{alias.name}" if f"{node.module}.{alias.name}" in files else node.module
+                               for alias in node.names)
+        graph[name] = {t for t in targets if t in files and t != name}
+    return graph
+
+
+def import_cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """Every import cycle, as the modules of one strongly connected component (Tarjan), sorted."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    cycles = []
+
+    def visit(node: str) -> None:
+        index[node] = low[node] = len(index)
+        stack.append(node)
+        for succ in sorted(graph[node]):
+            if succ not in index:
+                visit(succ)
+                low[node] = min(low[node], low[succ])
+            elif succ in stack:
+                low[node] = min(low[node], index[succ])
+        if low[node] == index[node]:
+            component = []
+            while not component or component[-1] != node:
+                component.append(stack.pop())
+            if len(component) > 1:
+                cycles.append(sorted(component))
+
+    for node in sorted(graph):
+        if node not in index:
+            visit(node)
+    return sorted(cycles)
+
+
+def test_no_import_cycles_between_modules() -> None:
+    """The project's modules import each other without circles (lazy imports included)."""
+    assert import_cycles(import_graph(ROOT)) == []
+
+
+def test_the_cycle_check_sees_a_planted_cycle(tmp_path: Path) -> None:
+    """The checker itself: a -> b lazily, b -> c, c -> a is one cycle; d -> a is not part of it."""
+    package = tmp_path / "ident"
+    package.mkdir()
+    (package / "__init__.py").write_text("")
+    (package / "a.py").write_text("def f():\n    from motiontwin.ident import b\n")
+    (package / "b.py").write_text("from motiontwin.ident.c import g\n")
+    (package / "c.py").write_text("import motiontwin.ident.a\ndef g():\n    pass\n")
+    (package / "d.py").write_text("from motiontwin.ident import a\n")
+    graph = import_graph(tmp_path)
+    assert graph["motiontwin.ident.d"] == {"motiontwin.ident.a"}
+    assert import_cycles(graph) == [["motiontwin.ident.a", "motiontwin.ident.b", "motiontwin.ident.c"]]
 
 
 def _argparse_uses(path: Path) -> list[str]:

@@ -26,7 +26,7 @@ from motiontwin.fmus import frontend, symbolic
 from motiontwin.harness.recording import make_recording, write_recording
 from motiontwin.ident import outputerror
 from motiontwin.ident.diagnosis import BundleError, main, read_bundle
-from motiontwin.ident.diagnosis import benchmark as bench
+from motiontwin.ident.benchmarks import single_axis as bench
 from motiontwin.ident.diagnosis import effects as effect_models
 from motiontwin.ident.diagnosis import plant_roles as pr
 

@@ -13,7 +13,8 @@ from fmpy.fmi2 import FMU2Slave
 
 from motiontwin.cli.arguments import name_values
 from motiontwin.fmus import build, writeback
-from motiontwin.ident import tuning, tuning_margins
+from motiontwin.ident import tuning
+from motiontwin.ident.tuning import margins as tuning_margins
 from motiontwin.ident.frf import JointModel
 
 TS = 5e-4

@@ -1,4 +1,4 @@
-"""Per-actuator tuning on the CheungManipulator FMU (ident.tuning_manipulator) against analytic properties of the
+"""Per-actuator tuning on the CheungManipulator FMU (ident.tuning.manipulator) against analytic properties of the
 rigid model M(d) dv/dt + c_v v = u at rest and against single-loop python-control results."""
 from __future__ import annotations
 
@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from motiontwin.fmus import build
-from motiontwin.ident import tuning, tuning_manipulator as tm
+from motiontwin.ident import tuning
+from motiontwin.ident.tuning import manipulator as tm
 from tests.test_tuning import NOMINAL, TS
 
 

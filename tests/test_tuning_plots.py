@@ -1,4 +1,4 @@
-"""Bode/Nyquist/sensitivity figure of a tuned joint (ident.tuning_plots): the plotted curves and margin markers
+"""Bode/Nyquist/sensitivity figure of a tuned joint (ident.tuning.plots): the plotted curves and margin markers
 against python-control on a loop built in tests/test_tuning.py from the paper's equations."""
 from __future__ import annotations
 
@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from motiontwin.cli import main
-from motiontwin.ident import tuning, tuning_plots
+from motiontwin.ident import tuning
+from motiontwin.ident.tuning import plots as tuning_plots
 from tests.test_tuning import NOMINAL, TS, independent_loop, python_control_margins
 
 PLANTS = tuning.position_sets(NOMINAL)[::2]  # the light and the heavy actuator position

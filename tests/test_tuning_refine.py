@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 import scipy.optimize
 
-from motiontwin.ident import tuning, tuning_optimisation
+from motiontwin.ident import tuning
+from motiontwin.ident.tuning import optimisation as tuning_optimisation
 from tests.test_tuning import NOMINAL, SPEC, TS, independent_loop, python_control_margins
 
 # a short search whose Nelder-Mead end (worst-case CLBW 59.6 Hz) the gradient stage lifts to 82 Hz

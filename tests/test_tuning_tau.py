@@ -8,7 +8,9 @@ import control
 import numpy as np
 import pytest
 
-from motiontwin.ident import tuning, tuning_margins, tuning_spec
+from motiontwin.ident import tuning
+from motiontwin.ident.tuning import margins as tuning_margins
+from motiontwin.ident.tuning import spec as tuning_spec
 from motiontwin.ident.frf import JointModel
 
 TS = 5e-4

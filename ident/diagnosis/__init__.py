@@ -10,7 +10,8 @@ from pathlib import Path
 from motiontwin.fmus.limits import check_size, load_json
 
 from motiontwin.ident.diagnosis.bundle import BundleError, make_bundle, read_bundle
-from motiontwin.ident.diagnosis.pipeline import Diagnosis, diagnose, diagnose_bundle, diagnose_bundle_object
+from motiontwin.ident.diagnosis.engine import diagnose, diagnose_bundle, diagnose_bundle_object
+from motiontwin.ident.diagnosis.pipeline import Diagnosis
 from motiontwin.ident.startvalues import DivergenceError
 
 __all__ = ["BundleError", "Diagnosis", "DivergenceError", "diagnose", "diagnose_bundle", "main", "make_bundle",

@@ -18,6 +18,7 @@ A multi-axis bundle's plant has ``"axes": [{"input": "u1", "output": "q1"}, ...]
 [one single-axis controller per axis, same Ts]}`` or one multivariable ``discrete_state_space`` with inputs
 ``r_<output>`` and ``<output>`` of every axis and outputs the axes' inputs, and its recordings have the
 columns ``time`` and, per axis, ``r_<output>``, ``<input>``, ``<output>`` and optionally ``u_ext_<input>``.
+A motor's magnet pole pitch is given per axis (``plant.axes[k].pole_pitch``; a plant-wide one is refused).
 
 Every problem raises :class:`BundleError` whose message names the file and the field or column at fault.
 Units: time [s], positions [m], forces [N].
@@ -86,6 +87,12 @@ class PlantInfo:
     pole_pitch: float | None = None   # plant.pole_pitch [m]: magnet pole pitch, fixes the cogging period
     free: list[str] | None = None     # plant.free: the parameters the nominal refit moves (None: every non-zero one)
     axes: list[PlantRoles] = dataclass_field(default_factory=list)   # multi-axis plant: the roles of each axis
+    pole_pitches: dict[str, float] = dataclass_field(default_factory=dict)   # multi-axis: plant.axes[k].pole_pitch
+
+    def pitch_of(self, axis: str) -> float | None:
+        """The magnet pole pitch [m] of the axis with output ``axis`` (``plant.axes[k].pole_pitch``; one axis:
+        ``plant.pole_pitch``), or None."""
+        return self.pole_pitches.get(axis) if self.axes else self.pole_pitch
 
 
 @dataclass
@@ -256,7 +263,7 @@ def read_axes_plant(doc: dict, bundle_dir: Path, where: str) -> PlantInfo:
     its output an output, and its position/velocity states found as for one axis."""
     from motiontwin.fmus.build import MODELICA_DIR
 
-    for key in ("input", "output", "position", "velocity"):
+    for key in ("input", "output", "position", "velocity", "pole_pitch"):
         if key in doc:
             raise BundleError(f"{where}: field 'plant.{key}' cannot be combined with 'plant.axes' (give it per "
                               f"axis, e.g. 'plant.axes[0].{key}')")
@@ -282,6 +289,7 @@ def read_axes_plant(doc: dict, bundle_dir: Path, where: str) -> PlantInfo:
     if not axes:
         raise BundleError(f"{where}: field 'plant.axes' is empty; list one {{\"input\", \"output\"}} per axis")
     roles: list[PlantRoles] = []
+    pitches: dict[str, float] = {}
     for k, axis in enumerate(axes):
         at = f"field 'plant.axes[{k}]"
         for key, names, what in (("input", inputs, "inputs"), ("output", outputs, "outputs")):
@@ -297,6 +305,9 @@ def read_axes_plant(doc: dict, bundle_dir: Path, where: str) -> PlantInfo:
         except PlantFormError as exc:
             raise BundleError(f"{where}: {at}': {exc}") from None
         roles.append(found)
+        pitch = check_pole_pitch(axis.get("pole_pitch"), f"{where}: {at}'")
+        if pitch is not None:
+            pitches[found.output] = pitch
     for key in ("input", "output", "position"):
         names = [getattr(r, key) for r in roles]
         twice = sorted({n for n in names if names.count(n) > 1})
@@ -309,7 +320,7 @@ def read_axes_plant(doc: dict, bundle_dir: Path, where: str) -> PlantInfo:
     parameters = _start_parameters(model, path, class_name, doc.get("parameters", {}), where)
     first = roles[0]
     return PlantInfo(path, class_name, text, model, first.input, first.output, first.position, first.velocity,
-                     first, parameters, axes=roles)
+                     first, parameters, axes=roles, pole_pitches=pitches)
 
 
 def read_axes_controller(doc: dict, where: str, axes: list[PlantRoles]) -> Controller:
@@ -508,6 +519,9 @@ def make_bundle(plant: str | Path, controller: Controller | dict, train: Recordi
         else:
             info = load_plant(path, plant_class, input_name, output_name, parameters, "plant")
     info.pole_pitch = check_pole_pitch(pole_pitch, "plant")
+    if axes and pole_pitch is not None:
+        raise BundleError("plant: pole_pitch cannot be combined with axes (give it per axis, e.g. "
+                          "axes=[{'input': 'u1', 'output': 'q1', 'pole_pitch': 0.032}, ...])")
     if not isinstance(controller, Controller):
         controller = (read_axes_controller(dict(controller), "controller", info.axes) if axes
                       else read_controller(dict(controller), "controller"))

@@ -15,7 +15,6 @@ from __future__ import annotations
 import math
 import shutil
 import string
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
 
@@ -23,82 +22,13 @@ import numpy as np
 
 from motiontwin.fmus import frontend, symbolic
 from motiontwin.fmus.build import MODELICA_DIR
+from motiontwin.ident.diagnosis.effect_base import (Context, Effect, Param, _decl, _eps_bounds, _ls, _p,  # noqa: F401
+                                                    _scale, _sign, _v_eps)
 from motiontwin.ident.diagnosis.plant_roles import PlantFormError, PlantRoles, declaration_line
 
 LIBRARY = MODELICA_DIR / "MotionTwin"
+AUGMENTED_CLASS = "Augmented"   # the class of the augmented model the diagnosis writes
 FRICTION = "friction"
-
-
-@dataclass
-class Context:
-    """What the effect initialisers may use: recorded ranges and the inverse-dynamics signals."""
-
-    ts: float
-    x_min: float
-    x_max: float
-    v_max: float
-    mass: float                   # refitted nominal mass [kg] (or the equivalent 1/(dv'/du))
-    x: np.ndarray | None = None   # filtered position, velocity, acceleration and force residual [N]
-    v: np.ndarray | None = None
-    a: np.ndarray | None = None
-    force: np.ndarray | None = None
-    udot: np.ndarray | None = None
-    resonance_guess: list[float] = field(default_factory=list)  # candidate frequencies [Hz]
-    position_gain: float = 1.0    # measured output per unit of the plant's position state
-    u: np.ndarray | None = None   # recorded applied force on the training run [N]
-    duration: float = 0.0         # length of the training recording [s]
-    pole_pitch: float | None = None   # motor pole pitch (plant.pole_pitch) in the plant's coordinates
-
-
-@dataclass
-class Param:
-    name: str            # Modelica name (prefixed by the effect)
-    unit: str
-    description: str
-    bounds: tuple[float, float]
-    fitted: bool = True
-
-
-@dataclass
-class Effect:
-    name: str
-    family: str
-    params: list[Param]
-    declarations: str                      # extra declarations (parameters, variables)
-    force: str                             # Modelica expression of the opposing force ("" if none)
-    equations: list[str]                   # extra equations
-    library: list[str]                     # MotionTwin.Effects files used
-    initial: Callable[[Context], list[dict[str, float]]]   # starting points for the fit
-    contract: Callable[[dict[str, float], Context], dict[str, float]]  # parameters in the contract's terms
-    explanation: str
-    delays_input: bool = False             # replaces u by a delayed u
-    tracks_position: list[str] = field(default_factory=list)   # states starting at the measured position
-    tracks_force: list[str] = field(default_factory=list)      # states starting at the held force
-    applicable: bool = True                # False: the bundle lacks what the effect needs (not screened)
-    min_substeps: int = 1                  # RK4 substeps per sample its fastest state needs at the top speed
-
-
-def _p(name: str, unit: str, text: str, lo: float, hi: float, fitted: bool = True) -> Param:
-    return Param(name, unit, text, (lo, hi), fitted)
-
-
-def _decl(params: list[Param], values: dict[str, float]) -> str:
-    return "".join(f'  parameter Real {p.name}(unit = "{p.unit}") = {float(values[p.name])!r} "{p.description}";\n'
-                   for p in params)
-
-
-def _ls(columns: list[np.ndarray], target: np.ndarray) -> np.ndarray:
-    mat = np.column_stack(columns)
-    return np.linalg.lstsq(mat, target, rcond=None)[0]
-
-
-def _scale(ctx: Context) -> float:
-    """Measured metres per unit of the plant's position state: floors written in m or m/s are divided by it."""
-    return abs(ctx.position_gain)
-
-
-def _v_eps(ctx: Context) -> float:
-    return max(1e-5 / _scale(ctx), 2e-3 * ctx.v_max)
 
 
 def gravity_offset(ctx: Context) -> Effect:
@@ -112,14 +42,6 @@ def gravity_offset(ctx: Context) -> Effect:
                   "A constant force acts on the axis (gravity on an inclined axis, cable or spring preload): "
                   "at rest the controller must hold it, so the force residual has a non-zero mean that does "
                   "not depend on the direction of motion.")
-
-
-def _eps_bounds(ctx: Context) -> tuple[float, float]:
-    return 1e-5 / _scale(ctx), max(2e-5 / _scale(ctx), 0.05 * ctx.v_max)
-
-
-def _sign(c: Context) -> np.ndarray:
-    return np.tanh(c.v / _v_eps(c))
 
 
 def coulomb_friction(ctx: Context) -> Effect:

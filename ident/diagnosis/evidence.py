@@ -22,6 +22,7 @@ from motiontwin.harness.recording import Recording
 from motiontwin.ident.startvalues import mirror_derivatives
 
 NULL_QUANTILE = 0.999
+VALIDATION_GAIN = 0.9        # an effect must reduce the validation RMS by at least 10 %
 
 
 def noise_level(residual: np.ndarray, ts: float) -> float:

@@ -52,7 +52,7 @@ def _tune_manipulator(args: argparse.Namespace) -> int:
     import numpy as np
 
     from motiontwin.fmus import build
-    from motiontwin.ident import tuning_manipulator as tm
+    from motiontwin.ident.tuning import manipulator as tm
     from motiontwin.ident.controller_fmu import write_controller_fmu
     from motiontwin.ident.tuning import cheung_joint_defaults, format_margins, slowest_time_constant
 
@@ -81,7 +81,7 @@ def _tune_manipulator(args: argparse.Namespace) -> int:
     if args.out:
         _write_json(args.out, {args.out: doc} | {_suffixed(args.out, a): d for a, d in doc["joints"].items()})
     if args.plots:
-        from motiontwin.ident.tuning_plots import write_loop_figure
+        from motiontwin.ident.tuning.plots import write_loop_figure
 
         for name, result, plants in zip(tm.ACTUATORS, design.results, design.plants):
             print(write_loop_figure(args.plots / f"tuning_manipulator_{name}.png", result.parameters, plants,
@@ -169,7 +169,7 @@ def _tune(args: argparse.Namespace) -> int:
     if args.out:
         _write_json(args.out, {args.out: doc})
     if args.plots:
-        from motiontwin.ident.tuning_plots import write_loop_figure
+        from motiontwin.ident.tuning.plots import write_loop_figure
 
         labels = [f"set {k}: K={p.gain:.3g}" if isinstance(p, JointModel) else f"set {k}"
                   for k, p in enumerate(plants)]
@@ -183,7 +183,7 @@ def _tune(args: argparse.Namespace) -> int:
 
 def _plot_tuning(args: argparse.Namespace) -> int:
     """``motiontwin plot-tuning DESIGN --out DIR``: redraw the loop figures of a design file."""
-    from motiontwin.ident.tuning_plots import replot_design
+    from motiontwin.ident.tuning.plots import replot_design
 
     for path in replot_design(args.design, args.out):
         print(path)

@@ -9,7 +9,7 @@ time of the single-threaded diagnosis does not depend on them).
 Run: .venv/bin/python tests/benchmarks/bench_diagnosis.py [BENCH_DIR] [--set heldout|tuning] [--case NAME]
 [--effects NAME,...] (the vocabulary to keep: the runtime cost of the others; MOTIONTWIN_DIAGNOSIS_WORKERS=1
 screens in-process, so that the CPU column holds all of the work)
-(bundles are generated into BENCH_DIR by ``python -m motiontwin.ident.diagnosis.benchmark generate`` when missing).
+(bundles are generated into BENCH_DIR by ``python -m motiontwin.ident.benchmarks.single_axis generate`` when missing).
 --smoke: one bundle of 0.5 s + 0.25 s (Coulomb friction, CasADi truth) written into a temporary folder, the
 vocabulary cut to coulomb_friction and time_delay: the generate-diagnose-report path only. Ratios: the slowest
 wall and CPU time over the 120 s target (the baseline).
@@ -23,7 +23,8 @@ import tempfile
 import time
 from pathlib import Path
 
-from motiontwin.ident.diagnosis import benchmark, diagnose_bundle  # the benchmark generator: imported here only
+from motiontwin.ident.benchmarks import single_axis as benchmark  # the benchmark generator: imported here only
+from motiontwin.ident.diagnosis import diagnose_bundle
 from motiontwin.ident.diagnosis import effects as effect_models
 from ratios import ratio
 

@@ -1,7 +1,7 @@
 """Benchmark (not a test): multi-axis `motiontwin diagnose` runtime against the issue-16 budget of 300 s for a
 4-DOF CheungManipulator bundle of 10 s training at 2 kHz (plus validation) on this 2-core machine.
 
-Without a bundle folder it writes one with the CasADi truth (:mod:`ident.diagnosis.multiaxis_truth`:
+Without a bundle folder it writes one with the CasADi truth (:mod:`ident.benchmarks.multi_axis_truth`:
 Coulomb friction of 0.5 N concealed on axis q5, encoder noise 10 nm, PID per axis, 10 s + 5 s at 2 kHz);
 with a folder (e.g. one of the FMU-truth generator's bundles) it diagnoses that. Prints what was found
 against ``truth.json`` (or ``<case>.truth.json``) when present, the per-axis validation RMS, the wall and CPU
@@ -22,8 +22,8 @@ import time
 from pathlib import Path
 
 from motiontwin.ident.diagnosis import diagnose_bundle
+from motiontwin.ident.benchmarks import multi_axis_truth as truth  # the benchmark generator: imported here only
 from motiontwin.ident.diagnosis import effects as effect_models
-from motiontwin.ident.diagnosis import multiaxis_truth as truth  # the benchmark generator: imported here only
 from ratios import ratio
 
 TARGET_S = 300.0

@@ -17,9 +17,9 @@ from rest at that pose; the forward kinematics and the Table 1 actuator ranges a
 The bundle's nominal plant is the same library class with the slider mass ``m_s`` and the viscous friction
 ``c_v`` 20-40 % off (``plant.parameters``). Units: SI (s, m, N, kg).
 
-    python -m motiontwin.ident.diagnosis.benchmark_multiaxis generate OUT_DIR [--set tuning|heldout] [--case NAME]
-    python -m motiontwin.ident.diagnosis.benchmark_multiaxis run OUT_DIR [--set tuning|heldout] [--case NAME]
-    python -m motiontwin.ident.diagnosis.benchmark_multiaxis score OUT_DIR [--set ...]   # re-score OUT_DIR/results
+    python -m motiontwin.ident.benchmarks.multi_axis generate OUT_DIR [--set tuning|heldout] [--case NAME]
+    python -m motiontwin.ident.benchmarks.multi_axis run OUT_DIR [--set tuning|heldout] [--case NAME]
+    python -m motiontwin.ident.benchmarks.multi_axis score OUT_DIR [--set ...]   # re-score OUT_DIR/results
 """
 from __future__ import annotations
 
@@ -39,7 +39,7 @@ import numpy as np
 from motiontwin.fmus import build
 from motiontwin.harness import kinematics, measurement
 from motiontwin.harness.recording import atomic_write_texts, make_recording, write_recording
-from motiontwin.ident.diagnosis import benchmark as single
+from motiontwin.ident.benchmarks import single_axis as single
 from motiontwin.ident.diagnosis.bundle import Controller
 
 TS = single.TS
@@ -422,7 +422,7 @@ def _cpu_seconds() -> float:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m motiontwin.ident.diagnosis.benchmark_multiaxis")
+    parser = argparse.ArgumentParser(prog="python -m motiontwin.ident.benchmarks.multi_axis")
     parser.add_argument("command", choices=["generate", "run", "score"],
                         help="generate bundles; run: diagnose and score them; score: score existing results")
     parser.add_argument("out", type=Path)

@@ -17,8 +17,8 @@ import numpy as np
 import scipy.optimize
 
 from motiontwin.ident.frf import JointModel
-from motiontwin.ident.tuning_margins import _LoopEvaluator, controller_defaults, loop_margins
-from motiontwin.ident.tuning_spec import DESIGN_NAMES, TuningError, TuningResult
+from motiontwin.ident.tuning.margins import _LoopEvaluator, controller_defaults, loop_margins
+from motiontwin.ident.tuning.spec import DESIGN_NAMES, TuningError, TuningResult
 
 __all__ = ["TABLE2", "TABLE2_READINGS", "rescale_to_bandwidth", "table2_parameters", "table2_comparison",
            "format_comparison", "comparison_markdown"]

@@ -16,8 +16,8 @@ tightened by 0.2 dB / 0.3 deg / 0.01, and every reported figure is re-computed w
 Feedforward (eq. 12): the tracking error is E = S (1 - F_L F_N G_f P) R, so Kv, Ka, Kj are fitted after the
 feedback design by linear least squares of |1 - F_L F_N G_f P_zoh z^-d| over 0.1 Hz .. CLBW/2 and all plant
 sets (``feedforward_gains``): in the narrow-band limit the inverse of K/(s(s+alpha)) through the lag's DC gain,
-plus a jerk term for the lag, notch, hold and delay phase. Figures: ``ident.tuning_plots``; per-actuator design
-of the coupled manipulator FMU: ``ident.tuning_manipulator``.
+plus a jerk term for the lag, notch, hold and delay phase. Figures: ``ident.tuning.plots``; per-actuator design
+of the coupled manipulator FMU: ``ident.tuning.manipulator``.
 
 Units: SI. Plant K in m/(N s^2) (1/mass), alpha and omega in rad/s; controller gains in N/m, N/(m s), N s/m;
 controller frequencies fc, fp, wl, wh in Hz (as in Table 2 and the FMU); Ts in s; margins in dB and deg;
@@ -35,9 +35,9 @@ import numpy as np
 import scipy.optimize
 
 from motiontwin.ident.frf import JointModel
-from motiontwin.ident.tuning_margins import (_LoopEvaluator, controller_defaults, discrete_plant,
+from motiontwin.ident.tuning.margins import (_LoopEvaluator, controller_defaults, discrete_plant,
                                              feedforward_path_response, loop_margins)
-from motiontwin.ident.tuning_spec import (FeedforwardFit, InfeasibleSpecError, LoopMargins, TuningError,
+from motiontwin.ident.tuning.spec import (FeedforwardFit, InfeasibleSpecError, LoopMargins, TuningError,
                                           TuningResult, TuningSpec, _format_violations, violations)
 
 __all__ = ["DESIGN_BOUNDS", "feedforward_gains", "tune"]

@@ -54,7 +54,7 @@ import numpy as np
 import scipy.linalg
 
 from motiontwin.ident.frf import JointModel
-from motiontwin.ident.tuning_spec import CONTROLLER_CLASS, LoopMargins, TuningError
+from motiontwin.ident.tuning.spec import CONTROLLER_CLASS, LoopMargins, TuningError
 
 __all__ = [
     "controller_defaults", "controller_matrices", "controller_system", "check_plant", "discrete_plant",

@@ -17,9 +17,10 @@ import numpy as np
 from motiontwin.harness.recording import atomic_write_texts, make_recording, write_recording
 from motiontwin.ident import outputerror
 from motiontwin.ident.controller import Controller
-from motiontwin.ident.diagnosis import benchmark
+from motiontwin.ident.benchmarks import single_axis as benchmark
 from motiontwin.ident.diagnosis import effects as effect_models
-from motiontwin.ident.diagnosis import multiaxis
+from motiontwin.ident.diagnosis import empirical
+from motiontwin.ident.diagnosis import structure
 from motiontwin.ident.diagnosis.bundle import read_axes_controller, read_axes_plant
 
 #: a small coupled plant for tests and examples: two carriages with inertial (mc) and elastic (kc) coupling
@@ -52,9 +53,20 @@ PREROLL = 0.5            # s at the first reference before the recording starts 
 SUBSTEPS = 8
 
 
+def quadratic_drag(ctx: effect_models.Context) -> effect_models.Effect:
+    """A force outside the catalogue: drag c*v*|v| (the parameter ``empirical_c1`` [N s^2/m^2])."""
+    drag = next(term for term in empirical.default_library() if term.name == "v*|v|")
+    return empirical.as_effect(empirical.EmpiricalForce([drag], np.array([1.0]), 0.0, 0.0, 0.0, 1e-3), ctx)
+
+
+#: truth effects outside the vocabulary, by name
+OUTSIDE = {"quadratic_drag": quadratic_drag}
+
+
 @dataclass
 class TrueEffect:
-    """An effect of the truth: vocabulary name, axis (output name), parameters (the effect's own names)."""
+    """An effect of the truth: vocabulary (or ``OUTSIDE``) name, axis (output name), parameters (the effect's own
+    names)."""
 
     name: str
     axis: str
@@ -113,16 +125,17 @@ def write_bundle(folder: Path, plant_doc: dict, controller_doc: dict, effects: l
     ctx = effect_models.Context(ts, -1.0, 1.0, 0.2, 1.0)
     for true in effects:
         roles = next(a for a in plant.axes if a.output == true.axis)
-        effect = multiaxis.on_axis(effect_models.VOCABULARY[true.name](ctx), roles)
+        factory = effect_models.VOCABULARY.get(true.name) or OUTSIDE[true.name]
+        effect = structure.on_axis(factory(ctx), roles)
         placed.append((true.axis, effect))
         values.update({p.name: float(np.mean(p.bounds)) for p in effect.params})
-        values.update({multiaxis._prefix(true.axis) + k: float(v) for k, v in true.parameters.items()})
+        values.update({structure._prefix(true.axis) + k: float(v) for k, v in true.parameters.items()})
     rng = np.random.default_rng(seed)
     outputs = [a.output for a in plant.axes]
     with tempfile.TemporaryDirectory(prefix="mt-truth-") as tmp:
-        multiaxis.write_structure(plant, placed, values, Path(tmp))
-        model = multiaxis.load_structure(Path(tmp))
-    signals = multiaxis.axes_signals(plant)
+        structure.write_axes_structure(plant, placed, values, Path(tmp))
+        model = structure.load_structure(Path(tmp))
+    signals = structure.axes_signals(plant)
     pre = int(round(PREROLL / ts))
     parts = {}
     for part, duration in (("train", train_s), ("validation", validation_s)):

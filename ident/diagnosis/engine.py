@@ -1,0 +1,65 @@
+"""The diagnosis's entry points: :func:`diagnose` (in memory), :func:`diagnose_bundle` (a bundle folder); the
+stages run by :mod:`ident.diagnosis.pipeline`."""
+from __future__ import annotations
+
+import os
+import tempfile
+import threading
+from pathlib import Path
+from typing import Callable
+
+from motiontwin.harness.recording import Recording
+from motiontwin.ident.controller import Controller
+from motiontwin.ident.diagnosis import pipeline
+from motiontwin.ident.diagnosis.bundle import Bundle, make_bundle, read_bundle
+
+#: one diagnosis at a time per process: CasADi's symbolic layer is not thread-safe (see :func:`diagnose`)
+_CASADI_LOCK = threading.Lock()
+
+
+def diagnose(plant: str | Path, controller: Controller | dict, train: Recording, validation: Recording, *,
+             plant_class: str | None = None, parameters: dict[str, float] | None = None,
+             pole_pitch: float | None = None, progress: Callable[[str], None] | None = None,
+             axes: list[dict] | None = None) -> pipeline.Diagnosis | pipeline.MultiAxisDiagnosis:
+    """Diagnose the mismatch between a nominal plant and two closed-loop recordings (in memory).
+
+    Parameters
+    ----------
+    plant : Modelica file or Modelica source text of the nominal plant (input u [N], output q [m]).
+    controller : the sampled controller (:class:`ident.controller.Controller` or its experiment.json object).
+    train, validation : :class:`harness.recording.Recording` with time [s], r [m], u [N], q [m][, u_ext [N]].
+    plant_class : the plant class (default: the first ``model`` in the source).
+    parameters : start values of plant parameters (default: Modelica values and inverse dynamics).
+    pole_pitch : the motor's magnet pole pitch [m] (enables the ``cogging`` candidate), or None.
+    progress : called with one line per step.
+    axes : a multi-axis plant (``[{"input": "u1", "output": "q1"}, ...]``, see :func:`bundle.make_bundle`);
+        the result then names each effect's axis and the validation RMS per axis.
+
+    Returns
+    -------
+    Diagnosis
+        Effects, parameters and validation; ``.write(folder)`` writes the report and the FMU.
+
+    Re-entrant: every call compiles its own loops (no module-level cache), so repeated calls and calls from
+    several threads give the same result as one call. Calls from several threads run one at a time: CasADi's
+    symbolic layer shares reference-counted constants between expressions and is not thread-safe (parallel
+    diagnoses belong in separate processes).
+    """
+    bundle = make_bundle(plant, controller, train, validation, plant_class, parameters, pole_pitch=pole_pitch,
+                         axes=axes)
+    return diagnose_bundle_object(bundle, progress)
+
+
+def diagnose_bundle_object(bundle: Bundle, progress: Callable[[str], None] | None = None
+                           ) -> pipeline.Diagnosis | pipeline.MultiAxisDiagnosis:
+    """:func:`diagnose` of an already read :class:`Bundle` (working files in a temporary folder)."""
+    with _CASADI_LOCK, tempfile.TemporaryDirectory(prefix="motiontwin-diagnosis-") as tmp:
+        if bundle.multi_axis:
+            return pipeline.MultiAxisDiagnosis.from_result(pipeline.run_axes(bundle, Path(tmp), progress))
+        return pipeline.Diagnosis.from_result(pipeline.run(bundle, Path(tmp), progress))
+
+
+def diagnose_bundle(bundle_dir: str | os.PathLike, out_dir: str | os.PathLike, progress=None) -> dict:
+    """Diagnose a bundle folder and write diagnosis.json, validation_prediction.csv, report.md (+ PNGs), the
+    augmented Modelica model and its FMU into ``out_dir``. Nothing is written when the input is bad."""
+    return diagnose_bundle_object(read_bundle(bundle_dir), progress).write(out_dir)

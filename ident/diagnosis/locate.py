@@ -1,0 +1,186 @@
+"""Where the data disagrees with the refitted nominal model: the recorded ranges and the inverse-dynamics
+force residual in the plant's state coordinates (:class:`effects.Context`) that the candidates start from.
+Units: SI (s, m, N)."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+import casadi as ca
+import numpy as np
+
+from motiontwin.fmus import symbolic
+from motiontwin.harness.recording import Recording
+from motiontwin.ident import outputerror, startvalues
+from motiontwin.ident.diagnosis import effects as effect_models
+from motiontwin.ident.diagnosis import evidence
+from motiontwin.ident.diagnosis.bundle import Bundle
+from motiontwin.ident.diagnosis.plant_roles import output_map
+from motiontwin.ident.diagnosis.structure import ModelFit
+
+
+def _in_state_coordinates(rec: Recording, gain: float, offset: float) -> Recording:
+    """``rec`` with the measured q replaced by the plant's position state (q - offset)/gain."""
+    return Recording(rec.time, {**rec.columns, "q": (rec["q"] - offset) / gain}, rec.units, rec.meta)
+
+
+def context(bundle: Bundle, nominal: ModelFit) -> effect_models.Context:
+    """Recorded ranges and inverse-dynamics signals in the plant's state coordinates."""
+    ts = bundle.controller.Ts
+    plant = bundle.plant
+    gain, offset = output_map(plant.model, plant.roles, nominal.fit.values)
+    rec = _in_state_coordinates(bundle.train, gain, offset)
+    inv = evidence.inverse_dynamics(rec, plant.model, nominal.fit.values, plant.position_state, plant.velocity_state,
+                                    ts, _input_index(bundle))
+    q = np.concatenate([rec["q"], _in_state_coordinates(bundle.validation, gain, offset)["q"]])
+    v = inv.v if inv else np.gradient(rec["q"], ts)
+    mass = _mass_equivalent(bundle, nominal.fit.values)
+    ctx = effect_models.Context(ts, float(q.min()), float(q.max()), float(np.max(np.abs(v))) or 1e-3, mass,
+                     position_gain=gain, u=bundle.train["u"],
+                     duration=float(bundle.train.time[-1] - bundle.train.time[0]),
+                     pole_pitch=_pitch_in_state_coordinates(plant.pole_pitch, gain))
+    if inv is not None:
+        ctx.x, ctx.v, ctx.a, ctx.force, ctx.udot = inv.x, inv.v, inv.a, inv.force, inv.udot
+    ctx.resonance_guess = evidence.resonance_guesses(bundle.train["q"] - nominal.fit.q_sim, ts)
+    return ctx
+
+
+def _pitch_in_state_coordinates(pole_pitch: float | None, gain: float) -> float | None:
+    """``plant.pole_pitch`` [m of the measured output] in units of the plant's position state."""
+    return None if pole_pitch is None else pole_pitch / gain
+
+
+def _mass_equivalent(bundle: Bundle, values: dict[str, float]) -> float:
+    model = bundle.plant.model
+    i_v = [s.name for s in model.states].index(bundle.plant.velocity_state)
+    gain = ca.Function("g", [model.x, model.u, model.p], [ca.jacobian(model.dx[i_v], model.u[_input_index(bundle)])])
+    p = np.array([values[s.name] for s in model.parameters])
+    return float(1 / np.array(gain(np.zeros(model.x.numel()), np.zeros(model.u.numel()), p)).item())
+
+
+def _input_index(bundle: Bundle) -> int:
+    return [v.name for v in bundle.plant.model.inputs].index(bundle.plant.input_name)
+
+
+LOCATE_REPLICATES = 2       # noise re-simulations for each axis's reference force-residual level
+
+
+def _acceleration_map(model: symbolic.SymbolicModel, bundle: Bundle) -> ca.Function:
+    """(x, u, p) -> (velocity-state derivatives, their Jacobian w.r.t. the axes' inputs)."""
+    names = [s.name for s in model.states]
+    inputs = [v.name for v in model.inputs]
+    i_v = [names.index(a.velocity) for a in bundle.plant.axes]
+    k_u = [inputs.index(a.input) for a in bundle.plant.axes]
+    acc = ca.vertcat(*[model.dx[i] for i in i_v])
+    u_axes = ca.vertcat(*[model.u[k] for k in k_u])
+    return ca.Function("acc", [model.x, model.u, model.p], [acc, ca.jacobian(acc, model.u)[:, k_u]
+                                                               if u_axes.numel() else acc])
+
+
+def _states_from(bundle: Bundle, rec: Recording, values: dict[str, float],
+                 fc: float | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Plant state trajectory (positions and velocities from the filtered outputs, other states at their
+    start), accelerations and filtered forces of every axis, in state coordinates."""
+    model = bundle.plant.model
+    ts = bundle.controller.Ts
+    fs = 1 / ts
+    fc = fc or min(0.1 * fs, 150.0)
+    names = [s.name for s in model.states]
+    p = np.array([values[v.name] for v in model.parameters])
+    x0 = np.array(ca.Function("x0", [model.p], [model.x0()])(p)).ravel()
+    x = np.tile(x0[:, None], (1, rec.time.size))
+    acc, forces = [], []
+    for a in bundle.plant.axes:
+        gain, offset = output_map(model, a, values)
+        pos, vel, accel = startvalues.mirror_derivatives((rec[a.output] - offset) / gain, fs, fc)
+        x[names.index(a.position)], x[names.index(a.velocity)] = pos, vel
+        acc.append(accel)
+        forces.append(startvalues.mirror_derivatives(rec[a.input], fs, fc)[0])
+    return x, np.array(acc), np.array(forces)
+
+
+def _needed_force(model: symbolic.SymbolicModel, bundle: Bundle, values: dict[str, float], x: np.ndarray,
+                  acc: np.ndarray) -> np.ndarray:
+    """Force each axis needs for the motion (x, acc) under the model at ``values`` (axes x samples)."""
+    fn = _acceleration_map(model, bundle)
+    p = np.array([values[v.name] for v in model.parameters])
+    u = np.zeros((model.u.numel(), x.shape[1]))
+    a0, gain = fn.map(x.shape[1])(x, u, p)
+    n = len(bundle.plant.axes)
+    a0 = np.array(a0)
+    gain = np.array(gain).reshape(n, x.shape[1], n).transpose(1, 0, 2)   # map: blocks side by side
+    return np.linalg.solve(gain, (acc - a0).T[:, :, None])[:, :, 0].T
+
+
+@dataclass
+class AxisEvidence:
+    """The located residual of one axis: the force residual [N] and its reference level from noise."""
+
+    axis: str
+    force: np.ndarray
+    score: float          # RMS of the force residual / RMS a correct model leaves with the same noise
+    context: effect_models.Context
+
+
+def force_residuals(bundle: Bundle, rec: Recording, values: dict[str, float]) -> np.ndarray:
+    """Per-axis inverse-dynamics force residual u_k - (force the nominal model needs) [N], axes x samples."""
+    plain = {k[len("plant."):] if k.startswith("plant.") else k: v for k, v in values.items()}
+    plain = {v.name: plain.get(v.name, float(v.start)) for v in bundle.plant.model.parameters}
+    x, acc, forces = _states_from(bundle, rec, plain)
+    return forces - _needed_force(bundle.plant.model, bundle, plain, x, acc)
+
+
+def locate(bundle: Bundle, current: ModelFit, weights: outputerror.Weights, seed: int) -> list[AxisEvidence]:
+    """Every axis's force residual beyond the one the fitted model's own noise-free free run leaves through the
+    same filters (the derivative filter's error on a fast excitation, common to model and data), and its
+    ratio to the level that the fitted model re-simulated with white encoder noise leaves (same filters,
+    same noise level per axis), best first."""
+    rec = bundle.train
+
+    def simulated(noise: np.ndarray | None) -> np.ndarray:
+        q, u = outputerror.simulate(current.loop, rec, current.fit.values, noise=noise)
+        columns = dict(rec.columns)
+        for k, a in enumerate(bundle.plant.axes):
+            columns[a.output], columns[a.input] = q[k] + (0.0 if noise is None else noise[k]), u[k]
+        return force_residuals(bundle, Recording(rec.time, columns, rec.units, rec.meta), current.fit.values)
+
+    model_own = simulated(None)
+    residual = force_residuals(bundle, rec, current.fit.values) - model_own
+    rng = np.random.default_rng(seed)
+    reference = np.zeros(len(bundle.plant.axes))
+    sigma = np.reshape(np.asarray(weights.sigma_q, float), (-1, 1))
+    for _ in range(LOCATE_REPLICATES):
+        noise = rng.normal(0.0, 1.0, residual.shape) * sigma
+        reference += np.mean((simulated(noise) - model_own) ** 2, axis=1)
+    reference = np.sqrt(reference / LOCATE_REPLICATES)
+    found = []
+    for k, a in enumerate(bundle.plant.axes):
+        score = float(np.sqrt(np.mean(residual[k] ** 2)) / max(reference[k], 1e-300))
+        found.append(AxisEvidence(a.output, residual[k], score, axis_context(bundle, current, k, residual[k])))
+    return sorted(found, key=lambda e: -e.score)
+
+
+def axis_context(bundle: Bundle, current: ModelFit, k: int, force: np.ndarray) -> effect_models.Context:
+    """Recorded ranges and inverse-dynamics signals of axis ``k`` in its state coordinates."""
+    ts = bundle.controller.Ts
+    roles = bundle.plant.axes[k]
+    model = bundle.plant.model
+    plain = {v.name: current.fit.values.get("plant." + v.name, float(v.start)) for v in model.parameters}
+    gain, offset = output_map(model, roles, plain)
+    x, acc, forces = _states_from(bundle, bundle.train, plain)
+    names = [s.name for s in model.states]
+    pos, vel = x[names.index(roles.position)], x[names.index(roles.velocity)]
+    q_all = (np.concatenate([bundle.train[roles.output], bundle.validation[roles.output]]) - offset) / gain
+    fn = _acceleration_map(model, bundle)
+    p = np.array([plain[v.name] for v in model.parameters])
+    _, g = fn(x[:, 0], np.zeros(model.u.numel()), p)
+    mass = float(np.linalg.inv(np.array(g))[k, k])
+    ctx = effect_models.Context(ts, float(q_all.min()), float(q_all.max()), float(np.max(np.abs(vel))) or 1e-3,
+                                mass, position_gain=gain, u=bundle.train[roles.input],
+                                duration=float(bundle.train.time[-1] - bundle.train.time[0]),
+                                pole_pitch=_pitch_in_state_coordinates(bundle.plant.pitch_of(roles.output), gain))
+    ctx.x, ctx.v, ctx.a, ctx.force = pos, vel, acc[k], force
+    ctx.udot = np.gradient(forces[k], ts)
+    q_sim = current.fit.q_sim[k]
+    ctx.resonance_guess = evidence.resonance_guesses(bundle.train[roles.output] - q_sim, ts)
+    return ctx

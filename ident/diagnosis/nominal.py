@@ -1,0 +1,135 @@
+"""The first stage: the plant form checked against every candidate effect, start values of the nominal
+parameters (Modelica defaults, ``plant.parameters``, inverse dynamics) and the closed-loop nominal refit.
+Units: SI (s, m, N)."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from motiontwin.ident import outputerror, startvalues
+from motiontwin.ident.diagnosis import effects as effect_models
+from motiontwin.ident.diagnosis import evidence
+from motiontwin.ident.diagnosis.bundle import Bundle, BundleError
+from motiontwin.ident.diagnosis.locate import _mass_equivalent, _needed_force, _pitch_in_state_coordinates, _states_from
+from motiontwin.ident.diagnosis.plant_roles import PlantFormError, output_map
+from motiontwin.ident.diagnosis.structure import (AUGMENTED_CLASS, ModelFit, _fmt, _log, _moving_start,
+                                                  _nominal_bounds, build_axes)
+from motiontwin.ident.plant_states import alias_state
+
+
+def _divergence_hint(bundle: Bundle) -> str:
+    return (f"Set start values in {bundle.directory / 'experiment.json'}, field \"plant.parameters\", e.g. "
+            f"\"parameters\": {{\"m\": 95.0}}, or check the controller and the recorded signals' units.")
+
+
+def nominal_start(bundle: Bundle, progress=None) -> dict[str, float]:
+    """Start values of the nominal refit: the Modelica defaults, over them ``plant.parameters`` of the bundle,
+    and for every other non-zero parameter that enters the plant's force linearly (mass, viscous
+    friction, ...) the inverse-dynamics least-squares estimate on the training recording (kept when it has
+    the default's sign), so that a 2 kg default never meets a 95 kg axis in a closed-loop free run."""
+    model, plant = bundle.plant.model, bundle.plant
+    values = {v.name: float(v.start) for v in model.parameters} | plant.parameters
+    guess = [n for n, v in values.items() if n not in plant.parameters and v != 0]
+    if alias_state(model, plant.output_name) != plant.position_state:
+        _log(progress, "start values: the Modelica defaults and plant.parameters (the inverse-dynamics start "
+                       "needs the output to be the position state itself)")
+        return values
+    estimate = startvalues.inverse_dynamics_start(model, bundle.train["q"], bundle.train["u"], bundle.controller.Ts,
+                                                  plant.position_state, guess, values, input_name=plant.input_name)
+    kept = {n: v for n, v in estimate.items() if v * values[n] > 0}
+    if kept:
+        _log(progress, f"start values from inverse dynamics: {_fmt(kept)} (defaults: "
+                       f"{_fmt({n: values[n] for n in kept})})")
+    return values | kept
+
+
+def fit_nominal(bundle: Bundle, progress=None) -> tuple[ModelFit, outputerror.Weights]:
+    model = bundle.plant.model
+    free, bounds = _nominal_bounds(bundle)
+    values = dict(bundle.start)
+    loop = outputerror.build_loop(model, bundle.controller, bundle.plant.output_name, free, values,
+                                  bundle.train.time.size, input_name=bundle.plant.input_name,
+                                  tracking=_moving_start(bundle))
+    q0, u0 = outputerror.simulate(loop, bundle.train)
+    startvalues.check_free_run(q0, bundle.train["q"], bundle.train.time,
+                               f"the nominal closed loop ({bundle.plant.class_name} with the bundle's controller) on "
+                               f"{bundle.recording_path('train')}", {n: values[n] for n in free},
+                               _divergence_hint(bundle))
+    ts = bundle.controller.Ts
+    weights = outputerror.Weights(evidence.noise_level(bundle.train["q"] - q0, ts),
+                                  evidence.noise_level(bundle.train["u"] - u0, ts))
+    result = outputerror.fit(loop, bundle.train, weights, bounds, max_nfev=40)
+    weights = outputerror.Weights(evidence.noise_level(bundle.train["q"] - result.q_sim, ts),
+                                  evidence.noise_level(bundle.train["u"] - result.u_sim, ts))
+    result = outputerror.fit(loop.with_values(result.values), bundle.train, weights, bounds, max_nfev=15)
+    _log(progress, f"nominal refit: {_fmt(result.values)}; rms q {result.rms_q:.3g} m")
+    return ModelFit([], loop.with_values(result.values), result, bounds), weights
+
+
+def check_plant_form(bundle: Bundle, folder: Path) -> None:
+    """Build every candidate effect's augmented model on the bundle's plant before any fitting (raises
+    :class:`BundleError` naming the construct and the plant file's line)."""
+    plant, ts = bundle.plant, bundle.controller.Ts
+    values = {v.name: float(v.start) for v in plant.model.parameters}
+    try:
+        gain, offset = output_map(plant.model, plant.roles, values)
+        x = (np.concatenate([bundle.train["q"], bundle.validation["q"]]) - offset) / gain
+        v_max = float(np.max(np.abs(np.gradient(x, ts)))) or 1e-3
+        ctx = effect_models.Context(ts, float(x.min()), float(x.max()), v_max, _mass_equivalent(bundle, values),
+                         position_gain=gain, pole_pitch=_pitch_in_state_coordinates(plant.pole_pitch, gain))
+        effect_models.check_buildable(folder, plant.text, plant.source, plant.class_name, plant.roles, ctx,
+                                      AUGMENTED_CLASS)
+    except PlantFormError as exc:
+        raise BundleError(str(exc)) from None
+
+
+def nominal_free(bundle: Bundle) -> tuple[list[str], dict[str, tuple[float, float]]]:
+    """The nominal parameters refitted: non-zero ones that enter the inverse-dynamics force linearly
+    (masses, viscous friction, gravity), bounded to a factor 5 around the start as in the single-axis
+    refit; geometry (lengths, offsets), which enters nonlinearly, stays at its value."""
+    free, bounds = _nominal_bounds(bundle, "plant.")
+    model = bundle.plant.model
+    values = dict(bundle.start)
+    rng = np.random.default_rng(1)
+    x, _, _ = _states_from(bundle, bundle.train, values)
+    idx = rng.choice(x.shape[1], size=min(50, x.shape[1]), replace=False)
+    a = rng.normal(0.0, 1.0, (len(bundle.plant.axes), idx.size))
+    linear = []
+    for name in free:
+        plain = name[len("plant."):]
+        forces = []
+        for factor in (0.5, 1.0, 1.5):
+            trial = {**values, plain: values[plain] * factor}
+            forces.append(_needed_force(model, bundle, trial, x[:, idx], a))
+        curvature = np.max(np.abs(forces[0] - 2 * forces[1] + forces[2]))
+        scale = np.max(np.abs(forces[2] - forces[0])) or 1.0
+        if scale > 0 and curvature <= 1e-6 * scale and np.max(np.abs(forces[2] - forces[0])) > 0:
+            linear.append(name)
+    return linear, {n: bounds[n] for n in linear}
+
+
+def _noise_weights(bundle: Bundle, loop: outputerror.Loop, q: np.ndarray, u: np.ndarray) -> outputerror.Weights:
+    ts = bundle.controller.Ts
+    qm, um = outputerror.measured(loop, bundle.train, "output"), outputerror.measured(loop, bundle.train, "input")
+    return outputerror.Weights(np.array([evidence.noise_level(qm[k] - q[k], ts) for k in range(len(qm))]),
+                               np.array([evidence.noise_level(um[k] - u[k], ts) for k in range(len(um))]))
+
+
+def fit_nominal_axes(bundle: Bundle, work: Path, progress=None) -> tuple[ModelFit, outputerror.Weights]:
+    """Closed-loop refit of the nominal parameters on every axis at once."""
+    values = {"plant." + k: v for k, v in bundle.start.items()}
+    loop, bounds = build_axes(bundle, [], values, work, bundle.train.time.size)
+    q0, u0 = outputerror.simulate(loop, bundle.train)
+    for k, a in enumerate(bundle.plant.axes):
+        startvalues.check_free_run(q0[k], bundle.train[a.output], bundle.train.time,
+                                   f"the nominal closed loop ({bundle.plant.class_name} with the bundle's controller) "
+                                   f"on {bundle.recording_path('train')}, axis {a.output}",
+                                   {n: loop.values[n] for n in loop.free}, _divergence_hint(bundle))
+    weights = _noise_weights(bundle, loop, q0, u0)
+    result = outputerror.fit(loop, bundle.train, weights, bounds, max_nfev=40)
+    weights = _noise_weights(bundle, loop, result.q_sim, result.u_sim)
+    result = outputerror.fit(loop.with_values(result.values), bundle.train, weights, bounds, max_nfev=15)
+    _log(progress, f"nominal refit ({', '.join(loop.free)}): "
+                   f"{_fmt({k: result.values[k] for k in loop.free})}; rms q {result.rms_q:.3g} m")
+    return ModelFit([], loop.with_values(result.values), result, bounds), weights

@@ -1,0 +1,186 @@
+"""Screening: every candidate effect added to the current structure and fitted with a few Gauss-Newton steps
+(forked worker processes), ranked by cost; the best ranked with their nested simpler (and close richer)
+effects go on to the full fit. Units: SI (s, m, N)."""
+from __future__ import annotations
+
+import concurrent.futures
+import itertools
+import multiprocessing
+import os
+import threading
+import time
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from motiontwin.ident import outputerror
+from motiontwin.ident.diagnosis import effects as effect_models
+from motiontwin.ident.diagnosis.bundle import Bundle
+from motiontwin.ident.diagnosis.structure import ModelFit, _log, build_axes, build_structure, on_axis
+
+SCREEN_NFEV = 4             # cheap fit of every candidate, to rank them
+MAX_NFEV = 15               # full fit of the best-ranked candidates
+FULL_FITS = 3
+MULTI_START = ("position_ripple", "resonance")   # nonlinear in a period/frequency: screen every start
+_TOKENS = itertools.count()  # screening-job tokens (itertools.count is thread-safe in CPython)
+
+
+def fit_structure(bundle: Bundle, current: ModelFit, candidate: effect_models.Effect, ctx: effect_models.Context,
+                  weights: outputerror.Weights, folder: Path, max_nfev: int = MAX_NFEV) -> ModelFit:
+    """Fit the current structure plus ``candidate`` from each of the candidate's starting points."""
+    effects = current.effects + [candidate]
+    base = dict(current.fit.values) if current.effects else {"plant." + k: v for k, v in current.fit.values.items()}
+    starts = _starts(candidate, ctx, max_nfev)
+    values = {**base, **{p.name: float(np.mean(p.bounds)) for p in candidate.params if not p.fitted}, **starts[0]}
+    loop, bounds = build_structure(bundle, effects, values, folder, bundle.train.time.size,
+                                   min_substeps=current.loop.substeps)
+    best = _best_fit(bundle, loop, bounds, weights, base, starts, max_nfev)
+    return ModelFit(effects, loop.with_values(best.values), best, bounds, folder)
+
+
+def _starts(candidate: effect_models.Effect, ctx: effect_models.Context, max_nfev: int) -> list[dict[str, float]]:
+    """The candidate's starting points; a screening fit (``SCREEN_NFEV``) takes only the first unless the
+    effect is nonlinear in a period or frequency (``MULTI_START``)."""
+    starts = candidate.initial(ctx)
+    return starts[:1] if max_nfev <= SCREEN_NFEV and candidate.name not in MULTI_START else starts
+
+
+def _best_fit(bundle: Bundle, loop: outputerror.Loop, bounds: dict[str, tuple[float, float]],
+              weights: outputerror.Weights, base: dict[str, float], starts: list[dict[str, float]],
+              max_nfev: int) -> outputerror.Fit:
+    """The lowest-cost fit of ``loop`` from ``base`` with each start (clipped into its bounds) over it."""
+    best = None
+    for start in starts:
+        clipped = {k: float(np.clip(v, *bounds[k])) for k, v in start.items() if k in bounds}
+        result = outputerror.fit(loop, bundle.train, weights, bounds, start={**base, **clipped}, max_nfev=max_nfev)
+        if best is None or result.cost < best.cost:
+            best = result
+    return best
+
+
+def refine(bundle: Bundle, structure: ModelFit, weights: outputerror.Weights, max_nfev: int = MAX_NFEV) -> ModelFit:
+    """Continue the fit of an already compiled structure from its current values."""
+    result = outputerror.fit(structure.loop, bundle.train, weights, structure.bounds, start=structure.fit.values,
+                             max_nfev=max_nfev)
+    if result.cost >= structure.fit.cost:
+        return structure
+    return ModelFit(structure.effects, structure.loop.with_values(result.values), result, structure.bounds,
+                    structure.folder, evidence=structure.evidence, axes=structure.axes)
+
+
+#: screening jobs by token (the function fitting one candidate by name): forked workers inherit the table and
+#: are sent only (token, name); every call adds its own token and removes it, so concurrent diagnoses do not collide
+_SCREEN_JOBS: dict[int, tuple] = {}
+
+
+def _screen_one(token: int, name: str) -> tuple[str, outputerror.Fit | None, int, float, str]:
+    """Cheap fit of the current structure plus the effect ``name`` (run in a worker or in-process)."""
+    fit_one = _SCREEN_JOBS[token]
+    t0 = time.perf_counter()
+    try:
+        trial = fit_one(name)
+    except (RuntimeError, ValueError, np.linalg.LinAlgError) as exc:
+        return name, None, 0, time.perf_counter() - t0, str(exc)
+    return name, trial.fit, trial.loop.substeps, time.perf_counter() - t0, ""
+
+
+def screen_workers() -> int:
+    """Processes for the candidate screening: ``MOTIONTWIN_DIAGNOSIS_WORKERS`` or the machine's cores
+    (at most 4); 1 runs in-process, as does every diagnosis outside the main thread (forking a threaded
+    process can deadlock). The results do not depend on it (each fit is deterministic)."""
+    if threading.current_thread() is not threading.main_thread():
+        return 1
+    value = os.environ.get("MOTIONTWIN_DIAGNOSIS_WORKERS")
+    count = int(value) if value and value.isdigit() else min(4, os.cpu_count() or 1)
+    return max(1, count) if "fork" in multiprocessing.get_all_start_methods() else 1
+
+
+def screen(bundle: Bundle, current: ModelFit, names: list[str], ctx: effect_models.Context,
+           weights: outputerror.Weights, folder: Path, progress=None,
+           fit_one: Callable[[str], ModelFit] | None = None) -> dict[str, tuple[outputerror.Fit, int]]:
+    """Screen every candidate effect with a few Gauss-Newton steps, in parallel processes (forked, so
+    they share the bundle and the current fit): name -> (fit, RK4 substeps of its loop). ``fit_one``: the
+    cheap fit of one candidate by name (default: :func:`fit_structure` with ``SCREEN_NFEV``; the multi-axis
+    diagnosis places the effect on its located axis)."""
+    if fit_one is None:
+        def fit_one(name: str) -> ModelFit:
+            return fit_structure(bundle, current, effect_models.VOCABULARY[name](ctx), ctx, weights, folder / name,
+                                 SCREEN_NFEV)
+    token = next(_TOKENS)
+    _SCREEN_JOBS[token] = fit_one
+    workers = min(screen_workers(), len(names))
+    try:
+        if workers > 1:
+            with concurrent.futures.ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("fork")) \
+                    as pool:
+                results = list(pool.map(_screen_one, [token] * len(names), names))
+        else:
+            results = [_screen_one(token, name) for name in names]
+    finally:
+        del _SCREEN_JOBS[token]
+    out: dict[str, tuple[outputerror.Fit, int]] = {}
+    for name, result, substeps, seconds, error in results:
+        if result is None:
+            _log(progress, f"  {name}: fit failed ({error})")
+            continue
+        out[name] = (result, substeps)
+        _log(progress, f"  screen {name}: cost -{current.fit.cost - result.cost:.4g} ({seconds:.1f} s)")
+    return out
+
+
+def ranked_with_nested(order: list[str], screened: dict) -> list[str]:
+    """The FULL_FITS best-screened effects and the screened simpler effect each nests (``NESTED``), so that
+    the parsimony rule can compare them."""
+    ranked = order[:FULL_FITS]
+    for name in list(ranked):
+        simple = effect_models.NESTED.get(name)
+        if simple in screened and simple not in ranked:
+            ranked.append(simple)
+    return ranked
+
+
+NESTED_SCREEN_SHARE = 0.9   # a richer effect screened within 10 % of its ranked simpler one's gain is fitted too
+
+
+def _close_richer(ranked: list[str], screened: dict, cost: float) -> list[str]:
+    """Richer effects (``NESTED``) of a ranked simpler one whose screening gain is at least
+    NESTED_SCREEN_SHARE of the simpler one's: a few steps do not converge their extra parameters (a drift
+    time constant, a load coefficient), so the screening cannot tell them from the simpler effect."""
+    return [rich for rich, simple in effect_models.NESTED.items()
+            if simple in ranked and rich in screened and rich not in ranked
+            and cost - screened[rich][0].cost >= NESTED_SCREEN_SHARE * (cost - screened[simple][0].cost) > 0]
+
+
+def fit_candidate(bundle: Bundle, current: ModelFit, effect: effect_models.Effect, axis: str,
+                  ctx: effect_models.Context, weights: outputerror.Weights, folder: Path,
+                  max_nfev: int) -> ModelFit:
+    """The current structure plus ``effect`` on ``axis``, fitted from each of its starting points."""
+    roles = next(a for a in bundle.plant.axes if a.output == axis)
+    placed = on_axis(effect, roles)
+    effects = current.placed + [(axis, placed)]
+    starts = _starts(placed, ctx, max_nfev)
+    base = dict(current.fit.values)
+    values = {**base, **{p.name: float(np.mean(p.bounds)) for p in placed.params if not p.fitted}, **starts[0]}
+    loop, bounds = build_axes(bundle, effects, values, folder, bundle.train.time.size,
+                              min_substeps=current.loop.substeps)
+    best = _best_fit(bundle, loop, bounds, weights, {**loop.values, **base}, starts, max_nfev)
+    return ModelFit(current.effects + [placed], loop.with_values(best.values), best, bounds, folder,
+                    evidence=dict(current.evidence), axes=current.axes + [axis])
+
+
+def placed_structure(bundle: Bundle, current: ModelFit, name: str, axis: str, ctx: effect_models.Context,
+                     fit: outputerror.Fit, substeps: int, folder: Path) -> ModelFit:
+    """The structure of a screened candidate (its loop rebuilt here: the compiled library is on disk)."""
+    roles = next(a for a in bundle.plant.axes if a.output == axis)
+    placed = on_axis(effect_models.VOCABULARY[name](ctx), roles)
+    loop, bounds = build_axes(bundle, current.placed + [(axis, placed)], fit.values, folder, bundle.train.time.size,
+                              min_substeps=substeps)
+    return ModelFit(current.effects + [placed], loop.with_values(fit.values), fit, bounds, folder,
+                    evidence=dict(current.evidence), axes=current.axes + [axis])
+
+
+def candidates(ctx: effect_models.Context, used: set[str]) -> list[str]:
+    """The vocabulary's effects offered on an axis (one per family and axis)."""
+    offered = {n: factory(ctx) for n, factory in effect_models.VOCABULARY.items()}
+    return [n for n, e in offered.items() if e.applicable and e.family not in used]

@@ -1,0 +1,242 @@
+"""Selection: the greedy forward loop over rounds. A screened effect is kept when its cost reduction beats the
+parametric-bootstrap null reference and it lowers the validation RMS by the validation rule's margin; a
+nested simpler effect is preferred unless the richer one earns its extra parameters; other structures that
+fit as well are reported as equivalent explanations. Units: SI (s, m, N)."""
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+from scipy import stats
+
+from motiontwin.ident import outputerror
+from motiontwin.ident.diagnosis import effects as effect_models
+from motiontwin.ident.diagnosis import evidence
+from motiontwin.ident.diagnosis.bundle import Bundle
+from motiontwin.ident.diagnosis.locate import AxisEvidence, locate
+from motiontwin.ident.diagnosis.screen import (FULL_FITS, MAX_NFEV, SCREEN_NFEV, _close_richer, candidates,
+                                               fit_candidate, placed_structure, ranked_with_nested, refine, screen)
+from motiontwin.ident.diagnosis.structure import ModelFit, _log, build_structure, compiled, validate_any
+
+VALIDATION_GAIN = evidence.VALIDATION_GAIN
+MAX_EFFECTS = 3
+#: after an accepted effect, another round runs only when some axis's force residual still exceeds its noise
+#: reference by this factor (the first round always screens, so a parameters-only bundle meets the null test)
+NEXT_ROUND_SCORE = 1.5
+BOOTSTRAP_COUNT = 30
+
+
+def select(bundle: Bundle, nominal: ModelFit, weights: outputerror.Weights, ctx: effect_models.Context | None,
+           work: Path, progress=None) -> tuple[ModelFit, list[dict], list[dict]]:
+    """Greedy forward selection of effects with the bootstrap null reference and the validation check, for one
+    axis or several. Each round takes the axis to screen (several axes: the one whose force residual stands
+    highest above its noise reference, :func:`locate.locate`; one axis: the only one, with ``ctx``), screens
+    the vocabulary's effects on it, fully fits the best ranked with their nested simpler and close richer ones,
+    keeps the first significant one (its nested simpler one unless the extra parameters earn their place) that
+    lowers that axis's validation RMS by the validation rule's margin, and lists the structures that explain
+    the data as well. Returns the final structure, the candidate log and the per-round axis scores."""
+    current = nominal
+    log: list[dict] = []
+    located: list[dict] = []
+    used: dict[str | None, set[str]] = {}
+    shortlists: dict[str | None, list[str]] = {}
+    rounds = 0
+    while len(current.effects) < MAX_EFFECTS:
+        rounds += 1
+        target = _round_axis(bundle, current, weights, rounds, located, progress)
+        if target is False:
+            break
+        axis, ctx = (None, ctx) if target is None else (target.axis, target.context)
+        on = "" if axis is None else f" on {axis}"
+        if rounds > 1:  # recompile at the fitted values (integration accuracy) and converge the accepted
+            # structure, so that no candidate is credited with leftover fit slack or integration error
+            loop, bounds = compiled(bundle, current, work / f"c{rounds}")
+            result = outputerror.fit(loop, bundle.train, weights, bounds, start=current.fit.values,
+                                     max_nfev=4 * MAX_NFEV)
+            current = ModelFit(current.effects, loop.with_values(result.values), result, bounds,
+                               work / f"c{rounds}", evidence=current.evidence, axes=current.axes)
+            validate_any(bundle, current, work / f"v{rounds}_refined")
+        noisy = lambda n, c=current: outputerror.simulate(c.loop, bundle.train, c.fit.values, noise=n)  # noqa: E731
+        null = evidence.bootstrap_residuals(noisy, current.fit.q_sim, current.fit.u_sim, weights.sigma_q,
+                                            weights.sigma_u, bundle.train.time.size, BOOTSTRAP_COUNT, seed=rounds)
+        base_gain = evidence.projected_gain(current.fit.jacobian, null)
+        shortlist = shortlists.get(axis, list(effect_models.VOCABULARY))
+        names = [n for n in candidates(ctx, used.setdefault(axis, set())) if n in shortlist]
+        if axis is None:
+            screened = screen(bundle, current, names, ctx, weights, work / f"r{rounds}", progress)
+        else:
+            def fit_one(name: str, c: ModelFit = current, a: str = axis, x: effect_models.Context = ctx,
+                        r: int = rounds) -> ModelFit:
+                return fit_candidate(bundle, c, effect_models.VOCABULARY[name](x), a, x, weights,
+                                     work / f"r{r}_{name}", SCREEN_NFEV)
+
+            screened = screen(bundle, current, names, ctx, weights, work, progress, fit_one)
+        order = sorted(screened, key=lambda n: screened[n][0].cost)
+        shortlists[axis] = order[:FULL_FITS + 2]     # later rounds on this axis screen only the high-ranked ones
+        ranked = ranked_with_nested(order, screened)
+        ranked += _close_richer(ranked, screened, current.fit.cost)
+        trials: dict[str, tuple[ModelFit, float, float, np.ndarray]] = {}
+        for name in ranked:
+            t0 = time.perf_counter()
+            result, substeps = screened[name]
+            trial = refine(bundle, _screened_structure(bundle, current, name, axis, ctx, result, substeps,
+                                                       work / f"r{rounds}_{name}"), weights)
+            candidate = trial.effects[-1]
+            gain = current.fit.cost - trial.fit.cost
+            null_gain = evidence.projected_gain(trial.fit.jacobian, null) - base_gain
+            dof = sum(p.fitted for p in candidate.params)
+            threshold = evidence.null_threshold(null_gain, dof)
+            trials[name] = (trial, gain, threshold, null_gain)
+            log.append({"round": rounds, **({} if axis is None else {"axis": axis}), "effect": name,
+                        "cost_reduction": gain, "null_threshold": threshold, "evidence_ratio": gain / threshold,
+                        "parameters": _effect_values(trial, candidate),
+                        "seconds": round(time.perf_counter() - t0, 2)})
+            _log(progress, f"  round {rounds} {name}{on}: cost -{gain:.4g}, null {threshold:.4g} "
+                           f"(x{gain / threshold:.2f}), {time.perf_counter() - t0:.1f} s")
+        significant = sorted((n for n, t in trials.items() if t[1] > t[2]), key=lambda n: -trials[n][1])
+        chosen = None
+        for name in significant:
+            name = _simplest(name, trials, null, bundle, work, progress, axis)
+            trial = trials[name][0]
+            validate_any(bundle, trial, work / f"v{rounds}_{name}")
+            if not current.validated:
+                validate_any(bundle, current, work / f"v{rounds}_current")
+            before, after = current.axis_rms(axis), trial.axis_rms(axis)
+            ok = after < VALIDATION_GAIN * before
+            _log(progress, f"  {name}{on}: validation rms {before:.4g} -> {after:.4g} "
+                           f"({'kept' if ok else 'rejected'})")
+            for entry in log:
+                if entry["round"] == rounds and entry["effect"] == name:
+                    entry["validation_rms_before"], entry["validation_rms_after"] = before, after
+            if ok:
+                chosen = trial
+                break
+        if chosen is None:
+            break
+        name = chosen.effects[-1].name
+        gain, threshold = trials[name][1:3]
+        equivalents, rule = equivalent_explanations(bundle, chosen, trials, work / f"e{rounds}", progress, axis)
+        found = {"cost_reduction": gain, "null_threshold": threshold,
+                 "validation_rms_before": current.axis_rms(axis), "validation_rms_after": chosen.axis_rms(axis),
+                 "previous": current, "equivalents": equivalents, "rule": rule}
+        if axis is not None:
+            found.update({"axis": axis, "score": target.score, "force_residual": target.force, "context": ctx,
+                          "previous_q": current.fit.q_sim, "sigma_q": weights.sigma_q})
+        chosen.evidence = {**current.evidence, name if axis is None else f"{name}@{axis}": found}
+        used[axis].add(chosen.effects[-1].family)
+        current = chosen
+    return current, log, located
+
+
+def _round_axis(bundle: Bundle, current: ModelFit, weights: outputerror.Weights, rounds: int, located: list[dict],
+                progress) -> AxisEvidence | None | bool:
+    """The axis a round screens: None for one axis; for several the located one (its scores appended to
+    ``located``), or False when after the first round no axis's force residual reaches ``NEXT_ROUND_SCORE``
+    times its noise reference."""
+    if not bundle.multi_axis:
+        return None
+    ranking = locate(bundle, current, weights, seed=100 + rounds)
+    located.append({"round": rounds, "scores": {e.axis: e.score for e in ranking}})
+    scores = ", ".join(f"{e.axis} {e.score:.3g}" for e in ranking)
+    if rounds > 1 and ranking[0].score < NEXT_ROUND_SCORE:
+        _log(progress, f"round {rounds}: force residual / noise reference per axis: {scores}; "
+                       f"none above {NEXT_ROUND_SCORE}, done")
+        return False
+    _log(progress, f"round {rounds}: force residual / noise reference per axis: {scores}; "
+                   f"screening {ranking[0].axis}")
+    return ranking[0]
+
+
+def _screened_structure(bundle: Bundle, current: ModelFit, name: str, axis: str | None,
+                        ctx: effect_models.Context, result: outputerror.Fit, substeps: int,
+                        folder: Path) -> ModelFit:
+    """The structure of a screened candidate at its screening fit (its loop compiled here)."""
+    if axis is not None:
+        return placed_structure(bundle, current, name, axis, ctx, result, substeps, folder)
+    effects = current.effects + [effect_models.VOCABULARY[name](ctx)]
+    loop, bounds = build_structure(bundle, effects, result.values, folder, bundle.train.time.size, substeps=substeps)
+    return ModelFit(effects, loop.with_values(result.values), result, bounds, folder)
+
+
+def _validation_rms(bundle: Bundle, structure: ModelFit, folder: Path, axis: str | None = None) -> float:
+    """Validate ``structure`` and return the RMS that decides on ``axis`` (None: the one axis)."""
+    validate_any(bundle, structure, folder)
+    return structure.axis_rms(axis)
+
+
+def _simplest(name: str, trials: dict, null: np.ndarray, bundle: Bundle, work: Path, progress,
+              axis: str | None = None) -> str:
+    """Prefer the nested simpler effect (``NESTED``: coulomb in the richer frictions, resonance in backlash)
+    unless the extra parameters beat their own null reference and improve the validation fit (on ``axis``)
+    by the same margin as any effect."""
+    simple = effect_models.NESTED.get(name)
+    if simple not in trials or trials[simple][1] <= trials[simple][2]:
+        return name
+    rich, small = trials[name], trials[simple]
+    extra = rich[1] - small[1]
+    null_extra = (evidence.projected_gain(rich[0].fit.jacobian, null)
+                  - evidence.projected_gain(small[0].fit.jacobian, null))
+    dof = sum(p.fitted for p in rich[0].effects[-1].params) - sum(p.fitted for p in small[0].effects[-1].params)
+    threshold = evidence.null_threshold(null_extra, dof)
+    if extra <= threshold:
+        return simple
+    rich_rms = _validation_rms(bundle, rich[0], work / f"n_{name}", axis)
+    small_rms = _validation_rms(bundle, small[0], work / f"n_{simple}", axis)
+    _log(progress, f"  {name} vs {simple}: extra -{extra:.4g}, null {threshold:.4g}, validation "
+                   f"{rich_rms:.4g} vs {small_rms:.4g}")
+    return name if rich_rms < VALIDATION_GAIN * small_rms else simple
+
+
+def _fitted_count(structure: ModelFit) -> int:
+    return len(structure.loop.free)
+
+
+def equivalent_explanations(bundle: Bundle, chosen: ModelFit, trials: dict, work: Path, progress=None,
+                            axis: str | None = None) -> tuple[list[dict], str]:
+    """Other structures of the same round that explain the data as well as ``chosen``: significant, a
+    training cost within the 99.9 % chi-square band of noise for the parameter-count difference (the cost is
+    noise-weighted, so a correct model's differences are chi-square distributed), and a validation RMS within
+    the validation rule's 10 %. Returns them (name, parameters, costs, AIC = cost + 2 k) and the rule that
+    picked ``chosen``: parsimony (fewer fitted parameters; nested simpler effect) or, at equal counts, the
+    information criterion."""
+    name = chosen.effects[-1].name
+    k_chosen = _fitted_count(chosen)
+    aic_chosen = chosen.fit.cost + 2 * k_chosen
+    found = []
+    for other, (trial, gain, threshold, _) in trials.items():
+        if other == name or gain <= threshold:
+            continue
+        k = _fitted_count(trial)
+        band = stats.chi2.ppf(evidence.NULL_QUANTILE, max(abs(k - k_chosen), 1))
+        if abs(trial.fit.cost - chosen.fit.cost) > band:
+            continue
+        if not trial.validated:
+            validate_any(bundle, trial, work / other)
+        if not abs(trial.axis_rms(axis) - chosen.axis_rms(axis)) <= (1 - VALIDATION_GAIN) * chosen.axis_rms(axis):
+            continue
+        effect = trial.effects[-1]
+        found.append({"name": other, "parameters": _effect_values(trial, effect),
+                      "units": {p.name: p.unit for p in effect.params},
+                      "train_cost": trial.fit.cost, "chosen_train_cost": chosen.fit.cost,
+                      "validation_rms": trial.axis_rms(axis), "chosen_validation_rms": chosen.axis_rms(axis),
+                      "fitted_parameters": k, "chosen_fitted_parameters": k_chosen,
+                      "aic": trial.fit.cost + 2 * k, "chosen_aic": aic_chosen})
+        _log(progress, f"  {other} explains the data as well as {name} (train cost {trial.fit.cost:.4g} vs "
+                       f"{chosen.fit.cost:.4g}, validation {trial.axis_rms(axis):.4g} vs "
+                       f"{chosen.axis_rms(axis):.4g} m)")
+    if not found:
+        return [], ""
+    fewer = all(e["fitted_parameters"] > k_chosen for e in found)
+    if fewer:
+        rule = (f"parsimony: {name} has the fewest fitted parameters ({k_chosen}) of the structures that fit "
+                f"within noise on training and validation data")
+    else:
+        rule = (f"information criterion: {name} has AIC = cost + 2k = {aic_chosen:.4g}, the others "
+                + ", ".join(f"{e['name']} {e['aic']:.4g}" for e in found)
+                + " (the cost reduction decides among structures of equal size)")
+    return found, rule
+
+
+def _effect_values(structure: ModelFit, effect: effect_models.Effect) -> dict[str, float]:
+    return {p.name: structure.fit.values[p.name] for p in effect.params}

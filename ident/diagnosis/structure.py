@@ -1,0 +1,339 @@
+"""The model structures of a diagnosis: the fitted :class:`ModelFit`, the augmented model of the nominal
+plant + effects written, loaded and compiled once per structure (:class:`LoopCache`), its free parameters and
+bounds, its validation free run and the validation noise floor. Units: SI (s, m, N)."""
+from __future__ import annotations
+
+import dataclasses
+import math
+import re
+import string
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from motiontwin.fmus import frontend, symbolic
+from motiontwin.fmus.build import MODELICA_DIR
+from motiontwin.harness.recording import Recording
+from motiontwin.ident import outputerror
+from motiontwin.ident.diagnosis import effects as effect_models
+from motiontwin.ident.diagnosis.bundle import Bundle, PlantInfo
+from motiontwin.ident.diagnosis.plant_roles import PlantRoles
+
+AUGMENTED_CLASS = effect_models.AUGMENTED_CLASS
+FLOOR_REPLICATES = 5         # noise re-simulations for the validation noise floor
+
+
+@dataclass
+class ModelFit:
+    """One model structure fitted on the training recording: the effects added to the nominal plant (several
+    axes: each renamed for the axis ``axes`` names, :func:`on_axis`), the compiled loop, the fit and its bounds,
+    and the validation free run (``val_rms`` [m] over every axis, ``val_axes`` per axis of several)."""
+
+    effects: list[effect_models.Effect]
+    loop: outputerror.Loop
+    fit: outputerror.Fit
+    bounds: dict[str, tuple[float, float]]
+    folder: Path | None = None
+    val_rms: float = math.nan
+    val_q: np.ndarray | None = None
+    evidence: dict = field(default_factory=dict)
+    axes: list[str] = field(default_factory=list)
+    val_axes: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def names(self) -> list[str]:
+        return [e.name for e in self.effects]
+
+    @property
+    def placed(self) -> list[tuple[str, effect_models.Effect]]:
+        """(axis, effect) pairs of a multi-axis structure."""
+        return list(zip(self.axes, self.effects))
+
+    def axis_rms(self, axis: str | None) -> float:
+        """The validation RMS that decides on ``axis`` [m] (None: the one axis)."""
+        return self.val_rms if axis is None else self.val_axes[axis]
+
+    @property
+    def validated(self) -> bool:
+        return not math.isnan(self.val_rms)
+
+
+def _nominal_bounds(bundle: Bundle, prefix: str = "") -> tuple[list[str], dict[str, tuple[float, float]]]:
+    """The nominal parameters the refit moves (``plant.free``, else every non-zero one), within a factor 5
+    of their start and their Modelica min/max."""
+    free, bounds = [], {}
+    for var in bundle.plant.model.parameters:
+        value = float(bundle.start.get(var.name, var.start))
+        if value == 0 or (bundle.plant.free is not None and var.name not in bundle.plant.free):
+            continue
+        lo, hi = sorted((value / 5, value * 5))
+        lo, hi = max(lo, var.min), min(hi, var.max)
+        free.append(prefix + var.name)
+        bounds[prefix + var.name] = (lo, hi)
+    return free, bounds
+
+
+def _log(progress, message: str) -> None:
+    if progress:
+        progress(message)
+
+
+def _fmt(values: dict[str, float]) -> str:
+    return ", ".join(f"{k}={v:.4g}" for k, v in values.items())
+
+
+def _moving_start(bundle: Bundle, prefix: str = "") -> dict[str, str]:
+    """The velocity state starts at the slope of the first samples (a loop may be moving at t = 0)."""
+    return {prefix + bundle.plant.velocity_state: "dq"}
+
+
+@dataclass
+class LoopCache:
+    """Compiled closed loops of one diagnosis, by structure: the effect names, the number of samples, the
+    RK4 substeps and whether the Jacobian is compiled. Parameter values are inputs of a compiled loop, so
+    a structure is compiled once however often it is refitted, validated or re-screened."""
+
+    loops: dict[tuple, outputerror.Loop] = field(default_factory=dict)
+    models: dict[tuple[str, ...], object] = field(default_factory=dict)
+
+
+def write_structure(bundle: Bundle, effects: list[effect_models.Effect], values: dict[str, float],
+                    folder: Path) -> Path:
+    """Write the self-contained Modelica folder of the nominal plant + ``effects`` at ``values``."""
+    plant_values = {k[len("plant."):]: v for k, v in values.items() if k.startswith("plant.")}
+    return effect_models.write_model(folder, bundle.plant.text, bundle.plant.class_name, effects, values, plant_values,
+                          AUGMENTED_CLASS, bundle.plant.roles)
+
+
+def structure_parameters(model, effects: list[effect_models.Effect], free: list[str],
+                         bounds: dict[str, tuple[float, float]], values: dict[str, float]
+                         ) -> tuple[list[str], dict[str, tuple[float, float]], dict[str, float]]:
+    """Free parameters and bounds of a structure (the nominal ones, then each effect's fitted ones) and the
+    values of every parameter of its ``model`` (``values`` over the Modelica start values)."""
+    free, bounds = list(free), dict(bounds)
+    for effect in effects:
+        for p in effect.params:
+            if p.fitted:
+                free.append(p.name)
+                bounds[p.name] = p.bounds
+    all_values = {v.name: float(v.start) for v in model.parameters}
+    all_values.update({k: v for k, v in values.items() if k in all_values})
+    return free, bounds, all_values
+
+
+def build_structure(bundle: Bundle, effects: list[effect_models.Effect], values: dict[str, float], folder: Path,
+                    n_samples: int, with_jacobian: bool = True, min_substeps: int = 1,
+                    substeps: int | None = None) -> tuple[outputerror.Loop, dict[str, tuple[float, float]]]:
+    """Write and load the augmented model with ``effects`` and compile its loop (at least ``min_substeps``
+    RK4 steps per sample, so that structures compared with each other share the integration accuracy).
+    A structure already compiled with the same samples/substeps is reused from ``bundle.cache`` (one
+    :class:`LoopCache` per diagnosis, so concurrent or repeated diagnoses share nothing)."""
+    cache: LoopCache = bundle.cache
+    names = tuple(e.name for e in effects)
+    model = cache.models.get(names)
+    if model is None:
+        write_structure(bundle, effects, values, folder)
+        model = cache.models[names] = effect_models.load_augmented(folder, AUGMENTED_CLASS)
+    free, bounds, all_values = structure_parameters(model, effects, *_nominal_bounds(bundle, "plant."), values)
+    tracking = {s: "q" for e in effects for s in e.tracks_position} | _moving_start(bundle, "plant.")
+    tracking.update({s: "u" for e in effects for s in e.tracks_force})
+    min_substeps = max([min_substeps] + [e.min_substeps for e in effects])
+    substeps = substeps or max(min_substeps, outputerror.stable_substeps(model, all_values, bundle.controller.Ts))
+    key = (names, n_samples, substeps, with_jacobian)
+    if key not in cache.loops:
+        cache.loops[key] = outputerror.build_loop(model, bundle.controller, "q",
+                                                  free, all_values, n_samples, substeps=substeps, tracking=tracking,
+                                                  with_jacobian=with_jacobian)
+    return cache.loops[key].with_values(all_values), bounds
+
+
+def validate(bundle: Bundle, structure: ModelFit, folder: Path) -> None:
+    """Free-run the fitted structure on the validation recording; sets ``val_rms`` and ``val_q``."""
+    rec = bundle.validation
+    if structure.effects or structure.folder is not None:
+        loop, _ = build_structure(bundle, structure.effects, structure.fit.values, folder, rec.time.size,
+                                  with_jacobian=False, min_substeps=structure.loop.substeps)
+    else:
+        model = bundle.plant.model
+        loop = outputerror.build_loop(model, bundle.controller, bundle.plant.output_name, structure.loop.free,
+                                      structure.fit.values, rec.time.size, with_jacobian=False,
+                                      min_substeps=structure.loop.substeps, input_name=bundle.plant.input_name,
+                                      tracking=_moving_start(bundle))
+    q, _ = outputerror.simulate(loop, rec, structure.fit.values)
+    structure.val_q = q
+    structure.val_rms = float(np.sqrt(np.mean((rec["q"] - q) ** 2))) if np.all(np.isfinite(q)) else math.inf
+
+
+def validation_floor(loop: outputerror.Loop, bundle: Bundle, values: dict[str, float], sigma_q: float | np.ndarray,
+                     count: int = FLOOR_REPLICATES) -> float | np.ndarray:
+    """RMS of measured minus free-run q that the fitted model itself leaves on the validation excitation
+    [m]: the model is re-simulated with white encoder noise of the estimated level fed back through the
+    controller (the noise and its closed-loop echo, which no free-run simulation can predict). No model
+    can bring the validation RMS below this floor, so the improvement is also reported above it.
+    A multi-axis loop takes one noise level per axis and returns one floor per axis."""
+    rec = bundle.validation
+    q_free, _ = outputerror.simulate(loop, rec, values)
+    rng = np.random.default_rng(0)
+    power = []
+    per_axis = np.ndim(sigma_q) > 0
+    for _ in range(count):
+        if per_axis:
+            noise = rng.normal(0.0, 1.0, (np.size(sigma_q), rec.time.size)) * np.reshape(sigma_q, (-1, 1))
+        else:
+            noise = rng.normal(0.0, sigma_q, rec.time.size)
+        q_noisy, _ = outputerror.simulate(loop, rec, values, noise=noise)
+        power.append(np.mean((q_noisy + noise - q_free) ** 2, axis=-1))
+    return np.sqrt(np.mean(power, axis=0)) if per_axis else float(np.sqrt(np.mean(power)))
+
+
+def _prefix(axis: str) -> str:
+    return f"{axis}_"
+
+
+def on_axis(effect: effect_models.Effect, roles: PlantRoles) -> effect_models.Effect:
+    """``effect`` acting on the axis ``roles``: its parameters and variables prefixed by the axis output
+    (``q3_coulomb_Fc``), ``$x``/``$v`` the axis's position and velocity states, ``u`` (the commanded force
+    in an equation) the axis's input; the initialiser and the contract keep the effect's own names."""
+    prefix = _prefix(roles.output)
+    names = [p.name for p in effect.params] + re.findall(r"\bReal\s+(\w+)", effect.declarations)
+    pattern = re.compile(r"(?<![\w.])(" + "|".join(map(re.escape, names)) + r"|u)\b") if names else None
+
+    def rename(text: str) -> str:
+        if pattern is not None:
+            text = pattern.sub(lambda m: roles.input if m.group(1) == "u" else prefix + m.group(1), text)
+        return string.Template(text).safe_substitute(x=f"plant.{roles.position}", v=f"plant.{roles.velocity}")
+
+    def initial(ctx: effect_models.Context) -> list[dict[str, float]]:
+        return [{prefix + k: v for k, v in start.items()} for start in effect.initial(ctx)]
+
+    def contract(values: dict[str, float], ctx: effect_models.Context) -> dict[str, float]:
+        own = {k[len(prefix):]: v for k, v in values.items() if k.startswith(prefix)}
+        return effect.contract({**values, **own}, ctx)
+
+    params = [dataclasses.replace(p, name=prefix + p.name) for p in effect.params]
+    return dataclasses.replace(effect, params=params, declarations=rename(effect.declarations),
+                               force=rename(effect.force), equations=[rename(e) for e in effect.equations],
+                               initial=initial, contract=contract,
+                               tracks_position=[prefix + s for s in effect.tracks_position],
+                               tracks_force=[prefix + s for s in effect.tracks_force])
+
+
+def modelica_text(plant: PlantInfo, effects: list[tuple[str, effect_models.Effect]], values: dict[str, float],
+                  plant_values: dict[str, float]) -> str:
+    """Source of the augmented class: the nominal class as ``plant``, one input and output per axis (the
+    plant's own names), every effect's force subtracted from its axis's input."""
+    mods = ", ".join(f"{k} = {float(v)!r}" for k, v in plant_values.items())
+    listed = ", ".join(f"{e.name} on {axis}" for axis, e in effects) or "no effect"
+    lines = [f'model {AUGMENTED_CLASS} "{plant.class_name} augmented by the diagnosis with: {listed}"']
+    lines += [f'  input Real {a.input}(unit = "N") "Commanded force of axis {a.output}";' for a in plant.axes]
+    lines += [f'  output Real {a.output}(unit = "m") "Measured position of axis {a.output}";' for a in plant.axes]
+    lines.append(f'  {plant.class_name} plant({mods}) "Nominal plant, refitted";')
+    body = "".join(effect_models._decl(e.params, values) + e.declarations for _, e in effects)
+    if body:
+        lines.append(body.rstrip("\n"))
+    lines.append("equation")
+    for a in plant.axes:
+        mine = [e for axis, e in effects if axis == a.output]
+        delay = next((e for e in mine if e.delays_input), None)
+        applied = f"{a.input} - {_prefix(a.output)}delay_a" if delay else a.input
+        forces = "".join(f" - ({e.force})" for e in mine if e.force)
+        lines.append(f"  plant.{a.input} = {applied}{forces};")
+    lines.extend(f"  plant.{name} = {value!r};" for name, value in plant.axes[0].held_inputs.items())
+    lines.extend(f"  {eq};" for _, e in effects for eq in e.equations)
+    lines.extend(f"  {a.output} = plant.{a.output};" for a in plant.axes)
+    lines.append(f"end {AUGMENTED_CLASS};")
+    return "\n".join(lines) + "\n"
+
+
+def write_axes_structure(plant: PlantInfo, effects: list[tuple[str, effect_models.Effect]],
+                         values: dict[str, float], folder: Path) -> Path:
+    """Write the plant file and the augmented class into ``folder`` (the MotionTwin library is loaded from
+    the project's Modelica folder, so a library plant may use other library classes)."""
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / "plant.mo").write_text(plant.text, encoding="utf-8")
+    plant_values = {k[len("plant."):]: v for k, v in values.items() if k.startswith("plant.")}
+    path = folder / f"{AUGMENTED_CLASS}.mo"
+    path.write_text(modelica_text(plant, effects, values, plant_values), encoding="utf-8")
+    return path
+
+
+def load_structure(folder: Path) -> symbolic.SymbolicModel:
+    """The augmented model written by :func:`write_structure`, through the project's front end."""
+    return symbolic.build(frontend.load(folder, AUGMENTED_CLASS, (MODELICA_DIR,)))
+
+
+def axes_signals(plant: PlantInfo) -> list[outputerror.Signals]:
+    """The recording columns of every axis."""
+    return [outputerror.axis_signals(a.input, a.output) for a in plant.axes]
+
+
+def _tracking(bundle: Bundle, effects: list[tuple[str, effect_models.Effect]]) -> dict[str, str]:
+    """Velocity states start at the slope of the first samples; effect states at the axis's position/force."""
+    tracking = {f"plant.{a.velocity}": f"dq:{a.output}" for a in bundle.plant.axes}
+    for axis, e in effects:
+        tracking.update({s: f"q:{axis}" for s in e.tracks_position})
+        tracking.update({s: f"u:{axis}" for s in e.tracks_force})
+    return tracking
+
+
+def _axes_cache(bundle: Bundle) -> dict:
+    if bundle.cache is None:
+        bundle.cache = LoopCache()
+    return bundle.cache
+
+
+def build_axes(bundle: Bundle, effects: list[tuple[str, effect_models.Effect]], values: dict[str, float],
+               folder: Path, n_samples: int, with_jacobian: bool = True,
+               min_substeps: int = 1) -> tuple[outputerror.Loop, dict[str, tuple[float, float]]]:
+    """Write, load and compile the multi-axis loop of the nominal plant + ``effects`` (cached by structure)."""
+    cache = _axes_cache(bundle)
+    names = tuple(f"{e.name}@{axis}" for axis, e in effects)
+    model = cache.models.get(names)
+    if model is None:
+        write_axes_structure(bundle.plant, effects, values, folder)
+        model = cache.models[names] = load_structure(folder)
+    free, bounds, all_values = structure_parameters(model, [e for _, e in effects], *bundle.nominal_free, values)
+    substeps = max(min_substeps, outputerror.stable_substeps(model, all_values, bundle.controller.Ts))
+    key = ("axes",) + (names, n_samples, substeps, with_jacobian)
+    if key not in cache.loops:
+        cache.loops[key] = outputerror.build_loop(model, bundle.controller, bundle.plant.axes[0].output, free,
+                                                  all_values, n_samples, substeps=substeps,
+                                                  tracking=_tracking(bundle, effects), with_jacobian=with_jacobian,
+                                                  axes=axes_signals(bundle.plant), initial_sensitivity=False)
+    return cache.loops[key].with_values(all_values), bounds
+
+
+def per_axis_rms(bundle: Bundle, rec: Recording, q: np.ndarray) -> dict[str, float]:
+    """RMS of measured minus simulated output per axis [m] (inf when the run diverged)."""
+    out = {}
+    for k, a in enumerate(bundle.plant.axes):
+        err = rec[a.output] - q[k]
+        out[a.output] = float(np.sqrt(np.mean(err ** 2))) if np.all(np.isfinite(err)) else math.inf
+    return out
+
+
+def validate_axes(bundle: Bundle, structure: ModelFit, folder: Path) -> None:
+    """Free-run the fitted structure on the validation recording: per-axis RMS in ``val_axes``, over every
+    axis in ``val_rms``."""
+    loop, _ = build_axes(bundle, structure.placed, structure.fit.values, folder, bundle.validation.time.size,
+                         with_jacobian=False, min_substeps=structure.loop.substeps)
+    q, _ = outputerror.simulate(loop, bundle.validation, structure.fit.values)
+    structure.val_q = q
+    structure.val_axes = per_axis_rms(bundle, bundle.validation, q)
+    err = np.array([bundle.validation[a.output] - q[k] for k, a in enumerate(bundle.plant.axes)])
+    structure.val_rms = float(np.sqrt(np.mean(err ** 2))) if np.all(np.isfinite(err)) else math.inf
+
+
+def validate_any(bundle: Bundle, structure: ModelFit, folder: Path) -> None:
+    """:func:`validate` (one axis) or :func:`validate_axes` (several)."""
+    (validate_axes if bundle.multi_axis else validate)(bundle, structure, folder)
+
+
+def compiled(bundle: Bundle, structure: ModelFit, folder: Path) -> tuple[outputerror.Loop, dict]:
+    """The training loop of ``structure`` recompiled at its fitted values (the RK4 substeps they need)."""
+    if bundle.multi_axis:
+        return build_axes(bundle, structure.placed, structure.fit.values, folder, bundle.train.time.size,
+                          min_substeps=structure.loop.substeps)
+    return build_structure(bundle, structure.effects, structure.fit.values, folder, bundle.train.time.size,
+                           min_substeps=structure.loop.substeps)

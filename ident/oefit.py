@@ -1,0 +1,299 @@
+"""Free runs, weighted residuals and the Gauss-Newton (trust-region) fit of a compiled :class:`ident.oeloop.Loop`
+against a recording (single shooting; :mod:`ident.multipleshooting` solves the same problem by IPOPT).
+Units: those of the Modelica model (SI)."""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import casadi as ca
+import numpy as np
+from scipy.optimize import least_squares
+
+from motiontwin.harness.recording import Recording
+from motiontwin.ident import startvalues
+from motiontwin.ident.oeloop import Loop, Signals, _output_gain, _state_for_output, default_bounds, output_state
+
+def _column(rec: Recording, name: str, optional: bool = False) -> np.ndarray:
+    if name in rec.columns:
+        return rec[name]
+    if optional:
+        return np.zeros_like(rec.time)
+    raise KeyError(f"recording has no column {name!r}; columns: {', '.join(rec.columns)}")
+
+
+def initial_state(loop: Loop, rec: Recording, values: dict[str, float] | None = None,
+                  initial: dict[str, float] | None = None) -> np.ndarray:
+    """Start from the first recorded sample at rest: the output state (when the output is a state) = q_0, or
+    the state an output expression is affine in (an alias, gear ratio or offset) such that the output = q_0,
+    other plant states at their start values, tracked states at that position or u_0, states in ``initial`` at those
+    values, and in closed loop the controller state giving the recorded force u_0 (least-norm solution of
+    C z = u_0 - u_ext_0 - D y_0). Multi-axis: the same for every axis; a tracking signal may name its axis
+    by output (``"dq:q3"``, ``"q:q3"``, ``"u:q3"``; without it, the first axis)."""
+    values = values or loop.values
+    model, ctrl = loop.model, loop.controller
+    p = np.array([values[v.name] for v in model.parameters])
+    x0 = np.array(ca.Function("x0", [model.p], [model.x0()])(p)).ravel()
+    names = [v.name for v in model.states]
+    positions: dict[str, float] = {}
+    for sig in loop.channels:
+        output = sig.output if loop.axes else loop.position_state
+        q_rec = _column(rec, sig.output)
+        if output in names:
+            x0[names.index(output)] = q_rec[0]
+            positions[sig.output] = q_rec[0]
+        else:
+            x0 = _state_for_output(model, output, x0, p, q_rec[0])
+            i_pos = output_state(model, output)
+            positions[sig.output] = q_rec[0] if i_pos is None else x0[i_pos]
+    by_output = {sig.output: sig for sig in loop.channels}
+    for state, tracked in loop.tracking.items():
+        signal, _, axis = tracked.partition(":")
+        sig = by_output[axis] if axis else loop.channels[0]
+        output = sig.output if loop.axes else loop.position_state
+        if signal == "dq":      # a velocity state: the slope of the first samples (a loop moving at t = 0)
+            slope = startvalues.first_samples(_column(rec, sig.output), float(np.median(np.diff(rec.time))))[1]
+            x0[names.index(state)] = slope / _output_gain(model, output, x0, p)
+        else:
+            x0[names.index(state)] = positions[sig.output] if signal == "q" else _column(rec, sig.input)[0]
+    for state, value in (initial or {}).items():
+        x0[names.index(state)] = value
+    if ctrl is None or not ctrl.n_states:
+        return np.concatenate([x0, np.zeros(ctrl.n_states if ctrl is not None else 0)])
+    refs = np.array([_column(rec, sig.reference) for sig in loop.channels])
+    meas = np.array([_column(rec, sig.output) for sig in loop.channels])
+    forces = np.array([_column(rec, sig.input) - _column(rec, sig.disturbance, True) for sig in loop.channels])
+    if any(t.partition(":")[0] == "dq" for t in loop.tracking.values()):   # moving at t = 0: the controller
+        count = min(rec.time.size, max(20, 4 * ctrl.n_states))            # state from its first outputs
+        y = np.vstack([refs[:, :count], meas[:, :count]]).T
+        return np.concatenate([x0, startvalues.controller_state(ctrl.A, ctrl.B, ctrl.C, ctrl.D, y,
+                                                                forces[:, :count].T)])
+    y0 = np.concatenate([refs[:, 0], meas[:, 0]])
+    target = forces[:, 0] - ctrl.D @ y0
+    z0 = np.linalg.pinv(ctrl.C) @ np.atleast_1d(target)
+    return np.concatenate([x0, z0])
+
+
+def drive(rec: Recording, noise: np.ndarray | None = None, signals: Signals | tuple[Signals, ...] = Signals(),
+          closed: bool = True) -> np.ndarray:
+    """The 3n x N input matrix of a recording (n axes, ``signals`` one per axis): closed loop
+    [r; u_ext; measurement noise], open loop [0; input; 0], each block one row per axis."""
+    channels = (signals,) if isinstance(signals, Signals) else tuple(signals)
+    n = rec.time.size
+    zeros = np.zeros((len(channels), n))
+    if noise is not None:
+        noise = np.asarray(noise, float).reshape(len(channels), n)
+    if not closed:
+        return np.vstack([zeros, [_column(rec, sig.input) for sig in channels], zeros])
+    return np.vstack([[_column(rec, sig.reference) for sig in channels],
+                      [_column(rec, sig.disturbance, True) for sig in channels],
+                      zeros if noise is None else noise])
+
+
+def _shaped(loop: Loop, values: np.ndarray) -> np.ndarray:
+    """Simulated outputs (axes x N) as the caller sees them: 1-D for a single-axis loop."""
+    values = np.asarray(values, float).reshape(len(loop.channels), -1)
+    return values if loop.axes else values.ravel()
+
+
+def measured(loop: Loop, rec: Recording, kind: str) -> np.ndarray:
+    """The recorded outputs (``kind="output"``) or forces (``"input"``) of the loop's axes, shaped as
+    :func:`simulate` returns them."""
+    return _shaped(loop, np.array([_column(rec, getattr(sig, kind)) for sig in loop.channels]))
+
+
+def simulate(loop: Loop, rec: Recording, values: dict[str, float] | None = None,
+             noise: np.ndarray | None = None,
+             initial: dict[str, float] | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Free-run simulation along ``rec`` (plant states in ``initial`` start there); returns simulated
+    (output, input) at the sample instants: 1-D arrays, or (axes x samples) for a multi-axis loop (whose
+    ``noise`` is axes x samples too)."""
+    values = {**loop.values, **(values or {})}
+    if rec.time.size != loop.n_samples:
+        raise ValueError(f"loop compiled for {loop.n_samples} samples, recording has {rec.time.size}")
+    pf = np.array([values[n] for n in loop.fixed])
+    q, u = loop.sim(initial_state(loop, rec, values, initial), drive(rec, noise, loop.channels, loop.closed),
+                    loop.theta(values), pf)
+    return _shaped(loop, np.array(q)), _shaped(loop, np.array(u))
+
+
+@dataclass
+class Fit:
+    """Result of an output-error refit."""
+
+    values: dict[str, float]     # all plant parameters after the fit
+    cost: float                  # weighted sum of squares (output channel, and force channel in closed loop)
+    rms_q: float                 # RMS of measured minus simulated output
+    q_sim: np.ndarray
+    u_sim: np.ndarray
+    jacobian: np.ndarray         # weighted residual Jacobian w.r.t. the free parameters (then the estimated
+                                 # initial states) at the optimum
+    success: bool
+    nfev: int = 0                # residual evaluations (free runs) of the optimiser
+    initial: dict[str, float] = field(default_factory=dict)   # estimated initial plant states
+    residual: np.ndarray | None = None   # weighted residual at the optimum, rows as ``jacobian`` (for the HAC std)
+
+
+@dataclass
+class Weights:
+    """Noise levels used to weight the residual channels: sigma_q [output unit], sigma_u [N]
+    (sigma_u is unused in open loop, where the input is given); a multi-axis loop takes one level per axis
+    (arrays), so each axis's output and force channel is weighted by its own noise."""
+
+    sigma_q: float | np.ndarray
+    sigma_u: float | np.ndarray = 1.0
+
+
+def _weighted(meas: np.ndarray, sim: np.ndarray, sigma: float | np.ndarray) -> np.ndarray:
+    """(meas - sim) / sigma, channel-major (axis 0's samples, then axis 1's, ...)."""
+    diff = np.asarray(meas) - np.asarray(sim)
+    if diff.ndim == 2:
+        diff = diff / np.reshape(np.asarray(sigma, float), (-1, 1))
+        return diff.ravel()
+    return diff / sigma
+
+
+def _channel_major(sens: np.ndarray, n_axes: int) -> np.ndarray:
+    """Chained sensitivities (samples x (axes * columns)) as rows channel-major: (axes * samples) x columns."""
+    sens = np.asarray(sens)
+    if n_axes == 1:
+        return sens
+    n = sens.shape[0]
+    if sens.shape[1] == 0:
+        return np.zeros((n_axes * n, 0))
+    return sens.reshape(n, n_axes, -1).transpose(1, 0, 2).reshape(n_axes * n, -1)
+
+
+def residuals(loop: Loop, rec: Recording, values: dict[str, float], weights: Weights,
+              noise: np.ndarray | None = None, q_meas: np.ndarray | None = None,
+              u_meas: np.ndarray | None = None,
+              initial: dict[str, float] | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Weighted residual vector [(q_meas - q_sim)/sigma_q; (u_meas - u_sim)/sigma_u (closed loop only)] and
+    the simulation."""
+    q, u = simulate(loop, rec, values, noise, initial)
+    qm = measured(loop, rec, "output") if q_meas is None else q_meas
+    if not loop.closed:
+        return _weighted(qm, q, weights.sigma_q), q, u
+    um = measured(loop, rec, "input") if u_meas is None else u_meas
+    return np.concatenate([_weighted(qm, q, weights.sigma_q), _weighted(um, u, weights.sigma_u)]), q, u
+
+
+def _interior(theta: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """``theta`` clipped strictly inside [lo, hi] (scipy's TRF starts from an interior point)."""
+    eps = 1e-9 * np.maximum(np.abs(theta), 1e-12)
+    lo_f, hi_f = np.where(np.isfinite(lo), lo, 0.0), np.where(np.isfinite(hi), hi, 0.0)
+    lo_in = np.where(np.isfinite(lo), lo_f + np.maximum(eps, 1e-12 * np.abs(lo_f)), -np.inf)
+    hi_in = np.where(np.isfinite(hi), hi_f - np.maximum(eps, 1e-12 * np.abs(hi_f)), np.inf)
+    return np.minimum(np.maximum(theta, lo_in), hi_in)
+
+
+def bound_arrays(loop: Loop, bounds: dict[str, tuple[float, float]] | None) -> tuple[np.ndarray, np.ndarray]:
+    """Lower and upper bounds of ``loop.free`` (``bounds`` over the Modelica min/max); empty ones raise."""
+    names = loop.free
+    bounds = {**default_bounds(loop.model, names), **(bounds or {})}
+    lo = np.array([bounds[n][0] for n in names], dtype=float)
+    hi = np.array([bounds[n][1] for n in names], dtype=float)
+    bad = [n for n, a, b in zip(names, lo, hi) if not a < b]
+    if bad:
+        raise ValueError(f"empty bounds for {', '.join(f'{n} {bounds[n]}' for n in bad)}")
+    return lo, hi
+
+
+def state_indices(loop: Loop, names: list[str] | tuple[str, ...]) -> list[int]:
+    """Indices of the plant states ``names`` in the loop state (unknown names raise)."""
+    state_names = [v.name for v in loop.model.states]
+    unknown = [n for n in names if n not in state_names]
+    if unknown:
+        raise KeyError(f"{loop.model.name} has no state {unknown}; states: {', '.join(state_names)}")
+    return [state_names.index(n) for n in names]
+
+
+def weighted_jacobian(loop: Loop, s0: np.ndarray, W: np.ndarray, theta: np.ndarray, pf: np.ndarray,
+                      idx: list[int], weights: Weights) -> np.ndarray:
+    """Jacobian of the weighted residual of the free run from ``s0`` w.r.t. [theta, s0[idx]]."""
+    n_ax = len(loop.channels)
+    jq, ju, jq0, ju0 = (_channel_major(m, n_ax) for m in loop.jac(s0, W, theta, pf))
+    rows = loop.n_samples
+
+    def scaled(block: np.ndarray, sigma: float | np.ndarray) -> np.ndarray:
+        return block / np.repeat(np.broadcast_to(np.asarray(sigma, float), (n_ax,)), rows)[:, None]
+
+    j = -scaled(np.hstack([jq, jq0[:, idx]]), weights.sigma_q)
+    if loop.closed:
+        j = np.vstack([j, -scaled(np.hstack([ju, ju0[:, idx]]), weights.sigma_u)])
+    return j
+
+
+def fit(loop: Loop, rec: Recording, weights: Weights, bounds: dict[str, tuple[float, float]] | None = None,
+        start: dict[str, float] | None = None, max_nfev: int = 40,
+        q_meas: np.ndarray | None = None, u_meas: np.ndarray | None = None,
+        estimate_initial: list[str] | tuple[str, ...] = (), initial: dict[str, float] | None = None) -> Fit:
+    """Output-error least squares of ``loop.free`` within ``bounds`` (default: the Modelica min/max), by
+    scipy's trust-region reflective method with the CasADi Jacobian. The initial values of the plant states
+    ``estimate_initial`` are estimated too (unbounded), e.g. the position, which the first noisy sample
+    would otherwise fix with an error that the integrator carries through the whole run. ``initial``: known
+    initial values of plant states (e.g. a run that starts at rest at a known position)."""
+    known = dict(initial or {})
+    values = {**loop.values, **(start or {})}
+    names = loop.free
+    lo, hi = bound_arrays(loop, bounds)
+    idx = state_indices(loop, estimate_initial)
+    n_th = len(names)
+    theta0 = _interior(loop.theta(values), lo, hi)
+    base = initial_state(loop, rec, values, known)
+    x_init0 = base[idx]
+    scale = np.concatenate([np.maximum(np.abs(theta0), 1e-12), np.ones(len(idx))])
+    lo_all = np.concatenate([lo, np.full(len(idx), -np.inf)])
+    hi_all = np.concatenate([hi, np.full(len(idx), np.inf)])
+    s0_cache: dict[bytes, np.ndarray] = {}
+    qm = measured(loop, rec, "output") if q_meas is None else q_meas
+    um = (measured(loop, rec, "input") if u_meas is None else u_meas) if loop.closed else None
+    W = drive(rec, signals=loop.channels, closed=loop.closed)
+    pf = np.array([values[n] for n in loop.fixed])
+
+    def split(xs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        full = xs * scale
+        return full[:n_th], full[n_th:]
+
+    def state(theta: np.ndarray, x_init: np.ndarray) -> np.ndarray:
+        key = theta.tobytes() + x_init.tobytes()
+        if key not in s0_cache:
+            s0_cache.clear()
+            s0_cache[key] = initial_state(loop, rec, {**values, **dict(zip(names, theta))},
+                                          {**known, **dict(zip(estimate_initial, x_init))})
+        return s0_cache[key]
+
+    def res(xs: np.ndarray) -> np.ndarray:
+        theta, x_init = split(xs)
+        q, u = loop.sim(state(theta, x_init), W, theta, pf)
+        r = _weighted(qm, _shaped(loop, np.array(q)), weights.sigma_q)
+        if loop.closed:
+            r = np.concatenate([r, _weighted(um, _shaped(loop, np.array(u)), weights.sigma_u)])
+        return np.where(np.isfinite(r), r, 1e12)
+
+    def jac(xs: np.ndarray) -> np.ndarray:
+        theta, x_init = split(xs)
+        j = weighted_jacobian(loop, state(theta, x_init), W, theta, pf, idx, weights) * scale
+        return np.where(np.isfinite(j), j, 0.0)
+
+    nfev = 0
+    x_start = np.concatenate([theta0, x_init0]) / scale
+    if x_start.size:
+        if loop.jac is None:
+            raise ValueError("the loop was compiled without its Jacobian (with_jacobian=False)")
+        sol = least_squares(res, x_start, jac=jac, bounds=(lo_all / scale, hi_all / scale), method="trf",
+                            x_scale="jac", max_nfev=max_nfev, xtol=1e-10, ftol=1e-10, gtol=1e-10)
+        xs = sol.x
+        success = bool(sol.success or sol.status == 0)
+        nfev = int(sol.nfev)
+    else:
+        xs = x_start
+        success = True
+    theta, x_init = split(xs)
+    final = {**values, **dict(zip(names, map(float, theta)))}
+    initial = dict(zip(estimate_initial, map(float, x_init)))
+    r, q, u = residuals(loop, rec, final, weights, q_meas=qm, u_meas=um, initial={**known, **initial})
+    j = jac(xs) / scale if xs.size else np.zeros((r.size, 0))
+    cost = float(r @ r) if np.all(np.isfinite(r)) else math.inf
+    rms = float(np.sqrt(np.mean((qm - q) ** 2))) if np.all(np.isfinite(q)) else math.inf
+    return Fit(final, cost, rms, q, u, j, success, nfev, initial, r)

@@ -1,0 +1,432 @@
+"""The closed loop of a Modelica plant and a sampled controller as compiled CasADi functions (the output-error
+refit's model, :mod:`ident.outputerror`): the recording's signals, :class:`Loop` and :func:`build_loop` (RK4
+substeps, forward-sensitivity step, chained in compiled C or CasADi's ``mapaccum``). Units: those of the
+Modelica model (SI)."""
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass, field
+from typing import Callable
+
+import casadi as ca
+import numpy as np
+
+from motiontwin.fmus import symbolic
+from motiontwin.ident import chain as native_chain
+from motiontwin.ident import plant_states
+from motiontwin.ident.controller import Controller
+from motiontwin.ident.plant_states import output_state
+
+_LOG = logging.getLogger("motiontwin.ident.outputerror")
+JIT_OPTIONS = {"jit": True, "compiler": "shell", "jit_options": {"flags": ["-O2"]}}
+CALL_INSTRUCTIONS = 400     # plant right-hand sides above this many SX instructions are called, not inlined
+
+
+@dataclass(frozen=True)
+class Signals:
+    """Recording column names: plant output, plant input (the controller's output in closed loop),
+    reference and additive input disturbance (closed loop; absent disturbance = zero)."""
+
+    output: str = "q"
+    input: str = "u"
+    reference: str = "r"
+    disturbance: str = "u_ext"
+
+
+def axis_signals(input_name: str, output_name: str) -> Signals:
+    """Column names of one axis of a multi-axis recording: ``r_<output>``, ``<input>``, ``<output>`` and
+    ``u_ext_<input>`` (the plant's own input and output names are the recorded force and position)."""
+    return Signals(output_name, input_name, f"r_{output_name}", f"u_ext_{input_name}")
+
+
+@dataclass
+class Loop:
+    """A compiled free-run simulation (open loop, or closed with ``controller``) whose parameters ``free``
+    are symbolic; the others are fixed values."""
+
+    model: symbolic.SymbolicModel
+    controller: Controller | None
+    position_state: str                 # the plant output compared with the recording (a state or an output)
+    free: list[str]
+    values: dict[str, float]            # every plant parameter's current value (free ones: starting point)
+    substeps: int
+    n_samples: int
+    sim: Callable = field(repr=False)   # (s0, W[3xN], theta, pfix) -> (Q[1xN], U[1xN])
+    jac: Callable | None = field(repr=False)   # (s0, W, theta, pfix) -> (dQ/dtheta, dU/dtheta, dQ/ds0, dU/ds0)
+    tracking: dict[str, str] = field(default_factory=dict)  # state -> "q" or "u": starts at q_0 or u_0
+    signals: Signals = field(default_factory=Signals)
+    ts: float = 0.0                     # sample period [s]
+    step: ca.Function | None = field(default=None, repr=False)  # (s, w, theta, pfix) -> (s_next, q, u), one sample
+    axes: tuple[Signals, ...] = ()      # multi-axis loop: one entry per axis (plant input/output = columns)
+
+    @property
+    def closed(self) -> bool:
+        return self.controller is not None
+
+    @property
+    def channels(self) -> tuple[Signals, ...]:
+        """The axes' column names; a single-axis loop has one channel, ``signals``."""
+        return self.axes or (self.signals,)
+
+    @property
+    def fixed(self) -> list[str]:
+        return [v.name for v in self.model.parameters if v.name not in self.free]
+
+    def theta(self, values: dict[str, float] | None = None) -> np.ndarray:
+        values = values or self.values
+        return np.array([values[n] for n in self.free], dtype=float)
+
+    def pfix(self) -> np.ndarray:
+        return np.array([self.values[n] for n in self.fixed], dtype=float)
+
+    def with_values(self, values: dict[str, float]) -> "Loop":
+        merged = dict(self.values)
+        merged.update(values)
+        return Loop(self.model, self.controller, self.position_state, self.free, merged, self.substeps,
+                    self.n_samples, self.sim, self.jac, self.tracking, self.signals, self.ts, self.step, self.axes)
+
+
+def stable_substeps(model: symbolic.SymbolicModel, values: dict[str, float], ts: float,
+                    minimum: int = 1, maximum: int = 64) -> int:
+    """RK4 substeps per sample so that the fastest linearised plant mode stays well inside RK4's stability
+    region (|lambda| h <= 1) at rest and at a moderate speed."""
+    p = np.array([values[v.name] for v in model.parameters])
+    jac_fn = ca.Function("a", [model.x, model.u, model.p], [ca.jacobian(model.dx, model.x)])
+    worst = 0.0
+    u0 = np.zeros(model.u.numel())
+    for speed in (0.0, 1e-3, 0.05):
+        x = np.zeros(model.x.numel())
+        a = np.array(jac_fn(x + speed, u0, p))
+        if np.all(np.isfinite(a)) and a.size:
+            worst = max(worst, float(np.max(np.abs(np.linalg.eigvals(a)))))
+    return int(min(maximum, max(minimum, math.ceil(worst * ts / 1.0))))
+
+
+def default_bounds(model: symbolic.SymbolicModel, free: list[str]) -> dict[str, tuple[float, float]]:
+    """Bounds of the free parameters from their Modelica ``min``/``max`` attributes (infinite when absent)."""
+    by_name = {v.name: v for v in model.parameters}
+    _check_names(model, free)
+    return {n: (float(by_name[n].min), float(by_name[n].max)) for n in free}
+
+
+def _check_names(model: symbolic.SymbolicModel, free: list[str]) -> None:
+    names = [v.name for v in model.parameters]
+    unknown = [n for n in free if n not in names]
+    if unknown:
+        calculated = {var.name for var, _ in model.flat.calculated}
+        hint = [n for n in unknown if n in calculated]
+        extra = f" ({', '.join(hint)}: calculated from other parameters, not free)" if hint else ""
+        raise KeyError(f"{model.flat.source}: class {model.name} has no free parameter "
+                       f"{', '.join(repr(n) for n in unknown)}{extra}; its parameters are {', '.join(names)}")
+
+
+def _output_expression(model: symbolic.SymbolicModel, name: str) -> ca.SX:
+    expr = plant_states.output_expression(model, name)
+    if expr is None:
+        states = [v.name for v in model.states]
+        outputs = model.state_outputs + [c.var.name for c in model.computed if c.causality == "output"]
+        raise KeyError(f"{model.flat.source}: class {model.name} has no state or output {name!r}; "
+                       f"outputs: {', '.join(outputs)}; states: {', '.join(states)}")
+    return expr
+
+
+def _output_gain(model: symbolic.SymbolicModel, name: str, x0: np.ndarray, p: np.ndarray) -> float:
+    """d(output ``name``)/d(the state it is affine in) at ``x0``: 1 when the output is a state itself (and when
+    no single state carries it)."""
+    if name in [v.name for v in model.states]:
+        return 1.0
+    i = output_state(model, name)
+    if i is None:
+        return 1.0
+    expr = _output_expression(model, name)
+    slope = float(ca.Function("g", [model.x, model.u, model.p], [ca.jacobian(expr, model.x[i])])(
+        x0, np.zeros(model.u.numel()), p))
+    return slope or 1.0
+
+
+def _state_for_output(model: symbolic.SymbolicModel, name: str, x0: np.ndarray, p: np.ndarray,
+                      target: float) -> np.ndarray:
+    """``x0`` with the state the output ``name`` is affine in set so that the output equals ``target``."""
+    i = output_state(model, name)
+    if i is None:
+        return x0
+    expr = _output_expression(model, name)
+    fn = ca.Function("h", [model.x, model.u, model.p], [expr, ca.jacobian(expr, model.x[i])])
+    value, slope = (float(o) for o in fn(x0, np.zeros(model.u.numel()), p))
+    x0 = x0.copy()
+    if slope != 0:
+        x0[i] += (target - value) / slope
+    return x0
+
+
+def initial_motion_states(model: symbolic.SymbolicModel, output: str) -> list[str]:
+    """The states that fix where a recording starts: the state the output is affine in and, when its
+    derivative is a state (der(x) = v), that velocity state too, so a loop already moving at t = 0 is not
+    forced to start at rest."""
+    i_pos = output_state(model, output)
+    if i_pos is None:
+        return []
+    i_vel = plant_states.velocity_state(model, i_pos)
+    return [model.states[i].name for i in (i_pos, i_vel) if i is not None]
+
+
+def build_loop(model: symbolic.SymbolicModel, controller: Controller | None, position_state: str, free: list[str],
+               values: dict[str, float], n_samples: int, substeps: int | None = None,
+               tracking: dict[str, str] | None = None, with_jacobian: bool = True, min_substeps: int = 1,
+               ts: float | None = None, input_name: str | None = None, signals: Signals = Signals(),
+               jit: bool = False, native: bool | None = None, axes: list[Signals] | None = None,
+               initial_sensitivity: bool = True) -> Loop:
+    """Compile the free-run simulation of ``n_samples`` samples with the parameters ``free`` symbolic.
+
+    controller: None for open loop (then ``ts`` [s] is required); position_state: the state or output
+    compared with the recording; input_name: the plant input that is driven (default: the only one; other
+    inputs stay at their start values); jit: compile the step functions to C (gcc) first, which pays
+    off on long recordings (the chain then runs at C speed, minus CasADi's per-call overhead); only used by
+    the CasADi chain. native: chain the samples in compiled C (:mod:`ident.chain`); None = when a C
+    compiler is available, False = CasADi ``mapaccum`` chain.
+
+    axes: a multi-axis loop (several inputs and outputs; :func:`axis_signals`): each entry's ``input`` and
+    ``output`` are plant names (and recording columns); ``position_state`` and ``input_name`` are then
+    ignored. The controller maps y = [r_1..r_n, q_1..q_n] to u = [u_1..u_n] (block-diagonal or
+    multivariable); w = [r (n); u_ext (n); measurement noise (n)] per sample, and the step returns q and u
+    with n entries each. initial_sensitivity: compile the sensitivities w.r.t. the initial state too (needed
+    to estimate initial states, ``fit(..., estimate_initial=...)``); without them the Jacobian step of a
+    large coupled plant is a fraction of the size (its d/ds0 blocks are then empty).
+    """
+    if ca.depends_on(model.dx, model.t):
+        raise ValueError(f"{model.name}: time-varying plants are not supported by the output-error refit")
+    if model.sampled:
+        raise ValueError(f"{model.name} is a sampled model; the plant must be continuous")
+    _check_names(model, free)
+    if controller is None and not (ts and ts > 0):
+        raise ValueError("open-loop simulation needs the sample period ts [s]")
+    ts = float(controller.Ts if controller is not None else ts)
+    names = [v.name for v in model.parameters]
+    inputs = [v.name for v in model.inputs]
+    if axes:
+        driven, observed = [a.input for a in axes], [a.output for a in axes]
+    else:
+        if input_name is None:
+            if len(inputs) != 1:
+                raise ValueError(f"{model.name} has inputs {inputs}; name the driven one (input_name)")
+            input_name = inputs[0]
+        driven, observed = [input_name], [position_state]
+    for name in driven:
+        if name not in inputs:
+            raise KeyError(f"{model.flat.source}: class {model.name} has no input {name!r}; inputs: {inputs}")
+    n_ax = len(driven)
+    if controller is not None:
+        _check_controller_shape(controller, n_ax)
+    values = {n: float(values.get(n, model.parameters[i].start)) for i, n in enumerate(names)}
+    substeps = substeps or max(min_substeps, stable_substeps(model, values, ts))
+    fixed = [n for n in names if n not in free]
+    f = ca.Function("f", [model.x, model.u, model.p], [model.dx])
+    # a large right-hand side (a coupled mechanism's mass-matrix solve) is called, not inlined, in every RK4
+    # stage (MX graph): the step and its sensitivity step then compile from kilobytes instead of megabytes
+    sym = ca.MX if f.n_instructions() > CALL_INSTRUCTIONS else ca.SX
+    theta = sym.sym("theta", len(free))
+    pfix = sym.sym("pfix", len(fixed))
+    p_full = ca.vertcat(*[theta[free.index(n)] if n in free else pfix[fixed.index(n)] for n in names])
+    q_expr = ca.vertcat(*[_output_expression(model, name) for name in observed])
+    h_out = ca.Function("h", [model.x, model.u, model.p], [q_expr])
+    nx = model.x.numel()
+    nz = controller.n_states if controller is not None else 0
+    s = sym.sym("s", nx + nz)
+    w = sym.sym("w", 3 * n_ax)  # per axis, closed loop: r, u_ext, measurement noise; open loop: -, input, -
+    x, z = s[:nx], s[nx:]
+    held = [0.0 if v.start is None or not isinstance(v.start, (int, float)) else float(v.start) for v in model.inputs]
+    k_in = [inputs.index(name) for name in driven]
+
+    def plant_input(u_vec: ca.SX) -> ca.SX:
+        return ca.vertcat(*[u_vec[k_in.index(i)] if i in k_in else held[i] for i in range(len(inputs))])
+
+    if controller is None:
+        u = w[n_ax:2 * n_ax]
+        q = h_out(x, plant_input(u), p_full)
+        z_next = z
+    else:
+        if ca.depends_on(q_expr, model.u):
+            raise ValueError(f"{model.name}: output {', '.join(map(repr, observed))} depends on the input "
+                             "directly; closing a sampled loop around it is an algebraic loop")
+        q = h_out(x, plant_input(sym.zeros(n_ax)), p_full)
+        y = ca.vertcat(w[:n_ax], q + w[2 * n_ax:])
+        A, B, C, D = (ca.DM(m) for m in (controller.A, controller.B, controller.C, controller.D))
+        u = (C @ z if nz else 0) + D @ y + w[n_ax:2 * n_ax]
+        z_next = A @ z + B @ y if nz else z
+    uvec = plant_input(u)
+    h = ts / substeps
+    xk = x
+    for _ in range(substeps):
+        k1 = f(xk, uvec, p_full)
+        k2 = f(xk + h / 2 * k1, uvec, p_full)
+        k3 = f(xk + h / 2 * k2, uvec, p_full)
+        k4 = f(xk + h * k3, uvec, p_full)
+        xk = xk + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+    s_next, out_k = ca.vertcat(xk, z_next), ca.vertcat(q, u)
+    step = ca.Function("step", [s, w, theta, pfix], [ca.densify(s_next), ca.densify(q), ca.densify(u)])
+    if not with_jacobian:
+        aug, seed = None, None
+    elif sym is ca.SX:
+        aug, seed = _sensitivity_step(s, w, theta, pfix, s_next, out_k, initial_sensitivity)
+    else:
+        select_p = np.array([[1.0 if n == m else 0.0 for m in free] for n in names]).reshape(len(names), len(free))
+        select_u = np.array([[1.0 if i == k else 0.0 for k in k_in] for i in range(len(inputs))])
+        aug, seed = _called_sensitivity_step(model, observed, controller, plant_input, select_p, select_u, p_full,
+                                             s, w, theta, pfix, substeps, ts, initial_sensitivity)
+    pair = None
+    if native or (native is None and native_chain.available()):
+        try:
+            pair = _native_pair(step, aug, seed, n_samples)
+        except (RuntimeError, OSError) as exc:
+            if native:
+                raise
+            _LOG.warning("compiled chain unavailable, using CasADi's mapaccum chain: %s", exc)
+    sim, jac = pair or _casadi_pair(step, aug, seed, n_samples, JIT_OPTIONS if jit else {})
+    return Loop(model, controller, observed[0], list(free), values, substeps, n_samples, sim, jac,
+                dict(tracking or {}), signals if not axes else axes[0], ts, step, tuple(axes or ()))
+
+
+def _check_controller_shape(controller: Controller, n_axes: int) -> None:
+    """The controller must map [r_1..r_n, q_1..q_n] to n forces."""
+    nz = controller.n_states
+    shapes = {"B": (nz, 2 * n_axes), "C": (n_axes, nz), "D": (n_axes, 2 * n_axes)}
+    for name, shape in shapes.items():
+        got = np.shape(getattr(controller, name))
+        if got != shape and not (np.size(getattr(controller, name)) == 0 and 0 in shape):
+            raise ValueError(f"controller matrix {name} has shape {got}; a loop of {n_axes} axes needs {shape} "
+                             f"(inputs r_1..r_n, q_1..q_n; outputs u_1..u_n)")
+
+
+def _sensitivity_step(s: ca.SX, w: ca.SX, theta: ca.SX, pfix: ca.SX, s_next: ca.SX,
+                      out_k: ca.SX, initial: bool = True) -> tuple[ca.Function, np.ndarray]:
+    """The step augmented with forward sensitivities w.r.t. [theta; s0], propagated sample by sample with
+    the step's AD Jacobians (S+ = ds+/ds S + [ds+/dtheta, 0]), and the initial seed vec([0, I]): one pass
+    over the recording gives the whole residual Jacobian, at a cost of about (1 + n_theta + n_s) free runs.
+    Without ``initial`` only the theta columns are propagated (seed 0) and the d/ds0 outputs are omitted."""
+    ns, nth = s.numel(), theta.numel()
+    n0 = ns if initial else 0
+    sens = ca.SX.sym("S", ns, nth + n0)
+    pad = ca.SX.zeros(ns, n0)
+    s_sens = ca.jacobian(s_next, s) @ sens + ca.horzcat(ca.jacobian(s_next, theta), pad)
+    n_out = out_k.numel() // 2      # q then u, one entry per axis
+    o_sens = ca.jacobian(out_k, s) @ sens + ca.horzcat(ca.jacobian(out_k, theta), ca.SX.zeros(2 * n_out, n0))
+    # per sample and channel: axis 0's row, then axis 1's, ... (see _channel_major)
+    outs = [ca.vertcat(s_next, ca.vec(s_sens)), ca.vec(o_sens[:n_out, :nth].T), ca.vec(o_sens[n_out:, :nth].T)]
+    if initial:
+        outs += [ca.vec(o_sens[:n_out, nth:].T), ca.vec(o_sens[n_out:, nth:].T)]
+    aug = ca.Function("sstep", [ca.vertcat(s, ca.vec(sens)), w, theta, pfix], [ca.densify(o) for o in outs])
+    seed = np.hstack([np.zeros((ns, nth)), np.eye(ns)[:, :n0]]).ravel(order="F")
+    return aug, seed
+
+
+def _called_sensitivity_step(model: symbolic.SymbolicModel, observed: list[str], controller: Controller | None,
+                             plant_input: Callable, select_p: np.ndarray, select_u: np.ndarray, p_full: ca.MX,
+                             s: ca.MX, w: ca.MX, theta: ca.MX, pfix: ca.MX, substeps: int, ts: float,
+                             initial: bool) -> tuple[ca.Function, np.ndarray]:
+    """:func:`_sensitivity_step` for a large plant (MX graph): the variational equations of the same RK4
+    step written out, with the plant's Jacobians [df/dx, df/du, df/dp] and [dh/dx, dh/du, dh/dp] as one
+    called function each, so that the generated code holds each Jacobian once instead of one forward
+    derivative per sensitivity direction inlined in every stage."""
+    nx, ns, nth = model.x.numel(), s.numel(), theta.numel()
+    nz, n_ax = ns - nx, len(observed)
+    n0 = ns if initial else 0
+    na = nth + n0
+    dx_expr = model.dx
+    q_expr = ca.vertcat(*[_output_expression(model, name) for name in observed])
+    f_jac = ca.Function("f_jac", [model.x, model.u, model.p],
+                        [dx_expr] + [ca.jacobian(dx_expr, v) for v in (model.x, model.u, model.p)])
+    h_jac = ca.Function("h_jac", [model.x, model.u, model.p],
+                        [q_expr] + [ca.jacobian(q_expr, v) for v in (model.x, model.u, model.p)])
+    s_aug = ca.MX.sym("s_aug", ns * (1 + na))
+    x, z = s_aug[:nx], s_aug[nx:ns]
+    sens = ca.reshape(s_aug[ns:], ns, na)
+    sx, sz = sens[:nx, :], sens[nx:, :]
+    dp = ca.horzcat(ca.DM(select_p), ca.DM.zeros(select_p.shape[0], n0))      # d p / d [theta, s0]
+    p_val = p_full       # an expression of theta and pfix, inputs of the augmented step too
+    su = ca.DM(select_u)
+    if controller is None:
+        u, du = w[n_ax:2 * n_ax], ca.MX.zeros(n_ax, na)
+        q, hx, hu, hp = h_jac(x, plant_input(u), p_val)
+        dq = hx @ sx + hp @ dp
+        z_next, dz = z, sz
+    else:
+        q, hx, hu, hp = h_jac(x, plant_input(ca.MX.zeros(n_ax)), p_val)
+        dq = hx @ sx + hp @ dp
+        y = ca.vertcat(w[:n_ax], q + w[2 * n_ax:])
+        A, B, C, D = (ca.DM(m) for m in (controller.A, controller.B, controller.C, controller.D))
+        u = (C @ z if nz else 0) + D @ y + w[n_ax:2 * n_ax]
+        du = (C @ sz if nz else 0) + D[:, n_ax:] @ dq
+        z_next = A @ z + B @ y if nz else z
+        dz = A @ sz + B[:, n_ax:] @ dq if nz else sz
+    uvec = plant_input(u)
+    duvec = su @ du
+    h = ts / substeps
+    xk, sk = x, sx
+
+    def stage(xs: ca.MX, dxs: ca.MX) -> tuple[ca.MX, ca.MX]:
+        k, fx, fu, fp = f_jac(xs, uvec, p_val)
+        return k, fx @ dxs + fu @ duvec + fp @ dp
+
+    for _ in range(substeps):
+        k1, d1 = stage(xk, sk)
+        k2, d2 = stage(xk + h / 2 * k1, sk + h / 2 * d1)
+        k3, d3 = stage(xk + h / 2 * k2, sk + h / 2 * d2)
+        k4, d4 = stage(xk + h * k3, sk + h * d3)
+        xk = xk + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+        sk = sk + h / 6 * (d1 + 2 * d2 + 2 * d3 + d4)
+    s_sens = ca.vertcat(sk, dz)
+    outs = [ca.vertcat(xk, z_next, ca.vec(s_sens)), ca.vec(dq[:, :nth].T), ca.vec(du[:, :nth].T)]
+    if initial:
+        outs += [ca.vec(dq[:, nth:].T), ca.vec(du[:, nth:].T)]
+    aug = ca.Function("sstep", [s_aug, w, theta, pfix], [ca.densify(o) for o in outs])
+    seed = np.hstack([np.zeros((ns, nth)), np.eye(ns)[:, :n0]]).ravel(order="F")
+    return aug, seed
+
+
+def _with_initial_blocks(blocks: list) -> tuple:
+    """(dq, du, dq0, du0): empty d/ds0 blocks when the loop was compiled without them."""
+    if len(blocks) == 4:
+        return tuple(blocks)
+    dq, du = (np.asarray(b) for b in blocks)
+    return dq, du, np.zeros((dq.shape[0], 0)), np.zeros((du.shape[0], 0))
+
+
+def _native_pair(step: ca.Function, aug: ca.Function | None, seed: np.ndarray | None,
+                 n_samples: int) -> tuple[Callable, Callable | None]:
+    """``sim`` and ``jac`` running the samples in compiled C."""
+    chains = native_chain.native_chains([step] + ([aug] if aug is not None else []), n_samples)
+
+    def sim(s0, W, th, pf) -> tuple[np.ndarray, np.ndarray]:
+        q, u = chains[0](s0, W, th, pf)
+        return q.T, u.T
+
+    def jac(s0, W, th, pf) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        return _with_initial_blocks(chains[1](np.concatenate([np.asarray(s0, float).ravel(), seed]), W, th, pf))
+
+    return sim, (jac if aug is not None else None)
+
+
+def _casadi_pair(step: ca.Function, aug: ca.Function | None, seed: np.ndarray | None, n_samples: int,
+                 opts: dict) -> tuple[Callable, Callable | None]:
+    """``sim`` and ``jac`` as CasADi ``mapaccum`` chains (the fallback without a C compiler)."""
+    if opts:
+        step = ca.Function("step", step.sx_in(), step.call(step.sx_in()), opts)
+    n_in = [step.numel_in(i) for i in range(4)]
+    s0, th, pf = ca.MX.sym("s0", n_in[0]), ca.MX.sym("th", n_in[2]), ca.MX.sym("pf", n_in[3])
+    W = ca.MX.sym("W", n_in[1], n_samples)
+    _, q_all, u_all = _chain(step, n_samples, s0, W, th, pf)
+    # the output at sample k is read from the state at t_k, which the chain's output k holds
+    sim = ca.Function("sim", [s0, W, th, pf], [q_all, u_all])
+    if aug is None:
+        return sim, None
+    if opts:
+        aug = ca.Function("sstep", aug.sx_in(), aug.call(aug.sx_in()), opts)
+    blocks = _chain(aug, n_samples, ca.vertcat(s0, ca.DM(seed)), W, th, pf)[1:]
+    simjac = ca.Function("simjac", [s0, W, th, pf], [b.T for b in blocks])
+    return sim, lambda *args: _with_initial_blocks([np.array(b) for b in simjac(*args)])
+
+
+def _chain(step: ca.Function, n_samples: int, s0: ca.MX, W: ca.MX, th: ca.MX, pf: ca.MX) -> list[ca.MX]:
+    """``step`` applied ``n_samples`` times, the state accumulated, one column of W per sample."""
+    return step.mapaccum("chain", n_samples, [0], [0])(s0, W, th, pf)
