@@ -10,7 +10,7 @@ finish (a failed run as a :class:`RunFailed`), so a caller can commit each resul
 restarts itself when a worker dies and retries the runs it lost, at most ``retries`` times.
 
 * ``InProcessExecutor`` (default): a plain loop in this process.
-* ``ProcessPoolExecutor``: ``concurrent.futures`` with ``spawn``ed workers on this machine.
+* ``ProcessPoolExecutor``: ``concurrent.futures`` with workers started by ``spawn`` on this machine.
 * ``DaskExecutor``: a ``dask.distributed`` scheduler at ``scheduler`` ("tcp://host:8786"), or a
   ``LocalCluster`` of single-threaded worker processes when no address is given.
 
