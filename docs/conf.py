@@ -21,6 +21,7 @@ exclude_patterns = ["_build", "README.md"]
 html_theme = "alabaster"
 html_title = "motiontwin"
 highlight_language = "none"
+smartquotes = False          # keep quotes as the code prints them
 myst_heading_anchors = 3
 myst_enable_extensions = ["colon_fence"]
 
