@@ -6,8 +6,11 @@ they cannot drift from the code.
     examples folder (``mt_work_dir``, default ``build/docs-work``, with ``.venv`` linked to the interpreter
     that runs Sphinx), shows the commands and their printed output, and optionally a figure they wrote
     (``:figure: PATH`` relative to the examples folder). ``:smoke: COMMAND`` replaces the content when the
-    build runs at smoke size (``-D mt_smoke=1``, as ``tests/test_docs.py`` does); ``:hide-output:`` runs without
-    showing the output. A command that fails or exceeds ``:timeout:`` seconds (default 300) is a build error.
+    build runs at smoke size (``-D mt_smoke=1``, as ``tests/test_docs.py`` does); ``:smoke: skip`` does not run
+    it then and shows the output committed below a line ``----- committed output -----`` in the content
+    instead (an example that takes minutes; the test suite runs its own smaller version). ``:hide-output:``
+    runs without showing the output. A command that fails or exceeds ``:timeout:`` seconds (default 300) is a
+    build error.
 ``mt-schema``
     A JSON Schema file (path relative to the repository) as a table of its fields: path, type, required,
     constraints, description.
@@ -33,6 +36,7 @@ from docutils.statemachine import StringList
 from sphinx.util.docutils import SphinxDirective
 
 ROOT = Path(__file__).resolve().parents[2]
+COMMITTED = "----- committed output -----"
 
 
 def _flag(value) -> bool:
@@ -64,21 +68,26 @@ class RunDirective(SphinxDirective):
 
     def run(self) -> list[nodes.Node]:
         config = self.env.config
-        text = "\n".join(self.content).strip()
-        if _flag(config.mt_smoke) and "smoke" in self.options:
-            text = self.options["smoke"].strip()
+        text, _, committed = "\n".join(self.content).partition(COMMITTED)
+        text = text.strip()
+        smoke = self.options.get("smoke", "").strip() if _flag(config.mt_smoke) else ""
+        if smoke == "skip":
+            return [_literal(text, "console"), _literal(committed.strip()),
+                    nodes.paragraph(text="(output committed from an earlier run: `make docs` runs these commands)")]
+        if smoke:
+            text = smoke
         if not _flag(config.mt_execute):
             return [_literal(text, "console"), nodes.paragraph(text="(not executed: mt_execute is off)")]
         folder = work_dir(config)
         start = time.perf_counter()
         try:
-            proc = subprocess.run(["bash", "-euo", "pipefail", "-c", text], cwd=folder, capture_output=True,
-                                  text=True, timeout=self.options.get("timeout", 300),
+            proc = subprocess.run(["bash", "-euo", "pipefail", "-c", text], cwd=folder, stdout=subprocess.PIPE,
+                                  stderr=subprocess.STDOUT, text=True, timeout=self.options.get("timeout", 300),
                                   env={**os.environ, "MPLBACKEND": "Agg", "PYTHONUNBUFFERED": "1"})
         except subprocess.TimeoutExpired:
             raise self.error(f"mt-run: timed out after {self.options.get('timeout', 300)} s: {text}")
         seconds = time.perf_counter() - start
-        output = (proc.stdout + proc.stderr).rstrip()
+        output = proc.stdout.rstrip()
         if proc.returncode != 0:
             raise self.error(f"mt-run: exit code {proc.returncode} from {text!r} in {folder}:\n{output}")
         self.env.note_dependency(__file__)
