@@ -1,12 +1,13 @@
 # Two commands on a fresh Debian machine with Python 3.11 and gcc:
 #   make demo   build the FMUs and run the example end to end
 #   make test   run the test suite
+#   make docs   build the documentation site into build/docs (executes the worked examples)
 PYTHON ?= $(shell command -v python3.11 || command -v python3)
 VENV   := .venv
 BIN    := $(VENV)/bin
 DEBS   := libtbb12 valgrind
 
-.PHONY: demo test bench setup sysdeps clean
+.PHONY: demo test docs bench setup sysdeps clean
 
 $(BIN)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -28,6 +29,10 @@ demo: setup
 
 test: setup
 	$(BIN)/python -m pytest -q -n auto --dist loadfile
+
+docs: setup
+	$(BIN)/python -m sphinx -b html -W --keep-going -q docs build/docs
+	@echo "docs: build/docs/index.html"
 
 bench: setup  # one table of every benchmark's ratios; make bench SMOKE=1 for the small sizes
 	$(BIN)/python tests/benchmarks/run_all.py $(if $(SMOKE),--smoke)

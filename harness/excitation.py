@@ -26,7 +26,7 @@ Experiment files (TOML, read by :func:`load_experiment`)::
     f_start = 80.0                       # the kind's fields, listed in EXCITATION_KINDS
     ...
 
-Kinds and their ``[excitation]`` fields (defaults in brackets; "numbers" = a number, or a list per axis):
+Kinds and their ``[excitation]`` fields (defaults in brackets; "numbers" = a number, or a list per axis)::
 
     point_to_point               start, end (numbers), move_time, t0 [0]
     end_effector_point_to_point  pose_start, pose_end ([x, y, z, theta] in m, rad), move_time, t0 [0]

@@ -64,7 +64,7 @@ class Recording:
     columns: signal name -> values, each shape (N,); ``time`` is not among them.
     units: column name (including ``time``) -> unit string, e.g. ``{"time": "s", "q": "m"}``.
     meta: the sidecar fields ``sample_time`` [s] or None, ``excited``, ``fmus`` (names, or name -> details),
-        ``parameters`` ({fmu: {name: value}}), ``seed`` (int or None) and ``metadata`` (free-form dict).
+    ``parameters`` ({fmu: {name: value}}), ``seed`` (int or None) and ``metadata`` (free-form dict).
     """
 
     time: np.ndarray

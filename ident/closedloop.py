@@ -2,10 +2,12 @@
 
 In closed loop the plant input u = S r - (noise fed back by the controller) is correlated with the output
 noise, so fitting G directly from (u, y) is biased. The projection method:
+
   1. fits a non-causal FIR model u(t) = sum_{k=-M1}^{M2} s_k r(t-k) + residual (eq. 10) by least squares
      and forms the projection u_hat = S_hat r (eq. 11), which is uncorrelated with the noise;
   2. identifies G with an open-loop method from (u_hat, y) (eq. 12); here an output-error model
      y = B(q)/F(q) u_hat fitted by nonlinear least squares.
+
 No assumption on the controller structure is needed.
 
 Units: discrete time, samples; signals in their own SI units.

@@ -3,6 +3,7 @@
 Design variables: the Fourier coefficients a_k, b_k and the offset q0 of harness.excitation.fourier_basis (fundamental
 frequency fixed). Constraints (eq. 20) on sampled instants of one period: |q - q_center| <= q_range,
 |qd| <= v_max, |qdd| <= a_max. Criteria:
+
   - 'condition' (deterministic design, eq. 21): condition number of the regressor. cond(Psi)^2 =
     lambda_max/lambda_min of M = Psi^T Psi is replaced by the smooth p-norm surrogate
     (tr M^p)^(1/p) (tr M^-p)^(1/p), p = 16, which brackets it within a factor n^(2/p); the reported
@@ -10,6 +11,7 @@ frequency fixed). Constraints (eq. 20) on sampled instants of one period: |q - q
   - 'd_optimal' (statistical design, eq. 22): maximise log det(Psi^T Sigma^-1 Psi), through a symbolic
     Cholesky factor (log det = 2 sum log L_ii). With white torque noise Sigma = sigma^2 I the
     optimiser does not depend on sigma.
+
 The Coulomb columns use tanh(qd / smoothing_speed) during optimisation (sign() has no gradient);
 evaluate_design() reports the criteria with the exact sign model of ident.joint.
 

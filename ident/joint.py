@@ -3,9 +3,11 @@
     tau = J*qdd + k*sin(q + q_off) + f(qd)
 
 Gravity k*sin(q + q_off) = g_sin*sin(q) + g_cos*cos(q) with g_sin = k*cos(q_off), g_cos = k*sin(q_off),
-so it is linear in (g_sin, g_cos). Friction (eq. 2) is asymmetric viscous + Coulomb:
+so it is linear in (g_sin, g_cos). Friction (eq. 2) is asymmetric viscous + Coulomb::
+
     f = fv_pos*qd + fc_pos   for qd > 0,
     f = fv_neg*qd - fc_neg   for qd < 0,   0 at qd = 0.
+
 Eq. 2 prints "+ beta_c-" for qd < 0; Table 2 lists positive Coulomb values for both signs, so the
 Coulomb torque is read as opposing the motion (- fc_neg), which makes fc_neg > 0 physically.
 For one joint moved alone J, g_sin, g_cos and the friction coefficients are already base parameters.

@@ -342,6 +342,7 @@ def gauss_markov(
       - ``noise_covariance``: a variance, per-row variances (1-D), or the full row covariance (2-D);
       - ``channel_covariance``: (m, m) covariance of the m channels of one sample, rows sample-major
         (block-diagonal Sigma_eta_eta of Abdellatif, e.g. PeriodAverage.mean_covariance).
+
     Raises UnidentifiableError (naming the parameters) if the whitened regressor is rank deficient.
     """
     psi = np.asarray(regressor, dtype=float)

@@ -99,7 +99,7 @@ class PeriodAverage:
 
     mean: averaged period, shape (samples_per_period, n_channels).
     noise_covariance: channel cross-covariance of the error of ONE measured sample, (n_channels, n_channels),
-        pooled over the samples of the period (the sigma_ij of the paper).
+    pooled over the samples of the period (the sigma_ij of the paper).
     mean_covariance: covariance of the error of one sample of ``mean`` (= noise_covariance / n_periods).
     n_periods: number of periods averaged.
     """

@@ -1,6 +1,7 @@
-"""The Python API (``motiontwin.build_fmu``, ``simulate``, ``identify_*``, ``Recording``): the README's examples
-run as they stand, and their results match the values the data were made from (the truth compiled into the FMU,
-the coefficients of the synthetic joint and swept-sine data). Recordings round-trip through CSV and MAT."""
+"""The Python API (``motiontwin.build_fmu``, ``simulate``, ``identify_*``, ``Recording``): the examples of the
+docs page ``docs/python-api.md`` (moved there from the README) run as they stand, and their results match the
+values the data were made from (the truth compiled into the FMU, the coefficients of the synthetic joint and
+swept-sine data). Recordings round-trip through CSV and MAT."""
 from __future__ import annotations
 
 import json
@@ -19,11 +20,10 @@ from motiontwin.harness.recording import RecordingError
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def readme_python_blocks() -> list[str]:
-    """The ```python blocks of the README's "Python API" section, in order."""
-    text = (ROOT / "README.md").read_text(encoding="utf-8")
-    section = text.split("\n## Python API\n", 1)[1].split("\n## ", 1)[0]
-    return re.findall(r"```python\n(.*?)```", section, flags=re.S)
+def docs_python_blocks() -> list[str]:
+    """The ```python blocks of the docs page "Python API" (docs/python-api.md), in order."""
+    text = (ROOT / "docs" / "python-api.md").read_text(encoding="utf-8")
+    return re.findall(r"```python\n(.*?)```", text, flags=re.S)
 
 
 @pytest.fixture
@@ -37,13 +37,13 @@ def in_tmp(tmp_path: Path):
         os.chdir(before)
 
 
-def test_readme_builds_simulates_and_refits_the_compiled_truth(in_tmp: Path) -> None:
+def test_docs_example_builds_simulates_and_refits_the_compiled_truth(in_tmp: Path) -> None:
     """Block 1: FMU built with m = 1.5, d = 8 -> simulated in Python -> CSV -> output-error refit from the
     library defaults (2, 10) gives back the compiled values; the written JSON holds them."""
-    blocks = readme_python_blocks()
+    blocks = docs_python_blocks()
     assert len(blocks) == 2
     namespace: dict = {}
-    exec(compile(blocks[0], "README.md: Python API block 1", "exec"), namespace)
+    exec(compile(blocks[0], "docs/python-api.md: block 1", "exec"), namespace)
     rec, oe = namespace["rec"], namespace["oe"]
     assert rec.names == ["time", "plant.u", "plant.q"] and rec.units["plant.q"] == "m" and rec.sample_time == 1e-3
     assert oe.parameters == pytest.approx({"m": 1.5, "d": 8.0}, rel=1e-6)
@@ -62,11 +62,11 @@ def test_readme_builds_simulates_and_refits_the_compiled_truth(in_tmp: Path) -> 
     assert np.max(np.abs(rec["plant.q"] - reference)) < 1e-6 * np.max(np.abs(reference))
 
 
-def test_readme_identifies_a_joint_and_a_frequency_response(in_tmp: Path) -> None:
+def test_docs_example_identifies_a_joint_and_a_frequency_response(in_tmp: Path) -> None:
     """Block 2: the inverse-dynamics fit gives the 1.5 kg and 8 N.s/m the force was computed with; the FRF fit
     gives Cheung's K = 50 and the 220 Hz / 150 Hz resonance pair of the simulated model."""
     namespace: dict = {}
-    exec(compile(readme_python_blocks()[1], "README.md: Python API block 2", "exec"), namespace)
+    exec(compile(docs_python_blocks()[1], "docs/python-api.md: block 2", "exec"), namespace)
     joint, frf, w = namespace["joint"], namespace["frf"], 2 * np.pi
     assert joint.parameters == pytest.approx({"J": 1.5, "fv": 8.0}, rel=1e-9)
     assert set(joint.std) == {"J", "fv"} and joint.detail.fit.names == ["J", "fv"]

@@ -6,8 +6,10 @@ Nyquist plot of L near -1 with, per set, the circle of radius 1/Ms around -1 (th
 phase-crossover point -10^(-GM/20) (GM) and the unit-circle point at angle -180 deg + PM (PM).
 The loop is that of ``ident.tuning.loop_system``: discrete, with the hold and the computation delay.
 
-Replot from a design file of ``motiontwin tune --out`` (no re-tuning):
+Replot from a design file of ``motiontwin tune --out`` (no re-tuning)::
+
     python -m motiontwin.ident.tuning.plots build/tune/joint.json --out harness/examples/figures
+
 writes ``tuning_joint.png`` (single-joint design) or ``tuning_manipulator_d1.png`` .. ``_d7.png`` (``--manipulator``).
 
 Units: frequency in Hz, magnitudes in dB, phase in degrees.
