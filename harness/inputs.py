@@ -5,7 +5,7 @@ One value of a system's external input is one of
 * a number: held constant over the run;
 * ``{recording = "FILE.csv", column = "NAME"}``: a recording column (held from sample to sample);
 * ``{experiment = "FILE.toml", field = "NAME"}``: a signal of an excitation experiment file
-  (:mod:`harness.excitation`; ``field`` defaults to ``value``, else ``position``);
+  (:mod:`harness.experiment`; ``field`` defaults to ``value``, else ``position``);
 
 paths relative to the file that names them. :func:`add_input_noise` adds seeded white noise on the
 master's base grid (:func:`harness.measurement.add_noise`). Values are in the input's unit.
@@ -26,9 +26,9 @@ class InputError(ValueError):
 
 
 def _experiment_signal(path: Path, field: str | None, where: str) -> tuple[np.ndarray, np.ndarray]:
-    from motiontwin.harness import excitation
+    from motiontwin.harness import experiment
 
-    signals = excitation.load_experiment(path).generate()
+    signals = experiment.load_experiment(path).generate()
     field = field or ("value" if "value" in signals else "position")
     if field not in signals:
         raise InputError(f"{where}: the experiment {path} has no field {field!r}; it has {sorted(signals)}")

@@ -268,7 +268,7 @@ def test_diagnose_refuses_before_the_analysis_when_its_staging_folder_is_not_wri
 
 def _readers():
     from motiontwin.fmus.limits import load_json
-    from motiontwin.harness.excitation import load_experiment
+    from motiontwin.harness.experiment import load_experiment
     from motiontwin.harness.recording import read_recording
     from motiontwin.harness.labdata import read_lab_file
     from motiontwin.harness.system import load_system

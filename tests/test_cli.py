@@ -292,7 +292,8 @@ def test_design_excitation_then_excite_then_identify(tmp_path, capsys):
     the truth loop of tests/ident_truth.py driven by the D-optimal file identifies within 3 %."""
     import json
 
-    from motiontwin.harness.excitation import fourier_trajectory, load_experiment
+    from motiontwin.harness.excitation import fourier_trajectory
+    from motiontwin.harness.experiment import load_experiment
     from motiontwin.ident.excitation_design import ExcitationLimits, random_design
     from tests.test_ident_joint import NAMES, TRUTH, noisy_periods, simulate_joint_period
 

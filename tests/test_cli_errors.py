@@ -161,12 +161,12 @@ def test_non_zip_fmu_names_the_file(tmp_path, capsys):
 
 
 def test_interrupt_is_exit_130_and_one_line(tmp_path, capsys, monkeypatch):
-    import motiontwin.harness.excitation as excitation
+    import motiontwin.harness.experiment as experiment
 
     def interrupted(*args, **kwargs):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(excitation, "load_experiment", interrupted)
+    monkeypatch.setattr(experiment, "load_experiment", interrupted)
     out = tmp_path / "x.csv"
     assert main(["excite", str(EXPERIMENT), "--out", str(out)]) == 130
     err = capsys.readouterr().err

@@ -56,10 +56,10 @@ def test_bundle_format_page_lists_every_schema_field(site: Path) -> None:
 
 
 def test_toml_formats_come_from_the_harness_docstrings(site: Path) -> None:
-    from motiontwin.harness import excitation, regress, sweep, system
+    from motiontwin.harness import experiment, regress, sweep, system
 
     text = " ".join(page_text(site, "formats").split())
-    for module in (system, sweep, excitation, regress):
+    for module in (system, sweep, experiment, regress):
         block = re.search(r"::\n\n(.*?)(\n\S|\Z)", module.__doc__, flags=re.S).group(1)
         first_line = " ".join(block.strip().splitlines()[0].split())
         assert first_line in text, (module.__name__, first_line)

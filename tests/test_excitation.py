@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 from motiontwin.harness import excitation as ex
+from motiontwin.harness import experiment as xp
 from motiontwin.harness import measurement as ms
 
 EXPERIMENTS = Path(__file__).resolve().parents[1] / "harness" / "experiments"
@@ -94,7 +95,7 @@ def test_substrate_alignment_move_through_cheung_kinematics():
     """The paper's move: actuator quintics whose end points map back to the poses by the forward kinematics."""
     from motiontwin.harness import kinematics
 
-    experiment = ex.load_experiment(EXPERIMENTS / "substrate_alignment.toml")
+    experiment = xp.load_experiment(EXPERIMENTS / "substrate_alignment.toml")
     signals = experiment.generate()
     d = signals["position"]
     assert d.shape == (400, 4)
@@ -309,12 +310,12 @@ def test_bang_bang_sequence_visits_positions_with_dwell():
 
 def test_example_experiments_load_and_generate():
     files = sorted(EXPERIMENTS.glob("*.toml"))
-    kinds = {ex.load_experiment(f).kind for f in files}
+    kinds = {xp.load_experiment(f).kind for f in files}
     assert {"end_effector_point_to_point", "swept_sine", "fourier", "multisine", "prbs", "bang_bang"} <= kinds
     for path in files:
-        experiment = ex.load_experiment(path)
+        experiment = xp.load_experiment(path)
         signals = experiment.generate()
-        assert ("jerk" in signals) == (experiment.kind in ex.TRAJECTORY_KINDS)
+        assert ("jerk" in signals) == (experiment.kind in xp.TRAJECTORY_KINDS)
         assert signals["time"].size == round(experiment.duration / experiment.sample_time)
         assert all(np.all(np.isfinite(v)) for v in signals.values())
 
@@ -322,19 +323,19 @@ def test_example_experiments_load_and_generate():
 def test_experiment_recording_round_trip(tmp_path):
     from motiontwin.harness import recording
 
-    experiment = ex.load_experiment(EXPERIMENTS / "prbs.toml")
-    rec = ex.experiment_recording(experiment)
+    experiment = xp.load_experiment(EXPERIMENTS / "prbs.toml")
+    rec = xp.experiment_recording(experiment)
     recording.write_recording(tmp_path / "prbs.csv", rec)
     back = recording.read_recording(tmp_path / "prbs.csv")
     np.testing.assert_array_equal(back["value"], experiment.generate()["value"])
     assert back.meta["seed"] == 7 and back.meta["excited"]["kind"] == "prbs"
     assert back.sample_time == experiment.sample_time
-    multi = ex.experiment_recording(ex.load_experiment(EXPERIMENTS / "substrate_alignment.toml"))
+    multi = xp.experiment_recording(xp.load_experiment(EXPERIMENTS / "substrate_alignment.toml"))
     assert {"position_1", "position_4", "jerk_4"} <= set(multi.columns)
 
 
 def test_swept_sine_example_matches_direct_call():
-    experiment = ex.load_experiment(EXPERIMENTS / "swept_sine_80_500.toml")
+    experiment = xp.load_experiment(EXPERIMENTS / "swept_sine_80_500.toml")
     signals = experiment.generate()
     direct = ex.swept_sine(signals["time"], 80.0, 500.0, 2.0, 5.0, "linear", 0.1, 0.02)
     assert experiment.target == "u_ext"
@@ -342,7 +343,7 @@ def test_swept_sine_example_matches_direct_call():
 
 
 def test_fourier_example_duration_is_whole_periods():
-    experiment = ex.load_experiment(EXPERIMENTS / "fourier_periodic.toml")
+    experiment = xp.load_experiment(EXPERIMENTS / "fourier_periodic.toml")
     assert experiment.duration == pytest.approx(10.0)
     position = experiment.generate()["position"]
     per_period = round(1 / (experiment.parameters["f_fundamental"] * experiment.sample_time))
@@ -383,16 +384,16 @@ def write(tmp_path: Path, text: str) -> Path:
 )
 def test_bad_experiment_files_name_file_and_field(tmp_path, body, field):
     path = write(tmp_path, body)
-    with pytest.raises(ex.ExperimentError) as info:
-        ex.load_experiment(path)
+    with pytest.raises(xp.ExperimentError) as info:
+        xp.load_experiment(path)
     assert str(path) in str(info.value)
     assert f"'{field}'" in str(info.value)
 
 
 def test_invalid_toml_names_file(tmp_path):
     path = write(tmp_path, "sample_time = = 1\n")
-    with pytest.raises(ex.ExperimentError, match="invalid TOML.*line 1"):
-        ex.load_experiment(path)
+    with pytest.raises(xp.ExperimentError, match="invalid TOML.*line 1"):
+        xp.load_experiment(path)
 
 
 # ---------------------------------------------------------------- measurement realism

@@ -179,13 +179,13 @@ def test_cli_80_500_hz_sweep_with_point_to_point_move_recovers_cheung_joint_with
     import json
     from pathlib import Path
 
-    from motiontwin.harness import excitation
+    from motiontwin.harness import experiment
     from motiontwin.cli import main
     from motiontwin.harness.recording import write_recording
     from motiontwin.ident.frf import DEFAULT_ALPHA
 
     root = Path(__file__).resolve().parents[1]
-    sig = excitation.load_experiment(root / "harness/experiments/swept_sine_80_500.toml").generate()
+    sig = experiment.load_experiment(root / "harness/experiments/swept_sine_80_500.toml").generate()
     sweep, move = tmp_path / "sweep.csv", tmp_path / "move.csv"
     write_recording(sweep, _recording_through(CHEUNG_DEFAULTS, sig["time"], sig["value"], 20))
     t = np.arange(int(0.2 * FS)) / FS

@@ -5,7 +5,7 @@ import math
 
 import pytest
 
-from motiontwin.harness.excitation import ExperimentError, parse_experiment
+from motiontwin.harness.experiment import ExperimentError, parse_experiment
 from motiontwin.harness.numbers import is_finite_number, is_integer, is_number
 from motiontwin.harness.regress import SuiteError, Tolerance, _tolerance
 

@@ -264,7 +264,8 @@ def _design_excitation(args: argparse.Namespace) -> int:
     (harness.excitation) that ``motiontwin excite`` samples."""
     import numpy as np
 
-    from motiontwin.harness.excitation import fourier_experiment_text, periodic_time_grid
+    from motiontwin.harness.excitation import periodic_time_grid
+    from motiontwin.harness.experiment import fourier_experiment_text
     from motiontwin.harness.recording import atomic_write_texts
     from motiontwin.harness.system import check_run_length
     from motiontwin.ident.excitation_design import (ExcitationLimits, evaluate_design, optimize_excitation,

@@ -7,9 +7,9 @@ from pathlib import Path
 
 
 def _excite(args: argparse.Namespace) -> int:
-    from motiontwin.harness import excitation, recording
+    from motiontwin.harness import experiment, recording
 
-    rec = excitation.experiment_recording(excitation.load_experiment(args.experiment))
+    rec = experiment.experiment_recording(experiment.load_experiment(args.experiment))
     for path in recording.write_recording(args.out, rec):
         print(path)
     if args.mat:
