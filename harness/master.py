@@ -55,7 +55,6 @@ import atexit
 import ctypes
 import math
 import threading
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Mapping
 
@@ -65,86 +64,10 @@ from fmpy.fmi3 import fmi3Boolean, fmi3Float64
 from tqdm import tqdm
 
 from . import native
-from .fmu_instance import REAL_TYPES, FMUCallError, FMUInstance, PortError
+from .fmu_instance import FMUCallError, FMUInstance, PortError
 from .inputs import sample_held
-from .system import INPUT_NAMESPACE, System, check_run_length, load_system, split_port
-from .units import units_compatible, variable_unit
-
-
-class UnitMismatchError(ValueError):
-    """Two connected ports declare different units."""
-
-
-class StepError(ValueError):
-    """A communication or log step is not an integer multiple of the base step or of an FMU's Ts."""
-
-
-# ---------------------------------------------------------------------------------------------
-# planning helpers
-
-
-def _integer_ratio(value: float, unit: float) -> int | None:
-    ratio = value / unit
-    n = round(ratio)
-    return n if n >= 1 and abs(ratio - n) <= 1e-9 * max(1.0, abs(ratio)) else None
-
-
-def stepping_order(names: list[str], edges: list[tuple[str, str]], sampled: Mapping[str, bool]) -> list[str]:
-    """Gauss-Seidel order from data-flow edges (producer, consumer); see the module docstring."""
-    before: dict[str, set[str]] = {n: set() for n in names}  # before[b] = FMUs that must precede b
-    for a, b in edges:
-        if a == b:
-            continue
-        if sampled[b] and not sampled[a]:
-            before[a].add(b)
-        else:
-            before[b].add(a)
-    order: list[str] = []
-    remaining = list(names)
-    while remaining:
-        ready = [n for n in remaining if not (before[n] & set(remaining))]
-        chosen = ready[0] if ready else remaining[0]
-        order.append(chosen)
-        remaining.remove(chosen)
-    return order
-
-
-@dataclass
-class _Slot:
-    """Where a logged signal lives in the flat value buffer and when it is snapshot."""
-
-    index: int
-    after_step: bool
-
-
-class _Gather:
-    """How an FMU's inputs are formed from the flat value buffer: input ``i`` is the sum over its
-    sources ``j`` (``port_start[i] <= j < port_start[i + 1]``) of ``gains[j] * values[slots[j]]``,
-    added in source order. The compiled loop does the same operations in the same order, so both
-    give bit-identical results."""
-
-    def __init__(self, port_start: np.ndarray, slots: np.ndarray, gains: np.ndarray):
-        self.port_start, self.slots, self.gains = port_start, slots, gains
-        counts = np.diff(port_start)
-        self.plain = bool(np.all(counts == 1) and np.all(gains == 1.0))  # every input a copy of one source
-        # pass p adds the p-th source of every input having more than p sources
-        self.passes = []
-        for p in range(int(counts.max()) if counts.size else 0):
-            rows = np.flatnonzero(counts > p)
-            j = port_start[rows] + p
-            self.passes.append((rows, slots[j], gains[j]))
-
-    def into(self, values: np.ndarray, lo: int, hi: int) -> None:
-        """Write the FMU's inputs into ``values[lo:hi]``."""
-        if hi == lo:
-            return
-        if self.plain:
-            values[lo:hi] = values[self.slots]
-            return
-        rows, slots, gains = self.passes[0]
-        values[lo:hi] = gains * values[slots]
-        for rows, slots, gains in self.passes[1:]:
-            values[lo + rows] = values[lo + rows] + gains * values[slots]
+from .system import System, check_run_length, load_system, split_port
+from .wiring import StepError, check_parameter_types, communication_steps, integer_ratio, plan_wiring, port_unit
 
 
 class Master:
@@ -173,7 +96,7 @@ class Master:
         try:
             for spec in sys_.fmus.values():
                 self.instances[spec.name] = FMUInstance(spec.name, spec.path, debug_logging)
-                self._check_parameter_types(spec.name)
+                check_parameter_types(self.system, self.instances, spec.name)
             self._plan()
         except BaseException:
             self.close()
@@ -184,177 +107,14 @@ class Master:
     def _where(self) -> str:
         return f"{self.system.source}: " if self.system.source else ""
 
-    def _check_parameter_types(self, name: str) -> None:
-        """A text or true/false in the system file for a numeric FMU parameter is named by file and field."""
-        variables = self.instances[name].variables
-        for pname, value in self.system.fmus[name].parameters.items():
-            v = variables.get(pname)
-            if v is not None and v.type not in ("String", "Boolean") and isinstance(value, (str, bool)):
-                raise PortError(f"{self._where()}[fmus.{name}.parameters] {pname} = {value!r}: expected a number "
-                                f"(the FMU's variable has type {v.type})")
-
-    def _resolve(self, port: str, role: str) -> tuple[str, str]:
-        """Check a port name; role is 'source', 'input' (a connection target) or 'log'."""
-        instance, variable = split_port(port)
-        if instance == INPUT_NAMESPACE:
-            if variable not in self.system.inputs:
-                raise PortError(f"{self._where()}unknown external input '{port}'. Declared inputs: "
-                                f"{', '.join('input.' + n for n in self.system.inputs) or '(none: add [inputs.NAME])'}")
-            if role == "input":
-                raise PortError(f"{self._where()}'{port}' is an external signal and cannot be a connection target")
-            return instance, variable
-        if instance not in self.instances:
-            raise PortError(f"{self._where()}unknown FMU instance '{instance}' in port '{port}'. "
-                            f"Instances: {', '.join(self.instances)}")
-        fmu = self.instances[instance]
-        wanted = {"source": ("output",), "input": ("input",)}.get(role)
-        v = fmu.variables.get(variable)
-        if v is None or (wanted and v.causality not in wanted):
-            kind = {"source": "outputs", "input": "inputs"}.get(role)
-            if kind:
-                available = fmu.ports(kind[:-1])
-            else:
-                available = fmu.ports("output") + fmu.ports("input")
-                kind = "inputs and outputs (any variable can be logged)"
-            raise PortError(f"{self._where()}unknown port '{port}' (used as {role}): FMU '{instance}' "
-                            f"has {kind}: {', '.join(available) or '(none)'}")
-        if v.type not in REAL_TYPES:
-            raise PortError(f"{self._where()}port '{port}' has type {v.type}; only Real/Float64 "
-                            f"variables can be connected or logged")
-        if role != "log" and fmu.size(variable) != 1:
-            raise PortError(f"{self._where()}port '{port}' is an array; only scalars can be connected")
-        return instance, variable
-
-    def _unit(self, instance: str, variable: str) -> str | None:
-        if instance == INPUT_NAMESPACE:
-            return self.system.inputs[variable].unit
-        return variable_unit(self.instances[instance].variables[variable])
-
-    def _steps(self, parameters: Mapping[str, Any]) -> dict[str, int]:
-        """Communication step of each FMU in base steps; checks multiples of base_step and Ts."""
-        base = self.system.base_step
-        multiples: dict[str, int] = {}
-        for name, spec in self.system.fmus.items():
-            fmu = self.instances[name]
-            ts = None
-            tsp = spec.ts_parameter
-            if tsp in fmu.variables:
-                ts = parameters.get(f"{name}.{tsp}", spec.parameters.get(tsp, fmu.start_value(tsp)))
-            step = spec.step if spec.step is not None else (float(ts) if ts else base)
-            m = _integer_ratio(step, base)
-            if m is None:
-                raise StepError(f"{self._where()}[fmus.{name}] step = {step:g} s is not an integer multiple "
-                                f"of base_step = {base:g} s")
-            if ts and _integer_ratio(step, float(ts)) is None:
-                raise StepError(f"{self._where()}[fmus.{name}] step = {step:g} s is not an integer multiple "
-                                f"of the FMU's sampling period {tsp} = {float(ts):g} s")
-            multiples[name] = m
-        return multiples
-
     def _plan(self) -> None:
-        sys_ = self.system
-        base = sys_.base_step
-        names = list(sys_.fmus)
-        self.sampled = {n: (sys_.fmus[n].sampled if sys_.fmus[n].sampled is not None
-                            else sys_.fmus[n].ts_parameter in self.instances[n].variables) for n in names}
-        self.multiples = self._steps({})
-
-        # connections: resolve ports, check units and duplicate targets
-        targets: dict[str, list[tuple[tuple[str, str], float]]] = {}
-        edges: list[tuple[str, str]] = []
-        for c in sys_.connections:
-            dst = self._resolve(c.to, "input")
-            if c.to in targets:
-                raise PortError(f"{self._where()}input '{c.to}' is the target of two connections; "
-                                f"use one connection with from = [a, b] (a sum junction)")
-            dst_unit = self._unit(*dst)
-            sources = []
-            for port, gain in zip(c.sources, c.gains):
-                src = self._resolve(port, "source")
-                src_unit = self._unit(*src)
-                if not units_compatible(src_unit, dst_unit):
-                    raise UnitMismatchError(f"{self._where()}connection '{port}' -> '{c.to}': unit '{src_unit}' "
-                                            f"does not match '{dst_unit}'")
-                sources.append((src, gain))
-                if src[0] != INPUT_NAMESPACE:
-                    edges.append((src[0], dst[0]))
-            targets[c.to] = sources
-
-        self.order = list(sys_.order) if sys_.order else stepping_order(names, edges, self.sampled)
-
-        # flat value buffer: [read slots per FMU][input slots per FMU][external inputs]
-        logged = [(g, s, self._resolve(s, "log")) for g in sys_.logs for s in g.signals]
-        reads: dict[str, list[str]] = {n: [] for n in names}
-        for sources in targets.values():
-            for (inst, var), _ in sources:
-                if inst != INPUT_NAMESPACE and var not in reads[inst]:
-                    reads[inst].append(var)
-        for _, port, (inst, var) in logged:
-            if inst != INPUT_NAMESPACE and port not in targets and var not in reads[inst]:
-                reads[inst].append(var)
-        slot: dict[str, int] = {}
-        size = 0
-        self._read_ranges: dict[str, tuple[int, int]] = {}
-        for n in names:
-            lo = size
-            for var in reads[n]:
-                slot[f"{n}.{var}"] = size
-                size += self.instances[n].size(var)
-            self._read_ranges[n] = (lo, size)
-        self._input_ranges: dict[str, tuple[int, int]] = {}
-        self._input_ports: dict[str, list[str]] = {n: [] for n in names}
-        for port in targets:
-            self._input_ports[split_port(port)[0]].append(port)
-        for n in names:
-            lo = size
-            for port in self._input_ports[n]:
-                slot[port] = size
-                size += 1
-            self._input_ranges[n] = (lo, size)
-        self._ext_names = list(sys_.inputs)
-        self._ext_range = (size, size + len(self._ext_names))
-        for name in self._ext_names:
-            slot[f"{INPUT_NAMESPACE}.{name}"] = size
-            size += 1
-        self._slot = slot
-        self._cbuffer = (ctypes.c_double * max(size, 1))()
-        self.values = np.ctypeslib.as_array(self._cbuffer)
-        self._reads = reads
-        self._targets = targets
-
-        # gather plan per FMU: input i <- sum over its sources j (in order) of gain_j * value[slot_j]
-        self._gather: dict[str, _Gather] = {}
-        for n in names:
-            port_start, source_slots, source_gains = [0], [], []
-            for port in self._input_ports[n]:
-                merged: dict[int, float] = {}
-                for (inst, var), gain in targets[port]:
-                    s = slot[f"{inst}.{var}"]
-                    merged[s] = merged.get(s, 0.0) + gain
-                source_slots += merged
-                source_gains += merged.values()
-                port_start.append(len(source_slots))
-            self._gather[n] = _Gather(np.array(port_start, dtype=np.intp), np.array(source_slots, dtype=np.intp),
-                                      np.array(source_gains, dtype=float))
-
-        # log plan
-        self._logs = []
-        for group in sys_.logs:
-            step = group.step if group.step is not None else base
-            m = _integer_ratio(step, base)
-            if m is None:
-                raise StepError(f"{self._where()}[[log]] '{group.name}' step = {step:g} s is not an integer "
-                                f"multiple of base_step = {base:g} s")
-            columns: list[str] = []
-            slots: list[_Slot] = []
-            for port in group.signals:
-                inst, var = split_port(port)
-                width = 1 if inst == INPUT_NAMESPACE else self.instances[inst].size(var)
-                after = (inst == INPUT_NAMESPACE or port in targets or self.sampled[inst])
-                for j in range(width):
-                    columns.append(port if width == 1 else f"{port}[{j + 1}]")
-                    slots.append(_Slot(slot[port] + j, after))
-            self._logs.append((group.name, m, columns, slots))
+        """Check and lay out the wiring (:mod:`harness.wiring`), then bind the fast paths to its buffer."""
+        w = plan_wiring(self.system, self.instances)
+        self.sampled, self.multiples, self.order, self.values = w.sampled, w.multiples, w.order, w.values
+        self._reads, self._read_ranges, self._input_ranges, self._input_ports = (w.reads, w.read_ranges,
+                                                                                 w.input_ranges, w.input_ports)
+        self._ext_names, self._ext_range, self._cbuffer = w.ext_names, w.ext_range, w.cbuffer
+        self._gather, self._logs = w.gather, w.logs
         self._fast_paths()
 
     def _fast_paths(self) -> None:
@@ -431,7 +191,7 @@ class Master:
             raise ValueError(f"{self._where()}stop_time = {stop!r} s must be finite and after start_time = "
                              f"{sys_.start_time!r} s")
         check_run_length(sys_.start_time, stop, sys_.base_step, f"{self._where()}stop_time")
-        n = _integer_ratio(stop - sys_.start_time, sys_.base_step)
+        n = integer_ratio(stop - sys_.start_time, sys_.base_step)
         if n is None:
             raise StepError(f"run length {stop - sys_.start_time:g} s is not an integer multiple of "
                             f"base_step = {sys_.base_step:g} s")
@@ -545,7 +305,7 @@ class Master:
         Returns one structured array (``time`` + logged signals) per log group name.
         """
         parameters = dict(parameters or {})
-        multiples = self._steps(parameters) if parameters else self.multiples
+        multiples = communication_steps(self.system, self.instances, parameters) if parameters else self.multiples
         n_steps = self.grid_size(stop_time)
         for name, m in multiples.items():
             cs = self.instances[name].model_description.coSimulation
@@ -711,7 +471,7 @@ class Master:
                 for n, spec in sys_.fmus.items()
             },
             "units": {
-                port: self._unit(*split_port(port))
+                port: port_unit(self.system, self.instances, *split_port(port))
                 for group in sys_.logs for port in group.signals
             },
         }

@@ -11,7 +11,8 @@ from scipy.linalg import expm
 
 from motiontwin.harness import fmu_instance
 from motiontwin.harness.fmu_instance import FMUCallError, PortError
-from motiontwin.harness.master import Master, StepError, UnitMismatchError
+from motiontwin.harness.master import Master
+from motiontwin.harness.wiring import StepError, UnitMismatchError
 from motiontwin.harness.system import SystemFileError, load_system, system_from_dict
 
 def write(tmp_path: Path, text: str, name: str = "system.toml") -> Path:
