@@ -21,7 +21,8 @@ def _check_options(args: argparse.Namespace) -> None:
 
 def _compare(args: argparse.Namespace) -> int:
     """Run both controllers, print the tables, write recordings, tables and figures."""
-    from motiontwin.comparison import MOVE_TIME, PRE_MOVE, SS_WINDOW, format_table, run_comparison, write_outputs
+    from motiontwin.comparison import MOVE_TIME, PRE_MOVE, SS_WINDOW, run_comparison
+    from motiontwin.comparison_report import format_table, write_outputs
 
     _check_options(args)
     if args.stop_time <= PRE_MOVE + MOVE_TIME + SS_WINDOW:
