@@ -172,3 +172,14 @@ def test_the_argparse_check_sees_parsed_arguments(tmp_path: Path) -> None:
                       "def h(*args):\n    return len(args)\n")
     assert _argparse_uses(source) == ["line 1: f(args) takes parsed arguments",
                                       "line 4: g(ns) takes parsed arguments", "line 5: imports argparse"]
+
+
+MAX_LINES = 600
+
+
+def test_no_source_file_holds_more_than_one_idea_by_size() -> None:
+    """No Python file of the library or the application is over 600 lines (issue 24: split it by idea)."""
+    files = [p for folder in ("fmus", "harness", "ident", "motiontwin") for p in (ROOT / folder).rglob("*.py")]
+    long = {str(p.relative_to(ROOT)): n for p in files
+            if (n := len(p.read_text(encoding="utf-8").splitlines())) > MAX_LINES}
+    assert files and long == {}
