@@ -68,13 +68,22 @@ def test_gradient_stage_raises_worst_case_bandwidth_within_spec(refined: tuning.
         assert reported.tau_cl <= SPEC.tau_max_s
 
 
-def test_same_seed_gives_bitwise_identical_design(refined: tuning.TuningResult) -> None:
-    """DE is seeded, Nelder-Mead and SLSQP have no random state: a second run equals the first exactly."""
-    again = tuning.tune(tuning.position_sets(NOMINAL), TS, SPEC, gradient_iterations=40, **SEARCH)
-    assert again.parameters.keys() == refined.parameters.keys()
-    for name, value in refined.parameters.items():
+def test_same_seed_gives_bitwise_identical_design() -> None:
+    """DE is seeded, Nelder-Mead and SLSQP have no random state: a second run equals the first exactly (a
+    small search through all three stages)."""
+    small = dict(SEARCH, popsize=3, maxiter=2, refine=1, refine_evaluations=40, points=300)
+
+    def best_design() -> tuning.TuningResult:   # so small a search may miss the spec: its best design then
+        try:
+            return tuning.tune(tuning.position_sets(NOMINAL), TS, SPEC, gradient_iterations=5, **small)
+        except tuning.InfeasibleSpecError as exc:
+            return exc.result
+
+    first, again = best_design(), best_design()
+    assert again.parameters.keys() == first.parameters.keys()
+    for name, value in first.parameters.items():
         assert np.float64(again.parameters[name]).tobytes() == np.float64(value).tobytes(), name
-    assert again.margins == refined.margins
+    assert again.margins == first.margins
 
 
 def _reference_disk_margin(loop: control.StateSpace) -> tuple[float, tuple[float, float, float]]:
