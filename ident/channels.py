@@ -158,7 +158,7 @@ def channel_problem(rec: Recording, controller: Controller,
                     signals: Signals | list[Signals] | tuple[Signals, ...] = Signals()) -> str | None:
     """None when every axis is consistent, else one sentence per inconsistent axis with its likely cause."""
     problems = [f"column {c.force!r} does not match controller(r, q) + u_ext: RMS mismatch {c.mismatch:.3g} "
-                f"({100 * c.mismatch / max(c.rms_u, 1e-300):.3g} % of the RMS of {c.force}), {c.residual:.3g} left by the best "
-                f"explanation; likely cause: {c.cause}"
+                f"({100 * c.mismatch / max(c.rms_u, 1e-300):.3g} % of the RMS of {c.force}), {c.residual:.3g} left "
+                f"by the best explanation; likely cause: {c.cause}"
                 for c in check_channels(rec, controller, signals) if not c.consistent]
     return "; ".join(problems) or None

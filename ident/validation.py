@@ -50,8 +50,7 @@ __all__ = ["ModelSpec", "CorrelationTest", "Validation", "load_model_spec", "loa
 
 CONFIDENCE = 0.99
 #: the one definition of the RMS output error that identify oe and validate print (see :func:`free_run`)
-RMS_DEFINITION = ("RMS of measured - simulated output over the whole recording; free run of the model at its "
-                  "values, initial position and velocity estimated from the output alone")
+RMS_DEFINITION = "free run over the whole recording, initial position and velocity estimated from the output alone"
 
 
 @dataclass

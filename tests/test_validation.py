@@ -158,7 +158,8 @@ def test_identify_oe_and_validate_report_one_rms(tmp_path, capsys):
     assert oe["parameters"]["m"] == pytest.approx(2.6, rel=1e-3)
     assert val["rms"] == pytest.approx(oe["rms_output_error"], rel=1e-9)
     assert 1e-7 < val["rms"] < 4e-7                      # about the encoder noise, 2e-7
-    assert f"RMS output error {val['rms']:.4g} m" in printed_oe and f"RMS output error {val['rms']:.4g} m" in printed_val
+    line = f"RMS output error {val['rms']:.4g} m ({validation.RMS_DEFINITION}"
+    assert line in printed_oe and line in printed_val
     assert "channel check: u = controller(r, q) + u_ext within noise" in printed_val
     spec = validation.load_model_spec(fitted)
     again = validation.validate(build.load_model(CLASS), spec, read_recording(path, ["r", "u", "q"]), controller=ctrl)

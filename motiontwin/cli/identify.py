@@ -182,7 +182,7 @@ def _identify_oe(args: argparse.Namespace) -> int:
     scored = validation.free_run(model, result.fit.values, rec, controller=controller, signals=signals,
                                  initial=args.initial)
     print(f"RMS output error {scored.rms_q:.4g} {rec.units.get(signals.output, '')} "
-          f"({validation.RMS_DEFINITION}; motiontwin validate of --out on this recording prints the same); "
+          f"({validation.RMS_DEFINITION}; validate of --out on this recording prints the same); "
           f"{'closed' if controller else 'open'} loop, {result.loop.substeps} RK4 substeps per sample, {how}")
     if args.out:
         solver = f"multiple shooting ({args.segments} segments, IPOPT, " if multiple else "single shooting ("

@@ -27,16 +27,15 @@ def _validate(args: argparse.Namespace) -> int:
     result = validation.validate(model, spec, rec, controller=controller, signals=signals, lags=args.lags,
                                  estimate_initial=not args.initial_from_data, initial=args.initial)
     auto, cross = result.autocorrelation, result.cross_correlation
-    loop = (f"closed loop (columns {signals.reference}, {signals.output}"
-            f"{', ' + signals.disturbance if signals.disturbance in rec.columns else ''}; "
-            f"{signals.input} for the correlation scale only)" if controller
+    ext = f" + {signals.disturbance}" if signals.disturbance in rec.columns else ""
+    loop = (f"closed loop (columns {signals.reference}{', ' + signals.disturbance if ext else ''} -> "
+            f"{signals.output}; {signals.input} only checked)" if controller
             else f"open loop (columns {signals.input} -> {signals.output})")
     print(f"{spec.class_name} ({spec.source}) on {args.recording}, {loop}, {result.time.size} samples")
     if controller:
         problem = channels.channel_problem(rec, controller, signals)
         print(f"channel check: {problem}" if problem else
-              f"channel check: {signals.input} = controller({signals.reference}, {signals.output}) + "
-              f"{signals.disturbance} within noise")
+              f"channel check: {signals.input} = controller({signals.reference}, {signals.output}){ext} within noise")
     print(f"fit {result.fit_percent:.3f} % (NRMSE), RMS output error {result.rms:.4g} "
           f"{rec.units.get(signals.output, '')} ({validation.RMS_DEFINITION})"
           + "".join(f", {k}(t0) = {v:.6g}" for k, v in result.initial.items()))
@@ -70,8 +69,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                                    "from the --input column (default u) to the --output column (default q); "
                                    "closed loop with --controller from the --reference column (default r) and, "
                                    "when recorded, u_ext added to the controller's force, u then only checked "
-                                   "against controller(r, q) + u_ext (the channel check line). Only the initial "
-                                   "position and velocity are estimated, from the output alone. The RMS output "
+                                   "against controller(r, q) + u_ext (the channel check line, ident.channels). "
+                                   "Only the initial position and velocity are estimated, from the output alone. "
+                                   "The RMS output "
                                    "error is the one identify oe prints for the model it returns (same free run, "
                                    "same initial-state estimate: ident.validation.free_run). See "
                                    "ident/validation.py for the tests.")
