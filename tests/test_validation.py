@@ -160,7 +160,8 @@ def test_identify_oe_and_validate_report_one_rms(tmp_path, capsys):
     assert 1e-7 < val["rms"] < 4e-7                      # about the encoder noise, 2e-7
     line = f"RMS output error {val['rms']:.4g} m ({validation.RMS_DEFINITION}"
     assert line in printed_oe and line in printed_val
-    assert "channel check: u = controller(r, q) + u_ext within noise" in printed_val
+    assert "columns r, u_ext -> q, u only checked; channel check: u = controller(r, q) + u_ext within noise" \
+        in printed_val
     spec = validation.load_model_spec(fitted)
     again = validation.validate(build.load_model(CLASS), spec, read_recording(path, ["r", "u", "q"]), controller=ctrl)
     assert np.sqrt(np.mean((again.measured - again.simulated) ** 2)) == pytest.approx(oe["rms_output_error"],

@@ -28,17 +28,18 @@ def _validate(args: argparse.Namespace) -> int:
                                  estimate_initial=not args.initial_from_data, initial=args.initial)
     auto, cross = result.autocorrelation, result.cross_correlation
     ext = f" + {signals.disturbance}" if signals.disturbance in rec.columns else ""
-    loop = (f"closed loop (columns {signals.reference}{', ' + signals.disturbance if ext else ''} -> "
-            f"{signals.output}; {signals.input} only checked)" if controller
-            else f"open loop (columns {signals.input} -> {signals.output})")
-    print(f"{spec.class_name} ({spec.source}) on {args.recording}, {loop}, {result.time.size} samples")
-    if controller:
-        problem = channels.channel_problem(rec, controller, signals)
-        print(f"channel check: {problem}" if problem else
-              f"channel check: {signals.input} = controller({signals.reference}, {signals.output}){ext} within noise")
+    print(f"{spec.class_name} ({spec.source}) on {args.recording}, {'closed' if controller else 'open'} loop, "
+          f"{result.time.size} samples")
     print(f"fit {result.fit_percent:.3f} % (NRMSE), RMS output error {result.rms:.4g} "
           f"{rec.units.get(signals.output, '')} ({validation.RMS_DEFINITION})"
           + "".join(f", {k}(t0) = {v:.6g}" for k, v in result.initial.items()))
+    if controller:
+        problem = channels.channel_problem(rec, controller, signals)
+        fed = f"{signals.reference}{', ' + signals.disturbance if ext else ''}"
+        print(f"columns {fed} -> {signals.output}, {signals.input} only checked; channel check: "
+              + (problem or f"{signals.input} = controller({signals.reference}, {signals.output}){ext} within noise"))
+    else:
+        print(f"columns {signals.input} -> {signals.output}")
     print(f"residual autocorrelation, lags 1..{args.lags}: Q = {auto.statistic:.2f} vs 99 % limit "
           f"{auto.threshold:.2f}: {'white' if auto.passed else 'NOT white'}; {len(auto.outside)} lags outside "
           f"the 99 % band +-{auto.band:.3g}")
