@@ -155,7 +155,9 @@ class LeastSquaresResult:
     regressor_condition: cond of the raw (unweighted) regressor, from its Gram matrix (a diagnostic,
     accurate up to ~1e7; identifiability is decided on the column-scaled SVD instead);
     robust_covariance: HAC (Newey-West) sandwich covariance that holds for coloured residuals, or None;
-    robust_lags: its Bartlett bandwidth [samples]; robust_std: sqrt(diag robust_covariance) (NaN if None).
+    robust_lags: its Bartlett bandwidth [samples]; robust_std: sqrt(diag robust_covariance) (NaN if None);
+    at_bound: parameters held on a bound of a bounded fit (name: bound value): no statistics of their own (std,
+    relative std NaN, zero rows in the covariances, which are those of the others conditional on them).
     """
 
     estimate: np.ndarray
@@ -167,19 +169,24 @@ class LeastSquaresResult:
     regressor_condition: float
     robust_covariance: np.ndarray | None = None
     robust_lags: int | None = None
+    at_bound: dict[str, float] = field(default_factory=dict)
     std: np.ndarray = field(init=False)
     relative_std: np.ndarray = field(init=False)
     correlation: np.ndarray = field(init=False)
     correlation_condition: float = field(init=False)
 
     def __post_init__(self) -> None:
-        std = np.sqrt(np.diag(self.covariance))
+        held = np.array([n in self.at_bound for n in self.names], dtype=bool)
+        std = np.where(held, np.nan, np.sqrt(np.abs(np.diag(self.covariance))))
         object.__setattr__(self, "std", std)
-        with np.errstate(divide="ignore"):
+        with np.errstate(divide="ignore", invalid="ignore"):
             object.__setattr__(self, "relative_std", std / np.abs(self.estimate))
-        corr = self.covariance / np.outer(std, std)
+        corr = np.eye(len(self.names))
+        free = np.flatnonzero(~held)
+        corr[np.ix_(free, free)] = self.covariance[np.ix_(free, free)] / np.outer(std[free], std[free])
         object.__setattr__(self, "correlation", corr)
-        object.__setattr__(self, "correlation_condition", float(np.linalg.cond(corr)))
+        object.__setattr__(self, "correlation_condition",
+                           float(np.linalg.cond(corr[np.ix_(free, free)])) if free.size else 1.0)
 
     @property
     def robust_std(self) -> np.ndarray:
@@ -208,9 +215,13 @@ class LeastSquaresResult:
         robust = self.robust_covariance is not None
         lines = [f"{'parameter':>12} {'estimate':>13} {'std':>11} {'rel.std %':>9}"
                  + (f" {'HAC std':>11} {'HAC rel %':>9}" if robust else "")]
-        for name, p, s, r, h in zip(self.names, self.estimate, self.std, self.relative_std, self.robust_std):
-            line = f"{name:>12} {p:13.6g} {s:11.3g} {100 * r:9.3f}"
-            lines.append(line + (f" {h:11.3g} {100 * h / abs(p) if p else np.inf:9.3f}" if robust else ""))
+        for name, p, s, h in zip(self.names, self.estimate, self.std, self.robust_std):
+            if name in self.at_bound:
+                lines.append(f"{name:>12} {p:13.6g} {'at bound ' + format(self.at_bound[name], '.6g'):>21}"
+                             + (f" {'at bound':>21}" if robust else ""))
+                continue
+            line = f"{name:>12} {p:13.6g} {s:11.3g} {_percent(s, p)}"
+            lines.append(line + (f" {h:11.3g} {_percent(h, p)}" if robust else ""))
         lines.append(
             f"cond(correlation) = {self.correlation_condition:.3g}, cond(regressor) = "
             f"{self.regressor_condition:.3g}, weighted RSS/dof = {self.residual_variance_factor:.3g}"
@@ -219,6 +230,14 @@ class LeastSquaresResult:
             lines.append(f"HAC std: Newey-West sandwich, Bartlett bandwidth {self.robust_lags} samples "
                          "(holds for coloured residuals; std assumes white noise)")
         return "\n".join(lines)
+
+
+def _percent(std: float, estimate: float) -> str:
+    """100 std/|estimate| in a 9-wide column; beyond 1e5 % (an estimate near zero) '>1e5', not an absurd ratio."""
+    if not np.isfinite(std):
+        return f"{'-':>9}"
+    ratio = 100 * std / abs(estimate) if estimate else np.inf
+    return f"{ratio:9.3f}" if ratio <= 1e5 else f"{'>1e5':>9}"
 
 
 def andrews_bandwidth(scores: np.ndarray) -> float:

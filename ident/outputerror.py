@@ -56,9 +56,40 @@ __all__ = ["Signals", "Loop", "Weights", "Fit", "OutputErrorResult", "build_loop
            "state_indices", "weighted_jacobian", "output_state", "initial_motion_states"]
 
 
-def statistics(loop: Loop, result: Fit) -> LeastSquaresResult:
+def _covariances(loop: Loop, result: Fit, keep: np.ndarray) -> tuple[np.ndarray, np.ndarray | None, int | None]:
+    """s^2 (J^T J)^-1 and the HAC sandwich over the Jacobian columns ``keep`` (parameters then initial states)."""
+    j = result.jacobian[:, keep]
+    dof = result.jacobian.shape[0] - result.jacobian.shape[1]
+    factor = result.cost / dof if dof > 0 else float("nan")
+    col = np.linalg.norm(j, axis=0)
+    jn = j / col
+    bread = np.linalg.inv(jn.T @ jn) / np.outer(col, col)
+    robust, lags = None, None
+    if result.residual is not None and np.all(np.isfinite(result.residual)):
+        channels = j.shape[0] // loop.n_samples   # rows are channel-major: output samples, then force samples
+        by_sample = j.reshape(channels, loop.n_samples, -1).transpose(1, 0, 2).reshape(j.shape)
+        residual = np.asarray(result.residual).reshape(channels, loop.n_samples).T.ravel()
+        robust, lags = hac_covariance(by_sample, residual, rows_per_sample=channels, bread=bread)
+    return bread * factor, robust, lags
+
+
+def _held_on_bounds(loop: Loop, theta: np.ndarray, std: np.ndarray,
+                    bounds: dict[str, tuple[float, float]] | None) -> dict[str, float]:
+    """Free parameters the fit left on a bound: within 1e-8 of it (relative) or within 1e-3 of their std."""
+    lo, hi = bound_arrays(loop, bounds)
+    held: dict[str, float] = {}
+    for name, value, s, a, b in zip(loop.free, theta, std, lo, hi):
+        for bound in (a, b):
+            if np.isfinite(bound) and abs(value - bound) <= max(1e-8 * max(abs(bound), abs(value)), 1e-3 * s):
+                held[name] = float(bound)
+    return held
+
+
+def statistics(loop: Loop, result: Fit, bounds: dict[str, tuple[float, float]] | None = None) -> LeastSquaresResult:
     """Estimate, covariance s^2 (J^T J)^-1, std and correlation of the free parameters at the optimum, and the
     HAC (Newey-West) sandwich covariance that holds for coloured residuals (closed loop, model error).
+    Parameters on a bound (``bounds`` over the Modelica min/max) are held there: no std of their own, the
+    others' covariances conditional on them (their columns left out).
 
     Raises :class:`ident.leastsquares.UnidentifiableError` naming the parameters the recording does not
     determine (a rank-deficient Jacobian)."""
@@ -67,23 +98,26 @@ def statistics(loop: Loop, result: Fit) -> LeastSquaresResult:
     report = check_identifiability(j, names)
     if not report.identifiable:
         raise UnidentifiableError(report.message(), report.unidentifiable, report.null_directions)
-    dof = j.shape[0] - j.shape[1]
-    factor = result.cost / dof if dof > 0 else float("nan")
-    col = np.linalg.norm(j, axis=0)
-    jn = j / col
     n_th = len(loop.free)
-    bread = np.linalg.inv(jn.T @ jn) / np.outer(col, col)
-    cov = (bread * factor)[:n_th, :n_th]
+    theta = loop.theta(result.values)
+    everything = np.arange(j.shape[1])
+    cov_keep, robust_keep, lags = _covariances(loop, result, everything)
+    held = _held_on_bounds(loop, theta, np.sqrt(np.abs(np.diag(cov_keep)))[:n_th], bounds)
+    keep = np.array([i for i in everything if i >= n_th or loop.free[i] not in held], dtype=int)
+    if held:
+        cov_keep, robust_keep, lags = _covariances(loop, result, keep)
+    params = keep[keep < n_th]
+    index = np.searchsorted(keep, params)
+    cov = np.zeros((n_th, n_th))
+    cov[np.ix_(params, params)] = cov_keep[np.ix_(index, index)]
+    robust = None
+    if robust_keep is not None:
+        robust = np.zeros((n_th, n_th))
+        robust[np.ix_(params, params)] = robust_keep[np.ix_(index, index)]
     sv = np.linalg.svd(j[:, :n_th], compute_uv=False)
-    robust, lags = None, None
-    if result.residual is not None and np.all(np.isfinite(result.residual)):
-        channels = j.shape[0] // loop.n_samples   # rows are channel-major: output samples, then force samples
-        by_sample = j.reshape(channels, loop.n_samples, -1).transpose(1, 0, 2).reshape(j.shape)
-        residual = np.asarray(result.residual).reshape(channels, loop.n_samples).T.ravel()
-        full, lags = hac_covariance(by_sample, residual, rows_per_sample=channels, bread=bread)
-        robust = full[:n_th, :n_th]
-    return LeastSquaresResult(loop.theta(result.values), cov, list(loop.free), result.cost, dof, False,
-                              float(sv[0] / sv[-1]), robust, lags)
+    dof = j.shape[0] - j.shape[1]
+    return LeastSquaresResult(theta, cov, list(loop.free), result.cost, dof, False, float(sv[0] / sv[-1]), robust,
+                              lags, held)
 
 
 @dataclass
@@ -178,4 +212,4 @@ def identify(model: symbolic.SymbolicModel, rec: Recording, free: list[str], con
                       _rms_weight(rec[signals.input] - result.u_sim) if loop.closed else 1.0)
     result = refit(loop.with_values(result.values), weights)
     loop = loop.with_values(result.values)
-    return OutputErrorResult(loop, result, weights, statistics(loop, result))
+    return OutputErrorResult(loop, result, weights, statistics(loop, result, bounds))

@@ -8,9 +8,16 @@ A fitted model (a Modelica class with parameter values: the JSON ``identify oe -
 Only the initial position and velocity of the plant are estimated (as SITB's ``compare`` estimates initial
 conditions; :func:`ident.outputerror.initial_motion_states`); no parameter is changed.
 
+The RMS output error is defined once, by :func:`free_run`, and ``identify oe`` reports the same number for the
+model it returns: the free run of the model at its parameter values along the whole recording (closed loop
+with the controller fed r and u_ext, or open loop from the measured input), its initial position and
+velocity estimated by least squares on the output alone (start: the first sample, at rest or at the slope of
+the first samples, ``initial``; closed loop: the controller state from its first outputs, or from u_0 at
+rest), RMS = sqrt(mean((y - y_sim)^2)) over all N samples.
+
 Measures (e = measured - simulated output, N samples):
 
-* fit % = 100 (1 - ||e|| / ||y - mean(y)||) (SITB's NRMSE fit), RMS of e;
+* fit % = 100 (1 - ||e|| / ||y - mean(y)||) (SITB's NRMSE fit), RMS of e (:func:`free_run`);
 * residual autocorrelation r_e(tau), tau = 1..M, with the 99 % band +-2.576/sqrt(N); the whiteness decision is
   the portmanteau statistic Q = N sum r_e(tau)^2 against the chi-square 99 % quantile with M degrees of freedom;
 * input-residual cross-correlation r_ue(tau), tau = -M..M, with the per-lag 99 % band 2.576 sqrt(P/N),
@@ -34,13 +41,16 @@ from motiontwin.fmus import symbolic
 from motiontwin.fmus.limits import load_json
 from motiontwin.harness.recording import Recording, write_figure
 from motiontwin.ident import outputerror as oe
+from motiontwin.ident import plant_states
 from motiontwin.ident.controller import Controller
 
-__all__ = ["ModelSpec", "CorrelationTest", "Validation", "load_model_spec", "fit_percent", "autocorrelation_test",
-           "cross_correlation_test", "validate", "validation_document", "plot_validation",
-           "CONFIDENCE"]
+__all__ = ["ModelSpec", "CorrelationTest", "Validation", "load_model_spec", "load_model", "fit_percent",
+           "free_run", "autocorrelation_test", "cross_correlation_test", "validate", "validation_document",
+           "plot_validation", "CONFIDENCE", "RMS_DEFINITION"]
 
 CONFIDENCE = 0.99
+#: the one definition of the RMS output error that identify oe and validate print (see :func:`free_run`)
+RMS_DEFINITION = "free run over the whole recording, initial position and velocity estimated from the output alone"
 
 
 @dataclass
@@ -51,23 +61,28 @@ class ModelSpec:
     modelica: Path
     values: dict[str, float]
     source: str          # where the values came from, for the report
+    initial: str = "samples"   # start of the initial-state estimate (identify oe --initial): "samples" or "rest"
 
 
 def load_model_spec(path: Path | None, *, class_name: str | None = None, modelica: Path | None = None,
                     values: dict[str, float] | None = None) -> ModelSpec:
-    """The model described by ``path``: a values JSON (``class``, ``modelica``, ``parameters``, as ``identify oe
-    --out`` writes), an FMU (modelName = class, parameter start values), or None (then ``class_name`` is required).
+    """The model described by ``path``: a values JSON (``class``, ``modelica``, ``parameters`` and
+    ``fixed_parameters``, ``initial``, as ``identify oe --out`` writes), an FMU (modelName = class, parameter start
+    values; its Modelica source found next to it by :func:`_source_next_to`), the output folder of ``motiontwin
+    diagnose`` (its FMU and ``augmented_model``), or None (then ``class_name`` is required).
 
     ``class_name``/``modelica`` override the file's; ``values`` (``--set``) override its parameters.
     """
     from motiontwin.fmus.build import MODELICA_DIR
 
     found: dict[str, float] = {}
-    name, library, source = class_name, modelica, "Modelica start values"
+    name, library, source, initial = class_name, modelica, "Modelica start values", "samples"
     if path is not None:
         path = Path(path)
+        if path.is_dir():
+            path, library = _diagnosis_fmu(path), library or path / "augmented_model"
         if not path.is_file():
-            raise FileNotFoundError(f"{path}: model file not found" + (" (it is a folder)" if path.is_dir() else ""))
+            raise FileNotFoundError(f"{path}: model file not found")
         if path.suffix.lower() == ".fmu":
             import fmpy
 
@@ -80,14 +95,19 @@ def load_model_spec(path: Path | None, *, class_name: str | None = None, modelic
                     except ValueError:
                         continue
             source = f"start values of {path}"
+            library = library or _source_next_to(path, md.modelName)
         elif path.suffix.lower() == ".json":
             doc = load_json(path)
             if not isinstance(doc, dict) or not isinstance(doc.get("parameters"), dict):
                 raise ValueError(f"{path}: field 'parameters' (an object of name: value) missing")
-            for key, value in doc["parameters"].items():
-                if isinstance(value, bool) or not isinstance(value, (int, float)):
-                    raise ValueError(f"{path}: field 'parameters.{key}' must be a number, got {value!r}")
-                found[key] = float(value)
+            for field in ("fixed_parameters", "parameters"):
+                for key, value in (doc.get(field) or {}).items():
+                    if isinstance(value, bool) or not isinstance(value, (int, float)):
+                        raise ValueError(f"{path}: field '{field}.{key}' must be a number, got {value!r}")
+                    found[key] = float(value)
+            if doc.get("initial", initial) not in ("samples", "rest"):
+                raise ValueError(f"{path}: field 'initial' must be 'samples' or 'rest', got {doc['initial']!r}")
+            initial = doc.get("initial", initial)
             name = class_name or doc.get("class")
             if library is None and doc.get("modelica"):
                 library = Path(doc["modelica"])
@@ -95,11 +115,51 @@ def load_model_spec(path: Path | None, *, class_name: str | None = None, modelic
             if not name:
                 raise ValueError(f"{path}: field 'class' missing; give --class")
         else:
-            raise ValueError(f"{path}: a model is a values JSON (identify oe --out) or an FMU (.fmu)")
+            raise ValueError(f"{path}: a model is a values JSON (identify oe --out), an FMU (.fmu) or the output "
+                             "folder of motiontwin diagnose")
     if not name:
-        raise ValueError("name the model: a values JSON or FMU, or --class")
+        raise ValueError("name the model: a values JSON, an FMU or a diagnose output folder, or --class")
     found.update(values or {})
-    return ModelSpec(name, Path(library) if library is not None else MODELICA_DIR, found, source)
+    return ModelSpec(name, Path(library) if library is not None else MODELICA_DIR, found, source, initial)
+
+
+def _diagnosis_fmu(folder: Path) -> Path:
+    """The augmented FMU in a ``motiontwin diagnose`` output folder (fmu/fmi*/NAME.fmu)."""
+    if not (folder / "diagnosis.json").is_file():
+        raise FileNotFoundError(f"{folder}: a folder is read as the output of motiontwin diagnose, but it has no "
+                                "diagnosis.json")
+    fmus = sorted((folder / "fmu").glob("*/*.fmu"))
+    if not fmus:
+        raise FileNotFoundError(f"{folder}: no FMU under {folder / 'fmu'} (diagnose writes fmu/fmi2/Augmented.fmu)")
+    return fmus[0]
+
+
+def _source_next_to(fmu: Path, class_name: str) -> Path | None:
+    """The Modelica folder of ``class_name`` next to an FMU: ``NAME.mo`` or ``augmented_model/NAME.mo`` in the
+    FMU's folder or up to two folders above it (diagnose writes OUT/fmu/fmi2/Augmented.fmu beside
+    OUT/augmented_model/Augmented.mo); None: the project's library."""
+    short = class_name.rpartition(".")[2]
+    for folder in (fmu.parent, *list(fmu.parents)[1:3]):
+        for candidate in (folder / f"{short}.mo", folder / "augmented_model" / f"{short}.mo"):
+            if candidate.is_file():
+                return candidate.parent
+    return None
+
+
+def load_model(spec: ModelSpec) -> symbolic.SymbolicModel:
+    """The symbolic model of ``spec``; a ``.mo`` file is read with the files beside it (the classes it uses,
+    e.g. the plant that diagnose's Augmented.mo instantiates), and the project's library."""
+    from motiontwin.fmus import build
+    from motiontwin.fmus.flatmodel import ModelicaError
+
+    source = spec.modelica.parent if spec.modelica.is_file() else spec.modelica
+    try:
+        return build.load_model(spec.class_name, source)
+    except ModelicaError as exc:
+        if "not found" in str(exc) and spec.source.startswith("start values of "):
+            raise ModelicaError(f"{exc} (the Modelica source of an FMU is looked up next to it, as NAME.mo or "
+                            "augmented_model/NAME.mo, then in the library; else give --modelica)") from None
+        raise
 
 
 def fit_percent(measured: np.ndarray, simulated: np.ndarray) -> float:
@@ -212,19 +272,60 @@ class Validation:
         return self.measured - self.simulated
 
 
+def free_run(model: symbolic.SymbolicModel, values: dict[str, float], rec: Recording, *,
+             controller: Controller | None = None, signals: oe.Signals = oe.Signals(), initial: str = "samples",
+             estimate_initial: bool = True, where: str = "") -> oe.Fit:
+    """The free run that defines the RMS output error (``Fit.rms_q``) of ``identify oe`` and ``validate``:
+    ``model`` at ``values`` along ``rec`` (closed loop with ``controller``, fed r and u_ext; else open loop from
+    the input column), the initial position and velocity estimated by least squares on the output alone
+    (``estimate_initial``; else the first sample), starting from ``initial`` ("samples": the slope of the first
+    samples and, in closed loop, the controller state from its first outputs; "rest": at rest). ``where`` names
+    the model in errors."""
+    if initial not in ("samples", "rest"):
+        raise ValueError(f"initial must be 'samples' or 'rest', not {initial!r}")
+    steps = np.diff(rec.time)
+    ts = controller.Ts if controller is not None else float(rec.sample_time or np.median(steps))
+    bad = np.flatnonzero(np.abs(steps - ts) > 1e-3 * ts)
+    if bad.size:
+        i = int(bad[0])
+        raise ValueError(f"recording row {i + 3}, column 'time': step {steps[i]:.9g} s differs from the sample period "
+                         f"{ts:.9g} s (the re-simulation needs uniform sampling)")
+    tracking = None
+    i_pos = oe.output_state(model, signals.output)
+    i_vel = None if i_pos is None else plant_states.velocity_state(model, i_pos)
+    if initial == "samples" and i_vel is not None:
+        tracking = {model.states[i_vel].name: "dq"}
+    loop = oe.build_loop(model, controller, signals.output, [], dict(values), rec.time.size, ts=ts,
+                         signals=signals, tracking=tracking, input_name=signals.input if signals.input in
+                         [v.name for v in model.inputs] else None)
+    estimated = oe.initial_motion_states(model, signals.output) if estimate_initial else []
+    q0, u0 = oe.simulate(loop, rec)
+    # the output alone decides the initial state: the force channel (closed loop) is weighted down by 1e6
+    weights = oe.Weights(oe._rms_weight(rec[signals.output] - q0),
+                         1e6 * oe._rms_weight(rec[signals.input] - u0) if controller is not None else 1.0)
+    result = oe.fit(loop, rec, weights, estimate_initial=estimated)
+    if not np.all(np.isfinite(result.q_sim)):
+        raise ValueError(f"{where or model.name}: the re-simulation diverged (non-finite output); check the "
+                         "parameter values and, in closed loop, the controller")
+    return result
+
+
 def validate(model: symbolic.SymbolicModel, spec: ModelSpec, rec: Recording, *, controller: Controller | None = None,
-             signals: oe.Signals = oe.Signals(), lags: int = 25, estimate_initial: bool = True) -> Validation:
+             signals: oe.Signals = oe.Signals(), lags: int = 25, estimate_initial: bool = True,
+             initial: str | None = None) -> Validation:
     """Re-simulate ``model`` at ``spec.values`` along ``rec`` and compute the compare/resid measures.
 
     Parameters
     ----------
-    model : the symbolic model of ``spec.class_name`` (fmus.build.load_model).
+    model : the symbolic model of ``spec.class_name`` (:func:`load_model`).
     spec : class and parameter values (unknown names raise, naming the class's parameters).
-    rec : recording with the input (open loop) or the reference (closed loop) and the measured output.
+    rec : recording with the input (open loop) or the reference (closed loop; u_ext added when recorded) and the
+        measured output.
     controller : closed loop when given (the recording then needs the reference column).
     signals : recording column names.
     lags : correlation lags M.
-    estimate_initial : estimate the initial position and velocity (else start at the first sample, at rest).
+    estimate_initial : estimate the initial position and velocity (else start at the first sample).
+    initial : start of that estimate, "samples" or "rest" (default: ``spec.initial``), see :func:`free_run`.
 
     Returns
     -------
@@ -247,30 +348,14 @@ def validate(model: symbolic.SymbolicModel, spec: ModelSpec, rec: Recording, *, 
     missing = [c for c in needed if c not in rec.columns]
     if missing:
         raise KeyError(f"recording has no column {', '.join(map(repr, missing))} (columns: {', '.join(rec.columns)})")
-    steps = np.diff(rec.time)
-    ts = controller.Ts if controller is not None else float(rec.sample_time or np.median(steps))
-    bad = np.flatnonzero(np.abs(steps - ts) > 1e-3 * ts)
-    if bad.size:
-        i = int(bad[0])
-        raise ValueError(f"recording row {i + 3}, column 'time': step {steps[i]:.9g} s differs from the sample period "
-                         f"{ts:.9g} s (the re-simulation needs uniform sampling)")
-    loop = oe.build_loop(model, controller, signals.output, [], dict(spec.values), rec.time.size, ts=ts,
-                         signals=signals, input_name=signals.input if signals.input in
-                         [v.name for v in model.inputs] else None)
-    estimated = oe.initial_motion_states(model, signals.output) if estimate_initial else []
-    q0, u0 = oe.simulate(loop, rec)
-    scale_q = oe._rms_weight(rec[signals.output] - q0)
-    # the output alone decides the initial state: the force channel (closed loop) is weighted down by 1e6
-    weights = oe.Weights(scale_q, 1e6 * oe._rms_weight(rec[signals.input] - u0) if controller is not None else 1.0)
-    result = oe.fit(loop, rec, weights, estimate_initial=estimated)
+    result = free_run(model, spec.values, rec, controller=controller, signals=signals,
+                      initial=initial or spec.initial, estimate_initial=estimate_initial,
+                      where=f"{spec.class_name} at {spec.source}")
     measured = rec[signals.output]
-    if not np.all(np.isfinite(result.q_sim)):
-        raise ValueError(f"{spec.class_name} at {spec.source}: the re-simulation diverged (non-finite output); "
-                         "check the parameter values and, in closed loop, the controller")
     residual = measured - result.q_sim
     u = rec[signals.input] if controller is None else rec[signals.reference]
     return Validation(spec, rec.time, measured, result.q_sim, u, fit_percent(measured, result.q_sim),
-                      float(np.sqrt(np.mean(residual ** 2))), autocorrelation_test(residual, lags),
+                      result.rms_q, autocorrelation_test(residual, lags),
                       cross_correlation_test(u, residual, lags), result.initial, controller is not None,
                       signals.output, signals.input if controller is None else signals.reference)
 
@@ -281,7 +366,8 @@ def validation_document(result: Validation, recording_path: str) -> dict[str, An
                       "values": result.spec.values, "values_from": result.spec.source},
             "recording": recording_path, "loop": "closed" if result.closed_loop else "open",
             "output": result.output, "input": result.input, "samples": int(result.time.size),
-            "fit_percent": result.fit_percent, "rms": result.rms, "initial_states": result.initial,
+            "fit_percent": result.fit_percent, "rms": result.rms, "rms_definition": RMS_DEFINITION,
+            "initial_states": result.initial,
             "confidence": CONFIDENCE, "residual_autocorrelation": result.autocorrelation.as_dict(),
             "input_residual_cross_correlation": result.cross_correlation.as_dict()}
 

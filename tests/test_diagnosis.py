@@ -282,3 +282,32 @@ def test_declared_units_are_read_as_identify_joint_reads_them(small_bundle, tmp_
     np.testing.assert_allclose(converted["q"], original["q"], rtol=1e-12, atol=1e-15)
     np.testing.assert_allclose(converted["r"], original["r"], rtol=1e-12, atol=1e-15)
     assert any("'q' converted from mm to m" in note for note in converted.meta["metadata"]["unit_notes"])
+
+
+def test_validate_reads_what_diagnose_writes(small_bundle, diagnosed, tmp_path, capsys):
+    """Issue 23 item 7: motiontwin validate takes diagnose's output folder, its Augmented.fmu alone (the Modelica
+    source found beside it) and the FMU with --modelica .../Augmented.mo (read with the plant file beside it);
+    all three are the same model, and its validation RMS is the one diagnosis.json reports, to the difference in
+    the initial-state estimate."""
+    from motiontwin.cli import main as cli
+
+    out, code = diagnosed
+    assert code == 0
+    fmu = out / "fmu" / "fmi2" / "Augmented.fmu"
+    recording, controller = small_bundle / "validation.csv", small_bundle / "experiment.json"
+    rms = []
+    for k, model in enumerate(([str(out)], [str(fmu)],
+                               [str(fmu), "--modelica", str(out / "augmented_model" / "Augmented.mo")])):
+        doc = tmp_path / f"val{k}.json"
+        assert cli(["validate", *model, str(recording), "--controller", str(controller), "--out", str(doc)]) == 0, \
+            capsys.readouterr().err
+        rms.append(json.loads(doc.read_text())["rms"])
+    assert rms[1] == rms[0] and rms[2] == rms[0]
+    reported = json.loads((out / "diagnosis.json").read_text())["validation"]["augmented_rms"]
+    assert rms[0] == pytest.approx(reported, rel=0.05)
+    lone = tmp_path / "lone"
+    lone.mkdir()
+    shutil.copy(fmu, lone)
+    assert cli(["validate", str(lone / "Augmented.fmu"), str(recording), "--controller", str(controller)]) == 1
+    err = capsys.readouterr().err
+    assert "class 'Augmented' not found" in err and "augmented_model/NAME.mo" in err and "--modelica" in err

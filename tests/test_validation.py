@@ -13,7 +13,7 @@ import scipy.signal as sps
 
 from motiontwin.cli import main
 from motiontwin.fmus import build
-from motiontwin.harness.recording import make_recording, write_recording
+from motiontwin.harness.recording import make_recording, read_recording, write_recording
 from motiontwin.ident import validation
 from motiontwin.ident.controller import Controller, controller_document
 
@@ -91,23 +91,32 @@ def test_fmu_model_from_its_start_values(tmp_path):
     assert result.autocorrelation.passed
 
 
-def test_closed_loop_resimulation_reproduces_an_independent_loop(tmp_path):
+def closed_loop_data(m: float, d: float, noise: float = 0.0, u_ext: float = 0.0):
+    """A sampled PD loop (numpy) around the exact ZOH plant; the controller sees q + noise, u holds u_ext."""
     kp, kd, tau = 2e4, 300.0, 1e-3
-    a, b, c, d, _ = sps.cont2discrete(tuple(np.array([[v]]) for v in (-1 / tau, 1.0, -kd / tau ** 2, kp + kd / tau)),
-                                      TS, "bilinear")
-    ctrl = Controller(TS, np.atleast_2d(a), np.hstack([b, -b]), np.atleast_2d(c), np.hstack([d, -d]))
+    a, b, c, dd, _ = sps.cont2discrete(tuple(np.array([[v]]) for v in (-1 / tau, 1.0, -kd / tau ** 2,
+                                                                       kp + kd / tau)), TS, "bilinear")
+    ctrl = Controller(TS, np.atleast_2d(a), np.hstack([b, -b]), np.atleast_2d(c), np.hstack([dd, -dd]))
     t = np.arange(N) * TS
     r = 1e-3 * np.sin(2 * np.pi * 2 * t) + 5e-4 * np.sin(2 * np.pi * 7 * t)
-    ad, bd = zoh_plant(2.6, 14.0)
+    ext = u_ext * np.sin(2 * np.pi * 13 * t)
+    n = noise * np.random.default_rng(5).standard_normal(N)
+    ad, bd = zoh_plant(m, d)
     x, z = np.zeros(2), np.zeros(1)
     q, u = np.zeros(N), np.zeros(N)
     for k in range(N):
-        y = np.array([r[k], x[0]])
-        q[k], u[k] = x[0], (ctrl.C @ z + ctrl.D @ y).item()
+        y = np.array([r[k], x[0] + n[k]])
+        q[k], u[k] = x[0] + n[k], (ctrl.C @ z + ctrl.D @ y).item() + ext[k]
         z = ctrl.A @ z + ctrl.B @ y
         x = ad @ x + bd * u[k]
+    return ctrl, {"r": r, "u": u, "q": q, "u_ext": ext}
+
+
+def test_closed_loop_resimulation_reproduces_an_independent_loop(tmp_path):
+    ctrl, columns = closed_loop_data(2.6, 14.0)
+    del columns["u_ext"]
     path = tmp_path / "loop.csv"
-    write_recording(path, make_recording(t, {"r": r, "u": u, "q": q}, sample_time=TS))
+    write_recording(path, make_recording(np.arange(N) * TS, columns, sample_time=TS))
     controller = tmp_path / "ctrl.json"
     controller.write_text(json.dumps(controller_document(ctrl)))
     out = tmp_path / "val.json"
@@ -128,3 +137,53 @@ def test_bad_input_is_one_message(tmp_path, capsys):
                                                                     np.zeros((1, 0)), np.array([[1e4, -1e4]])))))
     assert main(["validate", "-", str(path), "--class", CLASS, "--controller", str(controller)]) == 1
     assert "required column 'r' missing" in capsys.readouterr().err
+
+
+def test_identify_oe_and_validate_report_one_rms(tmp_path, capsys):
+    """Issue 23 item 6: identify oe and validate of the model it returns, on the same closed-loop recording (with
+    u_ext and encoder noise), print and write the same RMS output error; it is the RMS of measured minus the
+    validate re-simulation, recomputed here from that re-simulation."""
+    ctrl, columns = closed_loop_data(2.6, 14.0, noise=2e-7, u_ext=20.0)
+    path = tmp_path / "loop.csv"
+    write_recording(path, make_recording(np.arange(N) * TS, columns, sample_time=TS))
+    controller = tmp_path / "ctrl.json"
+    controller.write_text(json.dumps(controller_document(ctrl)))
+    fitted, checked = tmp_path / "oe.json", tmp_path / "val.json"
+    assert main(["identify", "oe", str(path), "--class", CLASS, "--free", "m,d", "--set", "m=2", "--set", "d=10",
+                 "--controller", str(controller), "--out", str(fitted)]) == 0
+    printed_oe = capsys.readouterr().out
+    assert main(["validate", str(fitted), str(path), "--controller", str(controller), "--out", str(checked)]) == 0
+    printed_val = capsys.readouterr().out
+    oe, val = json.loads(fitted.read_text()), json.loads(checked.read_text())
+    assert oe["parameters"]["m"] == pytest.approx(2.6, rel=1e-3)
+    assert val["rms"] == pytest.approx(oe["rms_output_error"], rel=1e-9)
+    assert 1e-7 < val["rms"] < 4e-7                      # about the encoder noise, 2e-7
+    line = f"RMS output error {val['rms']:.4g} m ({validation.RMS_DEFINITION}"
+    assert line in printed_oe and line in printed_val
+    assert "columns r, u_ext -> q, u only checked; channel check: u = controller(r, q) + u_ext within noise" \
+        in printed_val
+    spec = validation.load_model_spec(fitted)
+    again = validation.validate(build.load_model(CLASS), spec, read_recording(path, ["r", "u", "q"]), controller=ctrl)
+    assert np.sqrt(np.mean((again.measured - again.simulated) ** 2)) == pytest.approx(oe["rms_output_error"],
+                                                                                       rel=1e-9)
+
+
+def test_parameter_on_its_bound_prints_at_bound(tmp_path, capsys):
+    """A negative true damping: the fit holds d on its Modelica minimum 0; the table says "at bound", the JSON has
+    no std for d, and m's std is that of a fit with d fixed at 0 (the conditional statistics)."""
+    t, u, q, noise = open_loop_data(2.6, -0.5)
+    path = tmp_path / "run.csv"
+    write_recording(path, make_recording(t, {"q": q + noise, "u": u}, sample_time=TS))
+    both, alone = tmp_path / "both.json", tmp_path / "alone.json"
+    assert main(["identify", "oe", str(path), "--class", CLASS, "--free", "m,d", "--set", "m=2", "--set", "d=1",
+                 "--initial", "rest", "--out", str(both)]) == 0
+    printed = capsys.readouterr().out
+    row = next(line for line in printed.splitlines() if line.split()[:1] == ["d"])
+    assert "at bound 0" in row and "e+" not in row, printed
+    doc = json.loads(both.read_text())
+    assert doc["at_bound"] == {"d": 0.0} and doc["std"]["d"] is None and doc["parameters"]["d"] == pytest.approx(0)
+    assert main(["identify", "oe", str(path), "--class", CLASS, "--free", "m", "--set", "m=2", "--set", "d=0",
+                 "--initial", "rest", "--out", str(alone)]) == 0
+    ref = json.loads(alone.read_text())
+    assert doc["parameters"]["m"] == pytest.approx(ref["parameters"]["m"], rel=1e-6)
+    assert doc["std"]["m"] == pytest.approx(ref["std"]["m"], rel=1e-3)

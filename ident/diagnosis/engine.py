@@ -10,8 +10,10 @@ from typing import Callable
 
 from motiontwin.harness.recording import Recording
 from motiontwin.ident.controller import Controller
+from motiontwin.ident import channels
 from motiontwin.ident.diagnosis import pipeline
-from motiontwin.ident.diagnosis.bundle import Bundle, make_bundle, read_bundle
+from motiontwin.ident.diagnosis.bundle import Bundle, BundleError, make_bundle, read_bundle
+from motiontwin.ident.oeloop import Signals, axis_signals
 
 #: one diagnosis at a time per process: CasADi's symbolic layer is not thread-safe (see :func:`diagnose`)
 _CASADI_LOCK = threading.Lock()
@@ -52,11 +54,25 @@ def diagnose(plant: str | Path, controller: Controller | dict, train: Recording,
 
 def diagnose_bundle_object(bundle: Bundle, progress: Callable[[str], None] | None = None
                            ) -> pipeline.Diagnosis | pipeline.MultiAxisDiagnosis:
-    """:func:`diagnose` of an already read :class:`Bundle` (working files in a temporary folder)."""
+    """:func:`diagnose` of an already read :class:`Bundle` (working files in a temporary folder); refused
+    (:class:`BundleError`) when a recording's u is not controller(r, q) + u_ext (:func:`check_bundle_channels`)."""
+    check_bundle_channels(bundle)
     with _CASADI_LOCK, tempfile.TemporaryDirectory(prefix="motiontwin-diagnosis-") as tmp:
         if bundle.multi_axis:
             return pipeline.MultiAxisDiagnosis.from_result(pipeline.run_axes(bundle, Path(tmp), progress))
         return pipeline.Diagnosis.from_result(pipeline.run(bundle, Path(tmp), progress))
+
+
+def check_bundle_channels(bundle: Bundle) -> None:
+    """Raise :class:`BundleError` naming the recording file and the likely cause when its u is not
+    controller(r, q) + u_ext beyond noise (:mod:`ident.channels`)."""
+    signals = ([axis_signals(a.input, a.output) for a in bundle.plant.axes] if bundle.multi_axis
+               else [Signals()])
+    for part, rec in (("train", bundle.train), ("validation", bundle.validation)):
+        problem = channels.channel_problem(rec, bundle.controller, signals)
+        if problem:
+            raise BundleError(f"{bundle.recording_path(part)}: {problem}. Fix the column (unit, sign, time shift) "
+                              "before diagnosing: a wrong channel would be taken for missing physics")
 
 
 def diagnose_bundle(bundle_dir: str | os.PathLike, out_dir: str | os.PathLike, progress=None) -> dict:

@@ -17,7 +17,10 @@ def register(sub: argparse._SubParsersAction) -> None:
 
     p = sub.add_parser("diagnose", help="locate and name the physics a recording shows and the model lacks; "
                                         "refit, rebuild the FMU, validate",
-                       description="Diagnose the mismatch between a nominal model and closed-loop recordings.",
+                       description="Diagnose the mismatch between a nominal model and closed-loop recordings.\n"
+                                   "Before any fit each recording's u is checked against controller(r, q) + u_ext\n"
+                                   "(ident.channels); a mismatch beyond noise is refused (exit 2) naming the file\n"
+                                   "and the likely cause (gain or unit factor, sign, delay, u_ext scaled or missing).",
                        epilog=BUNDLE_FORMAT, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("bundle", type=Path, help="bundle folder with experiment.json, plant .mo, train/validation CSV")
     p.add_argument("--out", type=Path, required=True, help="output folder (diagnosis.json, report.md, FMU, ...)")

@@ -160,7 +160,7 @@ def _identify_oe(args: argparse.Namespace) -> int:
 
     from motiontwin.fmus import build
     from motiontwin.harness.recording import atomic_write_texts, read_recording
-    from motiontwin.ident import startvalues
+    from motiontwin.ident import startvalues, validation
     from motiontwin.ident.controller import load_controller
     from motiontwin.ident.outputerror import Signals, identify
 
@@ -179,19 +179,29 @@ def _identify_oe(args: argparse.Namespace) -> int:
     print(stats.summary())
     multiple = args.shooting == "multiple"
     how = f"multiple shooting, {args.segments} segments" if multiple else "single shooting"
-    print(f"RMS output error {result.fit.rms_q:.4g}; {'closed' if controller else 'open'} loop, "
-          f"{result.loop.substeps} RK4 substeps per sample, {how}")
+    scored = validation.free_run(model, result.fit.values, rec, controller=controller, signals=signals,
+                                 initial=args.initial)
+    print(f"RMS output error {scored.rms_q:.4g} {rec.units.get(signals.output, '')} "
+          f"({validation.RMS_DEFINITION}; validate of --out on this recording prints the same); "
+          f"{'closed' if controller else 'open'} loop, {result.loop.substeps} RK4 substeps per sample, {how}")
     if args.out:
         solver = f"multiple shooting ({args.segments} segments, IPOPT, " if multiple else "single shooting ("
         method = (f"output-error refit, CasADi {solver}RK4, AD Jacobian), "
                   f"{'closed loop' if controller else 'open loop'}")
+
+        def number(v: float) -> float | None:
+            return float(v) if np.isfinite(v) else None
+
         doc = {"method": method, "recording": str(args.recording), "modelica": str(args.modelica),
                "class": args.class_name, "parameters": stats.as_dict(),
-               "std": dict(zip(stats.names, stats.std.tolist())), "names": stats.names,
-               "std_hac": {n: (float(v) if np.isfinite(v) else None) for n, v in zip(stats.names, stats.robust_std)},
+               "fixed_parameters": {k: v for k, v in result.fit.values.items() if k not in stats.names},
+               "initial": args.initial, "std": {n: number(v) for n, v in zip(stats.names, stats.std)},
+               "names": stats.names, "at_bound": stats.at_bound,
+               "std_hac": {n: number(v) for n, v in zip(stats.names, stats.robust_std)},
                "hac_lags": stats.robust_lags,
                "covariance": stats.covariance.tolist(), "correlation_condition": stats.correlation_condition,
-               "rms_output_error": result.fit.rms_q, "converged": result.fit.success}
+               "rms_output_error": scored.rms_q, "rms_definition": validation.RMS_DEFINITION,
+               "converged": result.fit.success}
         atomic_write_texts({args.out: json.dumps(doc, indent=2) + "\n"})
         print(args.out)
     return 0
@@ -381,7 +391,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     q.add_argument("--out", type=Path, default=None, help="JSON in the CheungJoint FMU's parameter names")
     q.set_defaults(func=_identify_frf, output_files=("out",))
     q = kinds.add_parser("oe", help="output-error refit of any Modelica plant's parameters (CasADi free run of the "
-                                    "equations the FMU is built from; closed loop with --controller)")
+                                    "equations the FMU is built from; closed loop with --controller)",
+                         description="Output-error refit. The RMS output error printed (and rms_output_error in "
+                                     "--out) is that of the returned model's free run along the recording, its "
+                                     "initial position and velocity estimated from the output alone (start as "
+                                     "--initial says): the number motiontwin validate prints for --out on the same "
+                                     "recording (one definition, ident.validation.free_run). A parameter that "
+                                     "ends on a bound is printed 'at bound' with no std (the others' statistics "
+                                     "are conditional on it).")
     q.add_argument("recording", type=Path, help="recording CSV, uniformly sampled")
     q.add_argument("--modelica", type=Path, default=MODELICA_DIR, help="Modelica library folder or .mo file")
     q.add_argument("--class", dest="class_name", required=True,

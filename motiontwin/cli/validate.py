@@ -9,9 +9,8 @@ def _validate(args: argparse.Namespace) -> int:
     import json
 
     from motiontwin.cli.arguments import name_values
-    from motiontwin.fmus import build
     from motiontwin.harness.recording import atomic_write_texts, read_recording
-    from motiontwin.ident import validation
+    from motiontwin.ident import channels, validation
     from motiontwin.ident.controller import load_controller
     from motiontwin.ident.outputerror import Signals
 
@@ -24,14 +23,23 @@ def _validate(args: argparse.Namespace) -> int:
     signals = Signals(output=args.output, input=args.input, reference=args.reference)
     required = [signals.output, signals.input] + ([signals.reference] if controller else [])
     rec = read_recording(args.recording, required)
-    model = build.load_model(spec.class_name, spec.modelica)
+    model = validation.load_model(spec)
     result = validation.validate(model, spec, rec, controller=controller, signals=signals, lags=args.lags,
-                                 estimate_initial=not args.initial_from_data)
+                                 estimate_initial=not args.initial_from_data, initial=args.initial)
     auto, cross = result.autocorrelation, result.cross_correlation
+    ext = f" + {signals.disturbance}" if signals.disturbance in rec.columns else ""
     print(f"{spec.class_name} ({spec.source}) on {args.recording}, {'closed' if controller else 'open'} loop, "
           f"{result.time.size} samples")
-    print(f"fit {result.fit_percent:.3f} % (NRMSE), RMS error {result.rms:.4g} {rec.units.get(signals.output, '')}"
+    print(f"fit {result.fit_percent:.3f} % (NRMSE), RMS output error {result.rms:.4g} "
+          f"{rec.units.get(signals.output, '')} ({validation.RMS_DEFINITION})"
           + "".join(f", {k}(t0) = {v:.6g}" for k, v in result.initial.items()))
+    if controller:
+        problem = channels.channel_problem(rec, controller, signals)
+        fed = f"{signals.reference}{', ' + signals.disturbance if ext else ''}"
+        print(f"columns {fed} -> {signals.output}, {signals.input} only checked; channel check: "
+              + (problem or f"{signals.input} = controller({signals.reference}, {signals.output}){ext} within noise"))
+    else:
+        print(f"columns {signals.input} -> {signals.output}")
     print(f"residual autocorrelation, lags 1..{args.lags}: Q = {auto.statistic:.2f} vs 99 % limit "
           f"{auto.threshold:.2f}: {'white' if auto.passed else 'NOT white'}; {len(auto.outside)} lags outside "
           f"the 99 % band +-{auto.band:.3g}")
@@ -53,26 +61,40 @@ def register(sub: argparse._SubParsersAction) -> None:
     """Add ``validate`` to the ``motiontwin`` parser."""
     p = sub.add_parser("validate", help="re-simulate a fitted model on a new recording: fit %%, RMS, residual "
                                         "auto/cross-correlation tests, plot (like SITB compare/resid)",
-                       description="MODEL is a values JSON (identify oe --out), an FMU (writeback, diagnose: "
-                                   "modelName and parameter start values), or '-' with --class. The model is "
-                                   "re-simulated with the output-error free run (ident.outputerror), open loop from "
-                                   "the measured input or closed loop with --controller; only the initial position "
-                                   "and velocity are estimated. See ident/validation.py for the tests.")
-    p.add_argument("model", help="values JSON, FMU, or '-' (then --class)")
+                       description="MODEL is a values JSON (identify oe --out), an FMU (writeback, or the "
+                                   "Augmented.fmu diagnose writes: modelName and parameter start values; its "
+                                   "Modelica source is found next to it as NAME.mo or augmented_model/NAME.mo, "
+                                   "else in the library, else give --modelica), the output folder of diagnose "
+                                   "(its FMU and augmented_model/), or '-' with --class. The model is "
+                                   "re-simulated with the output-error free run (ident.outputerror): open loop "
+                                   "from the --input column (default u) to the --output column (default q); "
+                                   "closed loop with --controller from the --reference column (default r) and, "
+                                   "when recorded, u_ext added to the controller's force, u then only checked "
+                                   "against controller(r, q) + u_ext (the channel check line, ident.channels). "
+                                   "Only the initial position and velocity are estimated, from the output alone. "
+                                   "The RMS output "
+                                   "error is the one identify oe prints for the model it returns (same free run, "
+                                   "same initial-state estimate: ident.validation.free_run). See "
+                                   "ident/validation.py for the tests.")
+    p.add_argument("model", help="values JSON, FMU, diagnose output folder, or '-' (then --class)")
     p.add_argument("recording", type=Path, help="recording CSV, uniformly sampled (a different one than fitted on)")
     p.add_argument("--class", dest="class_name", default=None, help="Modelica class (default: the model file's)")
     p.add_argument("--modelica", type=Path, default=None,
-                   help="Modelica library folder or .mo file of the class (default: the JSON's, else the library)")
+                   help="Modelica library folder or .mo file of the class (a file is read with the .mo files "
+                        "beside it; default: the JSON's, the FMU's neighbour, else the library)")
     p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE", help="override a parameter value")
     p.add_argument("--controller", type=Path, default=None,
                    help="closed loop: controller JSON (discrete_state_space, or a library controller by name)")
-    p.add_argument("--input", default="u", help="plant input column (default u)")
+    p.add_argument("--input", default="u", help="plant input column (default u; closed loop: checked only)")
     p.add_argument("--output", default="q", help="plant output column (default q)")
     p.add_argument("--reference", default="r", help="reference column in closed loop (default r)")
     p.add_argument("--lags", type=int, default=25, help="correlation lags M (default 25, as SITB resid)")
+    p.add_argument("--initial", choices=("samples", "rest"), default=None,
+                   help="start of the initial-state estimate, as identify oe --initial (default: the values "
+                        "JSON's, else samples)")
     p.add_argument("--initial-from-data", action="store_true",
-                   help="start at the first sample at rest instead of estimating the initial position "
-                        "and velocity")
+                   help="do not estimate the initial position and velocity: start at the first sample (velocity "
+                        "as --initial says)")
     p.add_argument("--out", type=Path, default=None, help="JSON with fit %%, RMS and both tests")
     p.add_argument("--plot", type=Path, default=None, help="PNG: compare plot and the two correlation plots")
     p.set_defaults(func=_validate)

@@ -1,0 +1,164 @@
+"""Channel check of a closed-loop recording: is the recorded force u what the known controller commands,
+u = controller(r, q) + u_ext? Run before any fit, so that a channel in the wrong unit, with the wrong sign or
+shifted in time is named instead of being absorbed into a wrong model.
+
+The sampled controller (:class:`ident.controller.Controller`) is run on the recorded r and q: its forced
+response p_k (zero initial state) and its free response rows G_k = C A^k, so that the prediction is
+p_k + G_k z_0 + u_ext_k with the unknown initial controller state z_0 (an integrator holding a load at t = 0)
+fitted by least squares. The nominal mismatch is the RMS of u - p - G z_0 - u_ext. The hypotheses fitted
+beside it, each by linear least squares at each delay d = -``MAX_DELAY``..``MAX_DELAY`` samples, are
+u_{k} = a p_{k-d} + c u_ext_{k-d} + G_{k-d} z_0: a gain or unit factor (a = c != 1), a sign flip (a = -1),
+a controller gain (a != 1, c = 1), a scaled, reversed or missing u_ext (c != 1, c = -1, c = 0) and a delay of
+d samples. The recording is consistent when the nominal mismatch is within ``RELATIVE_TOLERANCE`` of the RMS of
+u (round-off, quantisation), or within ``NOISE_FACTOR`` times the best hypothesis's residual (no hypothesis
+explains it: taken as noise) and below ``UNEXPLAINED_SHARE`` of the RMS of u (a larger force that nothing
+explains is no recording noise: a missing u_ext or another controller). Units: those of the recording (u and
+u_ext in one force unit).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from motiontwin.harness.recording import Recording
+from motiontwin.ident.controller import Controller
+from motiontwin.ident.oeloop import Signals
+
+__all__ = ["ChannelCheck", "check_channels", "channel_problem", "MAX_DELAY", "NOISE_FACTOR",
+           "RELATIVE_TOLERANCE", "UNEXPLAINED_SHARE"]
+
+MAX_DELAY = 10            # samples searched either way
+NOISE_FACTOR = 3.0        # nominal RMS mismatch over the best hypothesis's residual RMS
+RELATIVE_TOLERANCE = 1e-3  # of the RMS of u: below it the channels agree whatever the hypotheses say
+UNEXPLAINED_SHARE = 0.1   # of the RMS of u: an unexplained mismatch above it is refused
+COEFFICIENT_TOLERANCE = 0.01   # |a - 1|, |c - 1| below it: that factor is 1
+
+
+@dataclass(frozen=True)
+class ChannelCheck:
+    """One axis: RMS of u, the nominal mismatch u - controller(r, q) - u_ext, the best hypothesis (delay
+    [samples], factor ``gain`` on controller(r, q), factor ``ext_gain`` on u_ext (None: u_ext is zero)) and its
+    residual RMS, the verdict and, when inconsistent, the likely cause in words."""
+
+    force: str
+    rms_u: float
+    mismatch: float
+    residual: float
+    delay: int
+    gain: float
+    ext_gain: float | None
+    consistent: bool
+    cause: str
+
+
+def _controller_responses(ctrl: Controller, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Forced response p (outputs x N) from z_0 = 0 and free-response rows G (outputs x N x states)."""
+    n = y.shape[1]
+    n_out, n_z = ctrl.C.shape[0], ctrl.A.shape[0]
+    p = np.zeros((n_out, n))
+    g = np.zeros((n_out, n, n_z))
+    z, power = np.zeros(n_z), np.eye(n_z)
+    for k in range(n):
+        p[:, k] = ctrl.C @ z + ctrl.D @ y[:, k]
+        g[:, k, :] = ctrl.C @ power
+        z = ctrl.A @ z + ctrl.B @ y[:, k]
+        power = ctrl.A @ power
+    return p, g
+
+
+def _lstsq(columns: np.ndarray, target: np.ndarray) -> tuple[np.ndarray, float]:
+    """Least squares with column scaling; returns coefficients and the residual RMS."""
+    if columns.shape[1] == 0:
+        return np.zeros(0), float(np.sqrt(np.mean(target ** 2)))
+    norms = np.linalg.norm(columns, axis=0)
+    norms[norms == 0] = 1.0
+    coef = np.linalg.lstsq(columns / norms, target, rcond=1e-12)[0] / norms
+    return coef, float(np.sqrt(np.mean((target - columns @ coef) ** 2)))
+
+
+def _shifted(delay: int, n: int) -> tuple[slice, slice]:
+    """Index ranges of u and of the prediction when u lags the prediction by ``delay`` samples."""
+    return (slice(delay, n), slice(0, n - delay)) if delay >= 0 else (slice(0, n + delay), slice(-delay, n))
+
+
+def _near(value: float, target: float) -> bool:
+    return abs(value - target) <= COEFFICIENT_TOLERANCE * max(1.0, abs(target))
+
+
+def _unexplained(has_ext: bool, disturbance: str) -> str:
+    if not has_ext:
+        return (f"a missing {disturbance}: u holds a force controller(r, q) does not command and no gain, sign or "
+                f"delay explains (record the added disturbance force as column {disturbance})")
+    return (f"none of gain, sign, delay, {disturbance} scale explains it: part of {disturbance} missing, or not "
+            "the controller that ran?")
+
+
+def _cause(delay: int, a: float, c: float | None, ts: float, disturbance: str) -> str:
+    """The hypothesis that explains the mismatch, in words."""
+    parts = []
+    if delay:
+        parts.append(f"a delay of {abs(delay)} sample{'s' if abs(delay) > 1 else ''} ({abs(delay) * ts * 1e3:.3g} ms): "
+                     f"u {'lags' if delay > 0 else 'leads'} controller(r, q) + {disturbance}")
+    if c is not None and not _near(a, 1) and abs(a - c) <= COEFFICIENT_TOLERANCE * max(abs(a), abs(c)):
+        parts.append("a sign flip of u: u = -(controller(r, q) + u_ext)" if _near(a, -1) else
+                     f"a gain or unit factor on u: u = {a:.4g} * (controller(r, q) + {disturbance})")
+    else:
+        if not _near(a, 1):
+            parts.append("a sign flip: u = -controller(r, q) + u_ext" if _near(a, -1) else
+                         f"a gain or unit factor: u = {a:.4g} * controller(r, q) + {disturbance}")
+        if c is not None and not _near(c, 1):
+            if abs(c) <= COEFFICIENT_TOLERANCE:
+                parts.append(f"{disturbance} is not in u (u holds controller(r, q) alone)")
+            elif _near(c, -1):
+                parts.append(f"{disturbance} has the wrong sign: u = controller(r, q) - {disturbance}")
+            else:
+                parts.append(f"{disturbance} is scaled by {c:.4g}: u = controller(r, q) + {c:.4g} * {disturbance} "
+                             f"({disturbance} in another unit, e.g. volts instead of the force unit?)")
+    return "; ".join(parts) or _unexplained(c is not None, disturbance)
+
+
+def _check_axis(u: np.ndarray, e: np.ndarray, p: np.ndarray, g: np.ndarray, ts: float,
+                sig: Signals) -> ChannelCheck:
+    n = u.size
+    rms_u = float(np.sqrt(np.mean(u ** 2)))
+    has_ext = bool(np.any(e))
+    _, mismatch = _lstsq(g, u - p - e)
+    best = (np.inf, 0, 1.0, None)
+    for delay in range(-MAX_DELAY, MAX_DELAY + 1):
+        iu, ip = _shifted(delay, n)
+        columns = np.column_stack([p[ip]] + ([e[ip]] if has_ext else []) + [g[ip]])
+        coef, rms = _lstsq(columns, u[iu])
+        if rms < best[0]:
+            best = (rms, delay, float(coef[0]), float(coef[1]) if has_ext else None)
+    residual, delay, a, c = best
+    explained = mismatch > NOISE_FACTOR * residual
+    consistent = mismatch <= RELATIVE_TOLERANCE * rms_u or (not explained and mismatch <= UNEXPLAINED_SHARE * rms_u)
+    cause = "" if consistent else (_cause(delay, a, c, ts, sig.disturbance) if explained
+                                   else _unexplained(has_ext, sig.disturbance))
+    return ChannelCheck(sig.input, rms_u, mismatch, residual, delay, a, c, consistent, cause)
+
+
+def check_channels(rec: Recording, controller: Controller,
+                   signals: Signals | list[Signals] | tuple[Signals, ...] = Signals()) -> list[ChannelCheck]:
+    """Check u = controller(r, q) + u_ext on ``rec``, one :class:`ChannelCheck` per axis (``signals`` one per
+    axis; the controller maps [r_1..r_n, q_1..q_n] to [u_1..u_n]). An absent u_ext column counts as zero."""
+    channels = [signals] if isinstance(signals, Signals) else list(signals)
+    missing = [c for s in channels for c in (s.reference, s.output, s.input) if c not in rec.columns]
+    if missing:
+        raise KeyError(f"recording has no column {', '.join(map(repr, missing))} (columns: {', '.join(rec.columns)})")
+    y = np.vstack([rec[s.reference] for s in channels] + [rec[s.output] for s in channels])
+    p, g = _controller_responses(controller, y)
+    zero = np.zeros_like(rec.time)
+    return [_check_axis(rec[s.input], rec[s.disturbance] if s.disturbance in rec.columns else zero, p[i], g[i],
+                        controller.Ts, s) for i, s in enumerate(channels)]
+
+
+def channel_problem(rec: Recording, controller: Controller,
+                    signals: Signals | list[Signals] | tuple[Signals, ...] = Signals()) -> str | None:
+    """None when every axis is consistent, else one sentence per inconsistent axis with its likely cause."""
+    problems = [f"column {c.force!r} does not match controller(r, q) + u_ext: RMS mismatch {c.mismatch:.3g} "
+                f"({100 * c.mismatch / max(c.rms_u, 1e-300):.3g} % of the RMS of {c.force}), {c.residual:.3g} left "
+                f"by the best explanation; likely cause: {c.cause}"
+                for c in check_channels(rec, controller, signals) if not c.consistent]
+    return "; ".join(problems) or None

@@ -1,0 +1,73 @@
+"""Channel check (ident.channels, issue 23 item 5): u = controller(r, q) + u_ext before any fit.
+
+Reference: a benchmark bundle whose u the generator computed as controller(r, q_measured) + u_ext in its own
+closed-loop simulation; each wrong channel is made from it by a known transformation (u_ext in volts = force/20,
+u with its sign flipped, u shifted by 2 samples, u_ext left out of u), so the right answer is known. A correct
+bundle must pass, with and without extra white noise on u.
+"""
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from motiontwin.harness.recording import make_recording, read_recording, write_recording
+from motiontwin.ident.benchmarks import single_axis as bench
+from motiontwin.ident.channels import channel_problem, check_channels
+from motiontwin.ident.controller import load_controller
+from motiontwin.ident.diagnosis import main
+
+
+@pytest.fixture(scope="module")
+def bundle(tmp_path_factory) -> Path:
+    folder = tmp_path_factory.mktemp("channels") / "bundle"
+    bench.write_bundle(folder, "gravity_offset", seed=3, durations=(1.5, 1.0), sweep_fraction=0.5)
+    return folder
+
+
+def _edited(rec, **columns):
+    cols = {k: rec[k] for k in rec.columns if k != "time"}
+    for name, value in columns.items():
+        if value is None:
+            cols.pop(name)
+        else:
+            cols[name] = value
+    return make_recording(rec.time, cols, sample_time=rec.sample_time)
+
+
+def test_each_wrong_channel_is_named_and_a_correct_one_passes(bundle):
+    ctrl = load_controller(bundle / "experiment.json")
+    rec = read_recording(bundle / "train.csv", ["r", "u", "q", "u_ext"])
+    u, e = rec["u"], rec["u_ext"]
+    assert np.max(np.abs(e)) > 1.0                 # the u_ext sweep is in the recording
+    assert channel_problem(rec, ctrl) is None
+    noisy = _edited(rec, u=u + 0.02 * np.random.default_rng(1).standard_normal(u.size))
+    assert channel_problem(noisy, ctrl) is None    # white noise on u is no mismatch
+    volts = check_channels(_edited(rec, u_ext=e / 20), ctrl)[0]
+    assert not volts.consistent and volts.ext_gain == pytest.approx(20, rel=1e-6) and volts.delay == 0
+    assert "u_ext is scaled by 20" in volts.cause
+    flipped = check_channels(_edited(rec, u=-u), ctrl)[0]
+    assert not flipped.consistent and "sign flip" in flipped.cause
+    late = check_channels(_edited(rec, u=np.r_[u[:2], u[:-2]]), ctrl)[0]
+    assert not late.consistent and late.delay == 2 and "delay of 2 samples" in late.cause
+    scaled = check_channels(_edited(rec, u=1.5 * u), ctrl)[0]
+    assert not scaled.consistent and scaled.gain == pytest.approx(1.5, rel=1e-6) and "1.5 *" in scaled.cause
+    without = check_channels(_edited(rec, u=u - e), ctrl)[0]
+    assert not without.consistent and "u_ext is not in u" in without.cause
+    missing = check_channels(_edited(rec, u_ext=None), ctrl)[0]
+    assert not missing.consistent and "missing u_ext" in missing.cause
+
+
+def test_diagnose_refuses_a_disturbance_channel_in_volts(bundle, tmp_path, capsys):
+    wrong = tmp_path / "volts"
+    shutil.copytree(bundle, wrong)
+    for part in ("train", "validation"):
+        rec = read_recording(wrong / f"{part}.csv", ["r", "u", "q", "u_ext"])
+        write_recording(wrong / f"{part}.csv", _edited(rec, u_ext=rec["u_ext"] / 20))
+    out = tmp_path / "out"
+    assert main([str(wrong), "--out", str(out), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert str(wrong / "train.csv") in err and "u_ext is scaled by 20" in err and err.count("\n") == 1
+    assert not out.exists()
