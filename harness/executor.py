@@ -10,7 +10,7 @@ finish (a failed run as a :class:`RunFailed`, plain data holding the error's mes
 each result at once; a run lost with a dead worker process is retried, at most ``retries`` times.
 
 * ``InProcessExecutor`` (default): a plain loop in this process.
-* ``ProcessPoolExecutor``: ``spawn``ed worker processes on this machine, each with private pipes, so a
+* ``ProcessPoolExecutor``: worker processes on this machine (started by ``spawn``), each with private pipes, so a
   worker killed at any instant cannot block the others or the caller (the standard library's pool shares a
   result queue whose lock a killed worker can take with it).
 * ``DaskExecutor``: a ``dask.distributed`` scheduler at ``scheduler`` ("tcp://host:8786"), or a

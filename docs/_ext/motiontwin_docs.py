@@ -10,7 +10,9 @@ they cannot drift from the code.
     it then and shows the output committed below a line ``----- committed output -----`` in the content
     instead (an example that takes minutes; the test suite runs its own smaller version). ``:hide-output:``
     runs without showing the output. A command that fails or exceeds ``:timeout:`` seconds (default 300) is a
-    build error.
+    build error. Pages are read in parallel with ``-j N`` (each page's commands write their own folders under
+    the examples folder: ``build/demo``, ``build/fmus``, ``build/lab``, ``build/ma``); the commands of one
+    page run in order.
 ``mt-schema``
     A JSON Schema file (path relative to the repository) as a table of its fields: path, type, required,
     constraints, description.
@@ -56,8 +58,10 @@ def work_dir(config) -> Path:
     folder = folder if folder.is_absolute() else ROOT / folder
     folder.mkdir(parents=True, exist_ok=True)
     venv = folder / ".venv"
-    if not venv.exists():
+    try:
         venv.symlink_to(Path(sys.prefix), target_is_directory=True)
+    except FileExistsError:  # made earlier, or by another reader process of a parallel (-j) build
+        pass
     return folder
 
 
@@ -203,4 +207,4 @@ def setup(app):
     app.add_directive("mt-run", RunDirective)
     app.add_directive("mt-schema", SchemaDirective)
     app.add_directive("mt-constant", ConstantDirective)
-    return {"version": "1", "parallel_read_safe": False, "parallel_write_safe": True}
+    return {"version": "1", "parallel_read_safe": True, "parallel_write_safe": True}
