@@ -12,7 +12,12 @@ from __future__ import annotations
 import csv
 import hashlib
 import json
+import os
 import shutil
+import signal
+import subprocess
+import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -160,3 +165,22 @@ def test_bad_fleet_arguments_name_the_path_or_option(bundles, tmp_path, capsys):
     with pytest.raises(fleet.FleetError, match="two bundles named 'axis_a'"):
         fleet.find_bundles([bundles, twin])
     assert fleet.is_fleet([bundles]) and not fleet.is_fleet([bundles / "axis_a"])
+
+
+def test_sigterm_marks_the_fleet_interrupted_and_leaves_no_temporary_files(bundles, tmp_path):
+    """A real fleet sent SIGTERM during its first diagnosis: exit 143, the resume hint, the manifest and summary
+    written with status "interrupted", no staging folder or half-written bundle left."""
+    out = tmp_path / "fleet"
+    proc = subprocess.Popen([sys.executable, "-m", "motiontwin", "diagnose", str(bundles), "--out", str(out),
+                             "--quiet"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 120
+    while not (out / fleet.MANIFEST).exists() and proc.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.02)
+    time.sleep(2.0)
+    assert proc.poll() is None, "the fleet ended too early"
+    os.kill(proc.pid, signal.SIGTERM)
+    _, err = proc.communicate(timeout=300)
+    assert proc.returncode == 143, err
+    assert err.strip().splitlines()[-1].endswith("(add --resume to continue)") and "Traceback" not in err
+    assert json.loads((out / fleet.MANIFEST).read_text())["status"] == "interrupted"
+    assert sorted(p.name for p in out.iterdir()) == [fleet.MANIFEST, "summary.csv", "summary.html"]

@@ -223,8 +223,9 @@ def run_fleet(paths: Sequence[str | os.PathLike], out: str | os.PathLike, execut
 
     def write_manifest(status: str) -> None:
         finished = [rows[n] for n in bundles if n in rows]
-        doc = {"format": MANIFEST_FORMAT, "version": 1, "fleet": [str(p) for p in paths], "executor": executor_name,
-               "status": status, "planned": len(bundles), "seconds": time.perf_counter() - t0, "bundles": finished,
+        doc = {"format": MANIFEST_FORMAT, "version": 1, "fleet": ", ".join(str(p) for p in paths),
+               "executor": executor_name, "status": status, "planned": len(bundles),
+               "seconds": time.perf_counter() - t0, "bundles": finished,
                "failed": [{"bundle": n, "source": str(bundles[n]), "error": e} for n, e in failed.items()]}
         texts: dict[Path, str] = {out / MANIFEST: json.dumps(doc, indent=2) + "\n"}
         if status != "running":

@@ -9,9 +9,11 @@ FLEET_OPTIONS = ("executor", "workers", "scheduler", "resume", "overwrite", "ret
 
 FLEET_HELP = """\
 fleet mode: several bundle folders, or a folder whose subfolders are bundles, are diagnosed on an executor
-(--executor inprocess|process|dask, --workers, --scheduler ADDRESS as for `motiontwin sweep`), each in its own
-process; OUT/NAME/ receives each bundle's results as it finishes, OUT/fleet.json the manifest (failures per
-bundle), OUT/summary.csv and OUT/summary.html one row per bundle; --resume keeps the bundles already committed.
+(--executor inprocess|process|dask, --workers, --scheduler ADDRESS as for `motiontwin sweep`; on a process
+pool or Dask each diagnosis runs in its own worker process). OUT/NAME/ receives each bundle's results as it
+finishes, OUT/fleet.json the manifest (failures per bundle), OUT/summary.csv and OUT/summary.html one row per
+bundle (effects, verdict, validation RMS and gain, seconds, status); --resume keeps the bundles already
+committed and verified, --overwrite replaces the fleet.
   motiontwin diagnose bundles/ --out fleet --executor dask --workers 2
 """
 
@@ -22,7 +24,8 @@ def _diagnose(args: argparse.Namespace) -> int:
     if fleet.is_fleet(args.bundle):
         args.resumable = True
         return _fleet(args)
-    given = [f"--{name}" for name in FLEET_OPTIONS if getattr(args, name) is not None and getattr(args, name) is not False]
+    values = {name: getattr(args, name) for name in FLEET_OPTIONS}
+    given = [f"--{name}" for name, value in values.items() if value is not None and value is not False]
     if given:
         raise ValueError(f"{', '.join(given)}: options of a fleet (several bundles or a folder of bundles); "
                          f"{args.bundle[0]} is one bundle")
