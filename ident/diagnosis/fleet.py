@@ -229,8 +229,8 @@ def run_fleet(paths: Sequence[str | os.PathLike], out: str | os.PathLike, execut
                "failed": [{"bundle": n, "source": str(bundles[n]), "error": e} for n, e in failed.items()]}
         texts: dict[Path, str] = {out / MANIFEST: json.dumps(doc, indent=2) + "\n"}
         if status != "running":
-            table = [{**rows[n], "status": "ok"} if n in rows else
-                     {"bundle": n, "status": "failed", "error": failed[n]} for n in bundles if n in rows or n in failed]
+            table = [{**rows[n], "status": "ok"} if n in rows else {"bundle": n, "status": "failed", "error": failed[n]}
+                     for n in bundles if n in rows or n in failed]
             texts[out / "summary.csv"], texts[out / "summary.html"] = summary_texts(table)
         atomic_write_texts(texts)
 
@@ -253,6 +253,7 @@ def run_fleet(paths: Sequence[str | os.PathLike], out: str | os.PathLike, execut
         return FleetOutcome(completed, resumed, failed, 0.0)
     executor = executor or InProcessExecutor()
     screen = None if isinstance(executor, InProcessExecutor) else 1   # the bundles share the cores, not the fits
-    jobs = [FleetJob(str(bundles[n]), str(out / n), allow_outside_paths, screen) for n in todo]
+    # absolute paths: a worker of a remote scheduler runs in another folder
+    jobs = [FleetJob(str(bundles[n].absolute()), str(out.absolute() / n), allow_outside_paths, screen) for n in todo]
     commit_each(executor, diagnose_job, jobs, retries, commit, fail, write_manifest)
     return FleetOutcome(completed, resumed, failed, time.perf_counter() - t0)
