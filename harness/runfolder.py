@@ -19,7 +19,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
-__all__ = ["RunFolder", "commit_each", "digest", "file_records", "tree_records", "MANIFEST_INTERVAL"]
+__all__ = ["RunFolder", "commit_each", "damage", "digest", "file_records", "tree_records", "MANIFEST_INTERVAL"]
 
 MANIFEST_INTERVAL = 0.5   # [s] least time between two manifest rewrites while runs complete
 #: atomic_write_texts' temporaries and backups
