@@ -151,6 +151,16 @@ def test_resume_keeps_committed_bundles(bundles, inprocess, tmp_path):
     assert "3 bundles: 2 diagnosed earlier, 1 to diagnose (inprocess)" in lines
     assert {name: (out / name / "diagnosis.json").stat().st_mtime_ns for name in GOOD} == before
     assert sorted(_summary(out)) == ["axis_a", "axis_b", "broken"]
+    # what resume would diagnose again: a committed output file changed, or the bundle's own files changed
+    row = next(r for r in json.loads((out / fleet.MANIFEST).read_text())["bundles"] if r["bundle"] == "axis_b")
+    hashes = {"axis_b": fleet.bundle_sha256(bundles / "axis_b")}
+    assert fleet._kept(out, hashes, row) is None
+    report = out / "axis_b" / "report.md"
+    report.write_text(report.read_text()[:-10])
+    assert fleet._kept(out, hashes, row) == f"axis_b/report.md is truncated ({report.stat().st_size} bytes, " \
+                                             f"{row['files']['axis_b/report.md']['bytes']} committed)"
+    assert fleet._kept(out, {"axis_b": fleet.bundle_sha256(bundles / "axis_a")}, row) == \
+        "its bundle's files changed since it was diagnosed"
 
 
 def test_bad_fleet_arguments_name_the_path_or_option(bundles, tmp_path, capsys):
