@@ -57,6 +57,7 @@ import numpy as np
 
 from .inputs import InputError, add_input_noise, resolve_input
 from .recording import atomic_write_texts, recording_texts, sidecar_path
+from .runfolder import RunFolder, commit_each, damage, file_records
 from .simulation import recording_from_log
 from .system import System, check_run_length, load_system
 
@@ -67,7 +68,6 @@ INPUT_PREFIX = "input."   # a [grid] key "input.r" sets the external input r to 
 MAX_RUNS = 10_000         # runs one sweep file may expand to (cases x grid x seeds)
 MANIFEST = "sweep.json"
 MANIFEST_FORMAT = "motiontwin-sweep"
-MANIFEST_INTERVAL = 0.5   # [s] least time between two manifest rewrites while runs complete
 _UNSAFE = re.compile(r"[^A-Za-z0-9._=+-]")
 
 
@@ -259,108 +259,24 @@ def _fingerprint(sweep: Sweep) -> str:
     return digest.hexdigest()
 
 
-def _read_manifest(out: Path) -> dict[str, Any] | None:
-    path = out / MANIFEST
-    if not path.exists():
-        return None
-    try:
-        doc = json.loads(path.read_text(encoding="utf-8"))
-    except json.JSONDecodeError as exc:
-        raise SweepError(f"{path}: line {exc.lineno}, column {exc.colno}: {exc.msg}; not a sweep manifest, "
-                         f"choose another --out") from None
-    if not isinstance(doc, dict) or not isinstance(doc.get("cases"), list):
-        raise SweepError(f"{path}: field 'cases' missing; not a sweep manifest, choose another --out")
-    return doc
+def _folder(out: Path) -> RunFolder:
+    return RunFolder(out, MANIFEST, "sweep", "case", SweepError)
 
 
-_STALE = re.compile(r"^\..+\.[0-9a-f]{32}\.(tmp|bak)$")   # atomic_write_texts' temporaries and backups
-
-
-def _digest(data: bytes) -> dict[str, Any]:
-    return {"bytes": len(data), "sha256": hashlib.sha256(data).hexdigest()}
-
-
-def _file_records(texts: dict[Path, str | bytes]) -> dict[str, dict[str, Any]]:
-    """File name -> size and sha256 of the bytes :func:`atomic_write_texts` writes for ``texts``."""
-    return {path.name: _digest(text if isinstance(text, bytes) else text.encode("utf-8"))
-            for path, text in texts.items()}
-
-
-def _damage(out: Path, row: dict[str, Any]) -> str | None:
-    """Why a run the manifest lists as finished cannot be kept (None if its files are as committed)."""
-    files = row.get("files")
-    if not isinstance(files, dict) or not files:
-        return "the manifest holds no size and checksum for its files"
-    for name, expected in files.items():
-        path = _inside(out, name)
-        if not path.is_file():
-            return f"{name} is missing"
-        data = path.read_bytes()
-        if len(data) != expected.get("bytes"):
-            kind = "truncated" if len(data) < expected.get("bytes", 0) else "changed"
-            return f"{name} is {kind} ({len(data)} bytes, {expected.get('bytes')} committed)"
-        if hashlib.sha256(data).hexdigest() != expected.get("sha256"):
-            return f"{name} differs from what was committed (sha256)"
-    return None
-
-
-def _remove_stale(out: Path, previous: dict[str, Any] | None, log: Callable[[str], None]) -> None:
-    """Remove the temporary files a killed sweep left in ``out`` and say so, with a "running" status."""
-    stale = sorted(p for p in out.iterdir() if _STALE.match(p.name))
-    for path in stale:
-        path.unlink()
-    if stale:
-        log(f"{out}: removed {len(stale)} temporary file(s) a killed sweep left: "
-            f"{', '.join(p.name for p in stale)}")
-    if previous is not None and previous.get("status") == "running":
-        log(f"{out}: the sweep there did not end (status 'running' in {MANIFEST}: its process was killed)")
+def _remove_case(out: Path, name: str) -> None:
+    """Delete a run's recording and sidecar from ``out``."""
+    path = _inside(out, f"{name}.csv")
+    path.unlink(missing_ok=True)
+    sidecar_path(path).unlink(missing_ok=True)
 
 
 def _prepare_folder(sweep: Sweep, out: Path, fingerprint: str, resume: bool, overwrite: bool,
                     log: Callable[[str], None]) -> dict[str, dict[str, Any]]:
     """Check ``out`` against resume/overwrite; remove stale runs if overwriting; return the rows kept, each
     verified against the size and checksum the manifest holds for its files (a run that fails is run again)."""
-    if resume and overwrite:
-        raise SweepError("resume and overwrite exclude each other: continue the sweep or replace it")
-    if not out.exists() or not any(out.iterdir()):
-        return {}
-    previous = _read_manifest(out)
-    if previous is None:
-        if all(_STALE.match(p.name) for p in out.iterdir()):   # killed before its first manifest
-            _remove_stale(out, None, log)
-            return {}
-        raise SweepError(f"{out}: holds files but no {MANIFEST}; choose a new or empty folder for the sweep")
-    label = f"{previous.get('sweep', '?')}, {len(previous['cases'])} finished run(s)"
-    if not resume and not overwrite:
-        raise SweepError(f"{out}: holds a sweep ({label}); pass --resume to continue it or --overwrite to "
-                         f"replace its runs, or choose another folder")
-    if resume and previous.get("fingerprint") != fingerprint:
-        raise SweepError(f"{out}: holds another sweep ({label}); --resume continues only the same sweep file "
-                         f"and system; pass --overwrite to replace it or choose another folder")
-    _remove_stale(out, previous, log)
-    if overwrite:
-        names = [row.get("case") for row in previous["cases"]] + [row.get("case") for row in previous.get("failed", [])]
-        for name in names:
-            if isinstance(name, str):
-                path = _inside(out, f"{name}.csv")
-                path.unlink(missing_ok=True)
-                sidecar_path(path).unlink(missing_ok=True)
-        (out / MANIFEST).unlink()
-        return {}
-    names = {c.name for c in sweep.cases}
-    kept: dict[str, dict[str, Any]] = {}
-    for row in previous["cases"]:
-        if row.get("case") not in names:
-            continue
-        damage = _damage(out, row)
-        if damage is None:
-            kept[row["case"]] = row
-            continue
-        log(f"run {row['case']} runs again: {damage}")
-        path = _inside(out, f"{row['case']}.csv")
-        path.unlink(missing_ok=True)
-        sidecar_path(path).unlink(missing_ok=True)
-    return kept
+    return _folder(out).prepare(fingerprint, {c.name for c in sweep.cases}, resume, overwrite, log,
+                                functools.partial(_remove_case, out),
+                                lambda row: damage(row.get("files"), functools.partial(_inside, out)))
 
 
 def run_to_folder(sweep: Sweep, out: str | Path, executor: Any = None, *, executor_name: str = "inprocess",
@@ -392,7 +308,7 @@ def run_to_folder(sweep: Sweep, out: str | Path, executor: Any = None, *, execut
     SweepOutcome
         Runs finished now, runs kept from before, failed runs (name -> error), seconds.
     """
-    from .executor import InProcessExecutor, RunFailed, run_case
+    from .executor import InProcessExecutor, run_case
     from .master import master_for
 
     out = Path(out)
@@ -425,27 +341,21 @@ def run_to_folder(sweep: Sweep, out: str | Path, executor: Any = None, *, execut
         return SweepOutcome(completed, resumed, failed, 0.0)
     executor = executor or InProcessExecutor()
     arguments = [case.run_arguments(sweep.stop_time) for case in todo]
-    last_write = time.perf_counter()
-    status = "interrupted"
-    try:
-        for index, result in executor.imap(functools.partial(run_case, sweep.system), arguments, retries):
-            case = todo[index]
-            if isinstance(result, RunFailed):
-                failed[case.name] = result.error
-                log(f"run {case.name} failed: {result.error}")
-            else:
-                rec = recording_from_log(result, sweep.log, meta, excited={"sweep": str(sweep.source), "case": case.name},
-                                    metadata={"system": str(sweep.system.source), "parameters": case.parameters})
-                texts = recording_texts(targets[case.name], rec)
-                atomic_write_texts(texts)
-                rows[case.name] = {"case": case.name, "parameters": case.parameters,
-                                   "final": {k: float(rec[k][-1]) for k in rec.columns},
-                                   "files": _file_records(texts)}
-                completed.append(case.name)
-            if time.perf_counter() - last_write >= MANIFEST_INTERVAL:
-                write_manifest("running")
-                last_write = time.perf_counter()
-        status = "failed" if failed else "complete"
-    finally:
-        write_manifest(status)
+
+    def commit(index: int, result: dict[str, np.ndarray]) -> None:
+        case = todo[index]
+        rec = recording_from_log(result, sweep.log, meta, excited={"sweep": str(sweep.source), "case": case.name},
+                                 metadata={"system": str(sweep.system.source), "parameters": case.parameters})
+        texts = recording_texts(targets[case.name], rec)
+        atomic_write_texts(texts)
+        rows[case.name] = {"case": case.name, "parameters": case.parameters,
+                           "final": {k: float(rec[k][-1]) for k in rec.columns}, "files": file_records(texts)}
+        completed.append(case.name)
+
+    def fail(index: int, error: str) -> None:
+        failed[todo[index].name] = error
+        log(f"run {todo[index].name} failed: {error}")
+
+    commit_each(executor, functools.partial(run_case, sweep.system), arguments, retries, commit, fail,
+                write_manifest)
     return SweepOutcome(completed, resumed, failed, time.perf_counter() - t0)

@@ -29,7 +29,7 @@ def test_forked_workers_of_a_subcommand_leave_ctrl_c_to_it_and_die_quietly_on_si
 def test_sigterm_on_diagnose_removes_its_temporary_folder_and_exits_143(tmp_path: Path) -> None:
     """A real ``motiontwin diagnose`` sent SIGTERM a few seconds into its analysis: exit 143, one line naming
     SIGTERM, no ``motiontwin-diagnosis-*`` folder left in its TMPDIR, no output folder."""
-    from motiontwin.ident.diagnosis import benchmark as bench
+    from motiontwin.ident.benchmarks import single_axis as bench
 
     bundle, temp, out = tmp_path / "bundle", tmp_path / "tmp", tmp_path / "out"
     bench.write_bundle(bundle, "gravity_offset", seed=7, scale=1.5, durations=(4.0, 2.0))

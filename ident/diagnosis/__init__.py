@@ -14,8 +14,8 @@ from motiontwin.ident.diagnosis.engine import diagnose, diagnose_bundle, diagnos
 from motiontwin.ident.diagnosis.pipeline import Diagnosis
 from motiontwin.ident.startvalues import DivergenceError
 
-__all__ = ["BundleError", "Diagnosis", "DivergenceError", "diagnose", "diagnose_bundle", "main", "make_bundle",
-           "read_bundle"]
+__all__ = ["BundleError", "Diagnosis", "DivergenceError", "check_sizes", "diagnose", "diagnose_bundle", "main",
+           "make_bundle", "read_bundle"]
 
 
 def run(bundle: str, out: str, quiet: bool = False, allow_outside_paths: bool = False) -> int:
@@ -23,7 +23,7 @@ def run(bundle: str, out: str, quiet: bool = False, allow_outside_paths: bool = 
     named in its experiment.json must lie inside it unless ``allow_outside_paths``)."""
     progress = None if quiet else (lambda msg: print(msg, file=sys.stderr, flush=True))
     try:
-        _check_sizes(Path(bundle))
+        check_sizes(Path(bundle))
         doc = diagnose_bundle_object(read_bundle(bundle, allow_outside_paths), progress).write(out)
     except BundleError as exc:
         print(f"motiontwin diagnose: bad bundle: {exc}", file=sys.stderr)
@@ -46,7 +46,7 @@ def run(bundle: str, out: str, quiet: bool = False, allow_outside_paths: bool = 
     return 0
 
 
-def _check_sizes(bundle: Path) -> None:
+def check_sizes(bundle: Path) -> None:
     """experiment.json (a folder, size, UTF-8, nesting) and the plant's Modelica file (size) checked before the
     bundle reader reads them (the recordings' sizes and rows are checked by their reader)."""
     experiment = bundle / "experiment.json"

@@ -96,7 +96,7 @@ def main(argv: list[str] | None = None) -> int:
             preflight(args)
             return func(args)
     except KeyboardInterrupt as exc:
-        again = "add --resume to continue" if args.command == "sweep" else "run the command again"
+        again = "add --resume to continue" if getattr(args, "resumable", False) else "run the command again"
         what = "terminated (SIGTERM)" if isinstance(exc, Terminated) else "interrupted"
         print(f"{prefix}: {what}; finished outputs are complete, nothing half-written was kept ({again})",
               file=sys.stderr)

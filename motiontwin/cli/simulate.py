@@ -100,7 +100,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                        help="replace the sweep in --out (its runs are removed first)")
     p.add_argument("--retries", type=int, default=2,
                    help="times a run whose worker process died is tried again (default 2)")
-    p.set_defaults(func=_sweep, output_folders=("out",))
+    p.set_defaults(func=_sweep, output_folders=("out",), resumable=True)
 
     p = sub.add_parser("regress", help="run a regression suite against reference recordings (tolerance tubes)")
     p.add_argument("suite", type=Path, help="suite file (TOML)")
