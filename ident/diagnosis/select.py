@@ -92,7 +92,7 @@ def select(bundle: Bundle, nominal: ModelFit, weights: outputerror.Weights, ctx:
                         "cost_reduction": gain, "null_threshold": threshold, "evidence_ratio": gain / threshold,
                         "parameters": _effect_values(trial, candidate),
                         "seconds": round(time.perf_counter() - t0, 2)})
-            _log(progress, f"  round {rounds} {name}{on}: cost -{gain:.4g}, null {threshold:.4g} "
+            _log(progress, f"  round {rounds} {name}{on}: cost {-gain:+.4g}, null {threshold:.4g} "
                            f"(x{gain / threshold:.2f}), {time.perf_counter() - t0:.1f} s")
         significant = sorted((n for n, t in trials.items() if t[1] > t[2]), key=lambda n: -trials[n][1])
         chosen = None
@@ -183,7 +183,7 @@ def _simplest(name: str, trials: dict, null: np.ndarray, bundle: Bundle, work: P
         return simple
     rich_rms = _validation_rms(bundle, rich[0], work / f"n_{name}", axis)
     small_rms = _validation_rms(bundle, small[0], work / f"n_{simple}", axis)
-    _log(progress, f"  {name} vs {simple}: extra -{extra:.4g}, null {threshold:.4g}, validation "
+    _log(progress, f"  {name} vs {simple}: extra {-extra:+.4g}, null {threshold:.4g}, validation "
                    f"{rich_rms:.4g} vs {small_rms:.4g}")
     return name if rich_rms < VALIDATION_GAIN * small_rms else simple
 

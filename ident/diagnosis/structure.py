@@ -40,6 +40,7 @@ class ModelFit:
     evidence: dict = field(default_factory=dict)
     axes: list[str] = field(default_factory=list)
     val_axes: dict[str, float] = field(default_factory=dict)
+    start_cost: float = math.nan   # training cost of a candidate at its vanishing point (the model it extends)
 
     @property
     def names(self) -> list[str]:
