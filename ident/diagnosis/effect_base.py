@@ -57,6 +57,9 @@ class Effect:
     tracks_force: list[str] = field(default_factory=list)      # states starting at the held force
     applicable: bool = True                # False: the bundle lacks what the effect needs (not screened)
     min_substeps: int = 1                  # RK4 substeps per sample its fastest state needs at the top speed
+    #: force per unit level at small amplitude, of position and velocity (states): compared with the plant's
+    #: own parameters' forces so that a physics the plant has is refitted there, not added twice
+    regressor: Callable[[Context, np.ndarray, np.ndarray], np.ndarray] | None = None
 
 
 def _p(name: str, unit: str, text: str, lo: float, hi: float, fitted: bool = True, zero: float | None = None

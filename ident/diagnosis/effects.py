@@ -41,7 +41,7 @@ def gravity_offset(ctx: Context) -> Effect:
                   lambda v, c: {"F0": v["gravity_F0"]},
                   "A constant force acts on the axis (gravity on an inclined axis, cable or spring preload): "
                   "at rest the controller must hold it, so the force residual has a non-zero mean that does "
-                  "not depend on the direction of motion.")
+                  "not depend on the direction of motion.", regressor=lambda c, x, v: np.ones_like(x))
 
 
 def coulomb_friction(ctx: Context) -> Effect:
@@ -55,7 +55,8 @@ def coulomb_friction(ctx: Context) -> Effect:
                   "MotionTwin.Effects.CoulombFriction($v, coulomb_Fc, coulomb_v_eps)", [],
                   ["CoulombFriction.mo"], init, lambda v, c: {"Fc": v["coulomb_Fc"]},
                   "A friction force of constant magnitude opposes the motion: the force residual jumps with "
-                  "the sign of the velocity and is flat in |v|.")
+                  "the sign of the velocity and is flat in |v|.",
+                  regressor=lambda c, x, v: np.tanh(v / _v_eps(c)))
 
 
 def asymmetric_friction(ctx: Context) -> Effect:

@@ -28,14 +28,16 @@ BOOTSTRAP_COUNT = 30
 
 
 def select(bundle: Bundle, nominal: ModelFit, weights: outputerror.Weights, ctx: effect_models.Context | None,
-           work: Path, progress=None) -> tuple[ModelFit, list[dict], list[dict]]:
+           work: Path, progress=None, owned: dict[str, str] | None = None) -> tuple[ModelFit, list[dict], list[dict]]:
     """Greedy forward selection of effects with the bootstrap null reference and the validation check, for one
     axis or several. Each round takes the axis to screen (several axes: the one whose force residual stands
     highest above its noise reference, :func:`locate.locate`; one axis: the only one, with ``ctx``), screens
     the vocabulary's effects on it, fully fits the best ranked with their nested simpler and close richer ones,
     keeps the first significant one (its nested simpler one unless the extra parameters earn their place) that
     lowers that axis's validation RMS by the validation rule's margin, and lists the structures that explain
-    the data as well. Returns the final structure, the candidate log and the per-round axis scores."""
+    the data as well. Effects in ``owned`` (the plant refits the same physics as its own parameter,
+    :func:`nominal.plant_physics`) are not offered. Returns the final structure, the candidate log and the
+    per-round axis scores."""
     current = nominal
     log: list[dict] = []
     located: list[dict] = []
@@ -62,7 +64,7 @@ def select(bundle: Bundle, nominal: ModelFit, weights: outputerror.Weights, ctx:
                                             weights.sigma_u, bundle.train.time.size, BOOTSTRAP_COUNT, seed=rounds)
         base_gain = evidence.projected_gain(current.fit.jacobian, null)
         shortlist = shortlists.get(axis, list(effect_models.VOCABULARY))
-        names = [n for n in candidates(ctx, used.setdefault(axis, set())) if n in shortlist]
+        names = [n for n in candidates(ctx, used.setdefault(axis, set())) if n in shortlist and n not in (owned or {})]
         if axis is None:
             screened = screen(bundle, current, names, ctx, weights, work / f"r{rounds}", progress)
         else:
