@@ -60,6 +60,9 @@ class Effect:
     #: force per unit level at small amplitude, of position and velocity (states): compared with the plant's
     #: own parameters' forces so that a physics the plant has is refitted there, not added twice
     regressor: Callable[[Context, np.ndarray, np.ndarray], np.ndarray] | None = None
+    #: why fitted values are not this physics ("" when they are), e.g. a friction level below 0 (a force
+    #: pushing along the motion): such a fit is not reported as the effect
+    unphysical: Callable[[dict[str, float]], str] | None = None
 
 
 def _p(name: str, unit: str, text: str, lo: float, hi: float, fitted: bool = True, zero: float | None = None

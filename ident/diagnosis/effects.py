@@ -189,7 +189,9 @@ def time_delay(ctx: Context) -> Effect:
                   "The applied force lags the commanded force (amplifier, communication or computation "
                   "delay), realised as the Pade(2,2) approximant of MotionTwin.Effects.DelayedInputJoint: "
                   "the residual grows with the rate of change of the force and reduces the phase margin.",
-                  delays_input=True, tracks_force=["delay_p1"])
+                  delays_input=True, tracks_force=["delay_p1"],
+                  unphysical=lambda v: "" if v["delay_T"] >= t0 / 2 else "a delay below Ts/4, which the sampled "
+                  "loop does not resolve (the search starts at 0 only so that it cannot end worse)")
 
 
 def resonance(ctx: Context) -> Effect:
@@ -445,7 +447,9 @@ def friction_drift(ctx: Context) -> Effect:
                   lambda v, c: {"Fc_start": v["drift_Fc0"], "dFc": v["drift_dFc"], "tau": v["drift_tau"]},
                   "Coulomb friction whose level changes slowly over the run (the lubricant warms up): the "
                   "residual jumps with the sign of the velocity as for Coulomb friction, by an amount that "
-                  "trends over time, Fc0 + dFc*(1 - exp(-t/tau)) from the start of the recording.")
+                  "trends over time, Fc0 + dFc*(1 - exp(-t/tau)) from the start of the recording.",
+                  unphysical=lambda v: "" if min(v["drift_Fc0"], v["drift_Fc0"] + v["drift_dFc"]) >= 0 else
+                  "its friction level falls below 0 (a force pushing along the motion)")
 
 
 VOCABULARY: dict[str, Callable[[Context], Effect]] = {

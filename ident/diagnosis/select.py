@@ -96,7 +96,8 @@ def select(bundle: Bundle, nominal: ModelFit, weights: outputerror.Weights, ctx:
                         "seconds": round(time.perf_counter() - t0, 2)})
             _log(progress, f"  round {rounds} {name}{on}: cost {-gain:+.4g}, null {threshold:.4g} "
                            f"(x{gain / threshold:.2f}), {time.perf_counter() - t0:.1f} s")
-        significant = sorted((n for n, t in trials.items() if t[1] > t[2]), key=lambda n: -trials[n][1])
+        significant = sorted((n for n, t in trials.items() if t[1] > t[2] and not _unphysical(t[0], progress)),
+                             key=lambda n: -trials[n][1])
         chosen = None
         for name in significant:
             name = _simplest(name, trials, null, bundle, work, progress, axis)
@@ -129,6 +130,18 @@ def select(bundle: Bundle, nominal: ModelFit, weights: outputerror.Weights, ctx:
         used[axis].add(chosen.effects[-1].family)
         current = chosen
     return current, log, located
+
+
+def _unphysical(trial: ModelFit, progress) -> bool:
+    """True (and logged) when the fitted values of the trial's effect are not the physics it names."""
+    effect = trial.effects[-1]
+    if effect.unphysical is None:
+        return False
+    prefix = f"{trial.axes[-1]}_" if trial.axes else ""      # an effect placed on an axis (structure.on_axis)
+    reason = effect.unphysical({p.name[len(prefix):]: trial.fit.values[p.name] for p in effect.params})
+    if reason:
+        _log(progress, f"  {effect.name}: not reported as this physics, {reason}")
+    return bool(reason)
 
 
 def _round_axis(bundle: Bundle, current: ModelFit, weights: outputerror.Weights, rounds: int, located: list[dict],
