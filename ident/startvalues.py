@@ -145,9 +145,10 @@ def inverse_dynamics_start(model: symbolic.SymbolicModel, q: np.ndarray, u: np.n
         return np.array(f).ravel(), np.array(j).reshape(n, len(pnames))   # per sample: one row of dF/dp
 
     f0, j0 = evaluate(p0)
-    p1 = p0 * 1.37 + 0.11
-    _, j1 = evaluate(p1)
     idx = [pnames.index(name) for name in free]
+    p1 = p0.copy()      # linear in the free parameters jointly, the others held (a zero Fc next to a fixed v_eps)
+    p1[idx] = p0[idx] * 1.37 + 0.11
+    _, j1 = evaluate(p1)
     linear = [i for i in idx if np.any(j0[:, i] != 0)
               and np.allclose(j0[:, i], j1[:, i], rtol=1e-9, atol=1e-12 * np.max(np.abs(j0[:, i])))]
     if not linear or not np.all(np.isfinite(f0)) or not np.all(np.isfinite(j0[:, linear])):

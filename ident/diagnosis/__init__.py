@@ -31,6 +31,7 @@ def run(bundle: str, out: str, quiet: bool = False, allow_outside_paths: bool = 
     except DivergenceError as exc:
         print(f"motiontwin diagnose: {exc}", file=sys.stderr)
         return 2
+    from motiontwin.ident.diagnosis.bounds import at_bound_text
     from motiontwin.ident.diagnosis.report import unexplained_text
 
     unexplained = doc.get("unexplained")
@@ -41,8 +42,9 @@ def run(bundle: str, out: str, quiet: bool = False, allow_outside_paths: bool = 
     val = doc["validation"]
     per_axis = "".join(f"; {axis} {_metres(v['nominal_rms'])} -> {_metres(v['augmented_rms'])}"
                        for axis, v in val.get("per_axis", {}).items())
+    bound = at_bound_text(doc.get("at_bound", {}))
     print(f"effects: {names}; validation RMS {_metres(val['nominal_rms'])} -> {_metres(val['augmented_rms'])}"
-          f"{per_axis}; report: {out}/report.md")
+          f"{per_axis}{f'; at bound: {bound}' if bound else ''}; report: {out}/report.md")
     return 0
 
 

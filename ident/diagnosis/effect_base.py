@@ -37,6 +37,7 @@ class Param:
     description: str
     bounds: tuple[float, float]
     fitted: bool = True
+    zero: float | None = None   # value at which the effect vanishes (None: the effect vanishes at any value)
 
 
 @dataclass
@@ -56,10 +57,27 @@ class Effect:
     tracks_force: list[str] = field(default_factory=list)      # states starting at the held force
     applicable: bool = True                # False: the bundle lacks what the effect needs (not screened)
     min_substeps: int = 1                  # RK4 substeps per sample its fastest state needs at the top speed
+    #: force per unit level at small amplitude, of position and velocity (states): compared with the plant's
+    #: own parameters' forces so that a physics the plant has is refitted there, not added twice
+    regressor: Callable[[Context, np.ndarray, np.ndarray], np.ndarray] | None = None
+    #: why fitted values are not this physics ("" when they are), e.g. a friction level below 0 (a force
+    #: pushing along the motion): such a fit is not reported as the effect
+    unphysical: Callable[[dict[str, float]], str] | None = None
 
 
-def _p(name: str, unit: str, text: str, lo: float, hi: float, fitted: bool = True) -> Param:
-    return Param(name, unit, text, (lo, hi), fitted)
+def _p(name: str, unit: str, text: str, lo: float, hi: float, fitted: bool = True, zero: float | None = None
+       ) -> Param:
+    return Param(name, unit, text, (lo, hi), fitted, zero)
+
+
+def vanishing_start(effect: Effect, starts: list[dict[str, float]]) -> dict[str, float]:
+    """The effect at its vanishing point (every parameter with a ``zero`` there, the others at the first
+    data-driven start or the middle of their bounds): the augmented model then is the current model, so a fit
+    from here cannot end above the current model's cost."""
+    values = {p.name: float(np.mean(p.bounds)) for p in effect.params if p.fitted}
+    values.update(starts[0] if starts else {})
+    values.update({p.name: float(p.zero) for p in effect.params if p.zero is not None})
+    return values
 
 
 def _decl(params: list[Param], values: dict[str, float]) -> str:

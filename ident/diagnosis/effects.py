@@ -23,7 +23,7 @@ import numpy as np
 from motiontwin.fmus import frontend, symbolic
 from motiontwin.fmus.build import MODELICA_DIR
 from motiontwin.ident.diagnosis.effect_base import (Context, Effect, Param, _decl, _eps_bounds, _ls, _p,  # noqa: F401
-                                                    _scale, _sign, _v_eps)
+                                                    _scale, _sign, _v_eps, vanishing_start)
 from motiontwin.ident.diagnosis.plant_roles import PlantFormError, PlantRoles, declaration_line
 
 LIBRARY = MODELICA_DIR / "MotionTwin"
@@ -36,26 +36,27 @@ def gravity_offset(ctx: Context) -> Effect:
         f0 = float(np.median(c.force)) if c.force is not None else 0.0
         return [{"gravity_F0": f0 or 0.1}]
     return Effect("gravity_offset", "gravity_offset",
-                  [_p("gravity_F0", "N", "Constant opposing force (gravity or cable offset)", -1e4, 1e4)],
+                  [_p("gravity_F0", "N", "Constant opposing force (gravity or cable offset)", -1e4, 1e4, zero=0.0)],
                   "", "gravity_F0", [], [], init,
                   lambda v, c: {"F0": v["gravity_F0"]},
                   "A constant force acts on the axis (gravity on an inclined axis, cable or spring preload): "
                   "at rest the controller must hold it, so the force residual has a non-zero mean that does "
-                  "not depend on the direction of motion.")
+                  "not depend on the direction of motion.", regressor=lambda c, x, v: np.ones_like(x))
 
 
 def coulomb_friction(ctx: Context) -> Effect:
     def init(c: Context) -> list[dict[str, float]]:
         fc = abs(float(_ls([_sign(c), np.ones_like(c.v)], c.force)[0])) if c.force is not None else 0.1
         return [{"coulomb_Fc": max(fc, 1e-3), "coulomb_v_eps": _v_eps(c)}]
-    params = [_p("coulomb_Fc", "N", "Coulomb friction level", 0.0, 1e4),
+    params = [_p("coulomb_Fc", "N", "Coulomb friction level", 0.0, 1e4, zero=0.0),
               _p("coulomb_v_eps", "m/s", "Velocity scale of the tanh (presliding)",
                  *_eps_bounds(ctx))]
     return Effect("coulomb_friction", FRICTION, params, "",
                   "MotionTwin.Effects.CoulombFriction($v, coulomb_Fc, coulomb_v_eps)", [],
                   ["CoulombFriction.mo"], init, lambda v, c: {"Fc": v["coulomb_Fc"]},
                   "A friction force of constant magnitude opposes the motion: the force residual jumps with "
-                  "the sign of the velocity and is flat in |v|.")
+                  "the sign of the velocity and is flat in |v|.",
+                  regressor=lambda c, x, v: np.tanh(v / _v_eps(c)))
 
 
 def asymmetric_friction(ctx: Context) -> Effect:
@@ -68,8 +69,8 @@ def asymmetric_friction(ctx: Context) -> Effect:
         moving = np.abs(c.v) > 3 * eps
         a, b = _ls([(_sign(c) * sp)[moving], (_sign(c) * (1 - sp))[moving]], c.force[moving])
         return [{"asym_Fc_pos": max(a, 1e-3), "asym_Fc_neg": max(b, 1e-3), "asym_v_eps": _v_eps(c)}]
-    params = [_p("asym_Fc_pos", "N", "Coulomb level for v > 0", 0.0, 1e4),
-              _p("asym_Fc_neg", "N", "Coulomb level (magnitude) for v < 0", 0.0, 1e4),
+    params = [_p("asym_Fc_pos", "N", "Coulomb level for v > 0", 0.0, 1e4, zero=0.0),
+              _p("asym_Fc_neg", "N", "Coulomb level (magnitude) for v < 0", 0.0, 1e4, zero=0.0),
               _p("asym_zero", "N.s/m", "No direction-dependent viscous part", 0.0, 0.0, False),
               _p("asym_v_eps", "m/s", "Velocity scale of the tanh (presliding)",
                  *_eps_bounds(ctx))]
@@ -90,8 +91,8 @@ def stribeck_friction(ctx: Context) -> Effect:
             starts.append({"stribeck_Fc": max(base, 1e-3), "stribeck_Fs": max(2 * base, 2e-3),
                            "stribeck_vs": vs, "stribeck_v_eps": _v_eps(c)})
         return starts
-    params = [_p("stribeck_Fc", "N", "Coulomb (sliding) friction level", 0.0, 1e4),
-              _p("stribeck_Fs", "N", "Static (breakaway) friction level", 0.0, 1e4),
+    params = [_p("stribeck_Fc", "N", "Coulomb (sliding) friction level", 0.0, 1e4, zero=0.0),
+              _p("stribeck_Fs", "N", "Static (breakaway) friction level", 0.0, 1e4, zero=0.0),
               _p("stribeck_vs", "m/s", "Stribeck velocity", 1e-4 / _scale(ctx), max(ctx.v_max, 1e-3 / _scale(ctx))),
               _p("stribeck_v_eps", "m/s", "Velocity scale of the tanh (presliding)",
                  *_eps_bounds(ctx))]
@@ -119,8 +120,8 @@ def position_ripple(ctx: Context) -> Effect:
             best.append((float(np.hypot(coef[0], coef[1])), period, coef[0], coef[1]))
         best.sort(reverse=True)
         return [{"ripple_period": p, "ripple_a": a, "ripple_b": b} for _, p, a, b in best[:2]]
-    params = [_p("ripple_a", "N", "Sine amplitude of the ripple force", -1e4, 1e4),
-              _p("ripple_b", "N", "Cosine amplitude of the ripple force", -1e4, 1e4),
+    params = [_p("ripple_a", "N", "Sine amplitude of the ripple force", -1e4, 1e4, zero=0.0),
+              _p("ripple_b", "N", "Cosine amplitude of the ripple force", -1e4, 1e4, zero=0.0),
               _p("ripple_period", "m", "Spatial period (e.g. magnet pitch)", span / 60, 2 * span),
               _p("ripple_zero", "rad", "Phase of the sine part", 0.0, 0.0, False),
               _p("ripple_quarter", "rad", "Phase of the cosine part", math.pi / 2, math.pi / 2, False)]
@@ -145,7 +146,8 @@ def position_dependent_inertia(ctx: Context) -> Effect:
         k = float(_ls([col, np.ones_like(col)], c.force)[0])
         return [{"inertia_slope": k}, {"inertia_slope": -k}]
     bound = 0.9 * ctx.mass / half
-    params = [_p("inertia_slope", "kg/m", "Change of the moving mass per metre", -bound, bound),
+    params = [_p("inertia_slope", "kg/m", "Change of the moving mass per metre", -bound, bound,
+                 zero=0.0),
               _p("inertia_centre", "m", "Position where the mass equals plant.m", centre, centre, False)]
     return Effect("position_dependent_inertia", "position_dependent_inertia", params, "",
                   "inertia_slope*($x - inertia_centre)*der($v) + 0.5*inertia_slope*$v^2", [],
@@ -164,23 +166,32 @@ def _mass_range(v: dict[str, float], c: Context) -> dict[str, float]:
 
 
 def time_delay(ctx: Context) -> Effect:
-    lo = ctx.ts / 4
+    """Pade(2,2) delay of the commanded force. Below T0 = Ts/2 the applied force interpolates linearly between
+    the undelayed force and its T0 delay (a fractional delay), so the effect vanishes exactly at T = 0 and
+    the Pade states never get stiffer than at T0."""
+    t0 = ctx.ts / 2
 
     def init(c: Context) -> list[dict[str, float]]:
         if c.force is None or c.udot is None:
             return [{"delay_T": ctx.ts}]
         tau = float(_ls([c.udot, np.ones_like(c.udot), _sign(c)], c.force)[0])
-        return [{"delay_T": float(np.clip(tau, 1.5 * lo, 20 * ctx.ts))}, {"delay_T": ctx.ts}]
-    params = [_p("delay_T", "s", "Delay between the commanded and the applied force", lo, 20 * ctx.ts)]
+        return [{"delay_T": float(np.clip(tau, 0.1 * ctx.ts, 20 * ctx.ts))}, {"delay_T": ctx.ts},
+                {"delay_T": 4 * ctx.ts}]
+    params = [_p("delay_T", "s", "Delay between the commanded and the applied force", 0.0, 20 * ctx.ts, zero=0.0)]
     decl = ('  Real delay_p1(unit = "N", start = 0, fixed = true) "First Pade state";\n'
-            '  Real delay_a(unit = "N", start = 0, fixed = true) "Second Pade state, u - u_delayed";\n')
-    eqs = ["delay_T*der(delay_p1) = delay_a", "delay_T*der(delay_a) = 12*(u - delay_p1) - 6*delay_a"]
+            '  Real delay_s(unit = "N", start = 0, fixed = true) "Second Pade state, u - u_delayed";\n'
+            '  Real delay_a(unit = "N") "Commanded minus applied force";\n')
+    eqs = [f"max(delay_T, {t0!r})*der(delay_p1) = delay_s",
+           f"max(delay_T, {t0!r})*der(delay_s) = 12*(u - delay_p1) - 6*delay_s",
+           f"delay_a = min(delay_T/{t0!r}, 1)*delay_s"]
     return Effect("time_delay", "time_delay", params, decl, "", eqs, [], init,
                   lambda v, c: {"delay": v["delay_T"]},
                   "The applied force lags the commanded force (amplifier, communication or computation "
                   "delay), realised as the Pade(2,2) approximant of MotionTwin.Effects.DelayedInputJoint: "
                   "the residual grows with the rate of change of the force and reduces the phase margin.",
-                  delays_input=True, tracks_force=["delay_p1"])
+                  delays_input=True, tracks_force=["delay_p1"],
+                  unphysical=lambda v: "" if v["delay_T"] >= t0 / 2 else "a delay below Ts/4, which the sampled "
+                  "loop does not resolve (the search starts at 0 only so that it cannot end worse)")
 
 
 def resonance(ctx: Context) -> Effect:
@@ -213,8 +224,10 @@ def _two_mass_contract(v: dict[str, float], c: Context, prefix: str) -> dict[str
 
 def _two_mass_params(ctx: Context, prefix: str) -> list[Param]:
     """Coupled mass, antiresonance frequency and damping ratio of a second mass on the driven one."""
-    return [_p(f"{prefix}_m2", "kg", "Mass coupled elastically to the driven mass", 1e-3 * ctx.mass, ctx.mass),
-            _p(f"{prefix}_fa", "Hz", "Antiresonance frequency sqrt(k/m2)/(2 pi)", 5.0, 0.45 / ctx.ts),
+    return [_p(f"{prefix}_m2", "kg", "Mass coupled elastically to the driven mass", 1e-6 * ctx.mass, ctx.mass,
+               zero=1e-6 * ctx.mass),
+            _p(f"{prefix}_fa", "Hz", "Antiresonance frequency sqrt(k/m2)/(2 pi)", 5.0, 0.45 / ctx.ts,
+               zero=0.45 / ctx.ts),
             _p(f"{prefix}_zeta", "1", "Damping ratio of the coupling (relative to m2)", 1e-3, 0.5)]
 
 
@@ -240,10 +253,10 @@ def backlash(ctx: Context) -> Effect:
     def init(c: Context) -> list[dict[str, float]]:
         guesses = c.resonance_guess or [0.1 / c.ts]
         return [{"backlash_m2": 0.3 * c.mass, "backlash_fa": f_res / math.sqrt(1.5), "backlash_zeta": 0.05,
-                 "backlash_b": 2e-6 / _scale(c)} for f_res in guesses[:3]]
-    params = [_p("backlash_m2", "kg", "Load mass behind the gap (the motor mass is plant.m - m2)", 1e-3 * ctx.mass,
-                 0.9 * ctx.mass)] + _two_mass_params(ctx, "backlash")[1:] + [
-        _p("backlash_b", "m", "Half-width of the gap (total backlash 2*b)", 0.0, 1e-4 / _scale(ctx)),
+                 "backlash_b": gap / _scale(c)} for f_res in guesses[:3] for gap in (2e-6, 1e-5, 4e-5)]
+    params = [_p("backlash_m2", "kg", "Load mass behind the gap (the motor mass is plant.m - m2)", 1e-6 * ctx.mass,
+                 0.9 * ctx.mass, zero=1e-6 * ctx.mass)] + _two_mass_params(ctx, "backlash")[1:] + [
+        _p("backlash_b", "m", "Half-width of the gap (total backlash 2*b)", 0.0, 1e-4 / _scale(ctx), zero=0.0),
         _p("backlash_eps", "m", "Rounding of the gap corners", BACKLASH_EPS / _scale(ctx),
            BACKLASH_EPS / _scale(ctx), False)]
     k, c = _two_mass_terms("backlash")
@@ -270,13 +283,14 @@ LUGRE_STEP = 4       # the bristle state's rate |v|/z0 times Ts stays below this
 
 def lugre_friction(ctx: Context) -> Effect:
     """LuGre friction in Dahl's form (Fs = Fc, sigma1 = sigma2 = 0; the plant's d is the viscous part) with
-    the bristle state written as the bristle force F_z = sigma0*z, so that it starts at the held force."""
+    the bristle state written as the bristle force F_z = sigma0*z, so that it starts at the held force (its
+    vanishing point Fc -> 0 is then the current model only after the first few z0 of travel)."""
     z0_min = max(1e-6 / _scale(ctx), ctx.v_max * ctx.ts / LUGRE_STEP)
 
     def init(c: Context) -> list[dict[str, float]]:
         fc = abs(float(_ls([_sign(c), np.ones_like(c.v)], c.force)[0])) if c.force is not None else 0.1
-        return [{"lugre_Fc": max(fc, 1e-3), "lugre_z0": 4 * z0_min}]
-    params = [_p("lugre_Fc", "N", "Coulomb (sliding) friction level", 1e-6, 1e4),
+        return [{"lugre_Fc": max(fc, 1e-3), "lugre_z0": k * z0_min} for k in (4, 1.5, 16)]
+    params = [_p("lugre_Fc", "N", "Coulomb (sliding) friction level", 1e-6, 1e4, zero=1e-6),
               _p("lugre_z0", "m", "Pre-sliding displacement Fc/sigma0 (bristle deflection in sliding)", z0_min,
                  max(1e-3 / _scale(ctx), 10 * z0_min))]
     decl = ('  Real lugre_Fz(unit = "N", start = 0, fixed = true) "Bristle force sigma0*z";\n'
@@ -316,9 +330,9 @@ def actuator_saturation(ctx: Context) -> Effect:
             coef, *_ = np.linalg.lstsq(np.column_stack(cols), c.force, rcond=None)
             rest = c.force - np.column_stack(cols) @ coef
             best.append((float(np.sum(rest ** 2)), float(limit)))
-        return [{"saturation_Fmax": min(best)[1]}]
+        return [{"saturation_Fmax": limit} for _, limit in sorted(best)[:3]]
     params = [_p("saturation_Fmax", "N", "Force limit of the actuator (current limit of the amplifier)",
-                 0.2 * u_max, 1.5 * u_max),
+                 0.2 * u_max, 1.5 * u_max, zero=1.5 * u_max),
               _p("saturation_eps", "N", "Rounding of the saturation corners", 1e-3 * u_max, 1e-3 * u_max, False)]
     return Effect("actuator_saturation", "actuator_saturation", params, "",
                   "u - MotionTwin.Effects.SaturatedForce(u, saturation_Fmax, saturation_eps)", [],
@@ -363,10 +377,10 @@ def cogging(ctx: Context) -> Effect:
         coef = _ls([np.sin(theta), np.cos(theta), np.sin(2 * theta), np.cos(2 * theta), np.ones_like(c.x),
                     _sign(c)], c.force)
         return [dict(zip(start, (float(a) for a in coef[:4])))]
-    params = [_p("cogging_a1", "N", "Sine amplitude of the fundamental", -1e4, 1e4),
-              _p("cogging_b1", "N", "Cosine amplitude of the fundamental", -1e4, 1e4),
-              _p("cogging_a2", "N", "Sine amplitude of the second harmonic", -1e4, 1e4),
-              _p("cogging_b2", "N", "Cosine amplitude of the second harmonic", -1e4, 1e4),
+    params = [_p("cogging_a1", "N", "Sine amplitude of the fundamental", -1e4, 1e4, zero=0.0),
+              _p("cogging_b1", "N", "Cosine amplitude of the fundamental", -1e4, 1e4, zero=0.0),
+              _p("cogging_a2", "N", "Sine amplitude of the second harmonic", -1e4, 1e4, zero=0.0),
+              _p("cogging_b2", "N", "Cosine amplitude of the second harmonic", -1e4, 1e4, zero=0.0),
               _p("cogging_pitch", "m", "Magnet pole pitch (plant.pole_pitch)", pitch, pitch, False),
               _p("cogging_n", "1", "Cogging periods per pole pitch", order, order, False),
               _p("cogging_zero", "rad", "Phase of the sine parts", 0.0, 0.0, False),
@@ -391,8 +405,8 @@ def load_dependent_friction(ctx: Context) -> Effect:
             return [{"load_Fc0": 0.1, "load_mu": 0.01, "load_v_eps": _v_eps(c)}]
         fc0, mu = _ls([_sign(c), np.abs(c.u) * _sign(c), np.ones_like(c.v)], c.force)[:2]
         return [{"load_Fc0": max(float(fc0), 1e-3), "load_mu": max(float(mu), 1e-4), "load_v_eps": _v_eps(c)}]
-    params = [_p("load_Fc0", "N", "Coulomb friction level without load", 0.0, 1e4),
-              _p("load_mu", "1", "Friction rise per newton of drive force", 0.0, 2.0),
+    params = [_p("load_Fc0", "N", "Coulomb friction level without load", 0.0, 1e4, zero=0.0),
+              _p("load_mu", "1", "Friction rise per newton of drive force", 0.0, 2.0, zero=0.0),
               _p("load_v_eps", "m/s", "Velocity scale of the tanh (presliding)", *_eps_bounds(ctx))]
     return Effect("load_dependent_friction", FRICTION, params, "",
                   "MotionTwin.Effects.LoadDependentFriction($v, u, load_Fc0, load_mu, load_v_eps)", [],
@@ -421,8 +435,9 @@ def friction_drift(ctx: Context) -> Effect:
         fc0 = max(fc0, 1e-3)   # the slope of a noisy residual overshoots: start at most half the level
         return [{"drift_Fc0": fc0, "drift_dFc": float(np.clip(dfc, -0.5 * fc0, 0.5 * fc0)), "drift_tau": tau,
                  "drift_v_eps": _v_eps(c)}]
-    params = [_p("drift_Fc0", "N", "Coulomb friction level at the start of the recording", 0.0, 1e4),
-              _p("drift_dFc", "N", "Change of the Coulomb level once settled", -1e4, 1e4),
+    params = [_p("drift_Fc0", "N", "Coulomb friction level at the start of the recording", 0.0, 1e4,
+                 zero=0.0),
+              _p("drift_dFc", "N", "Change of the Coulomb level once settled", -1e4, 1e4, zero=0.0),
               _p("drift_tau", "s", "Time constant of the drift", 0.05 * duration, 10 * duration),
               _p("drift_v_eps", "m/s", "Velocity scale of the tanh (presliding)", *_eps_bounds(ctx))]
     decl = '  Real drift_s(start = 0, fixed = true) "Progress of the drift, 1 - exp(-t/tau)";\n'
@@ -432,7 +447,9 @@ def friction_drift(ctx: Context) -> Effect:
                   lambda v, c: {"Fc_start": v["drift_Fc0"], "dFc": v["drift_dFc"], "tau": v["drift_tau"]},
                   "Coulomb friction whose level changes slowly over the run (the lubricant warms up): the "
                   "residual jumps with the sign of the velocity as for Coulomb friction, by an amount that "
-                  "trends over time, Fc0 + dFc*(1 - exp(-t/tau)) from the start of the recording.")
+                  "trends over time, Fc0 + dFc*(1 - exp(-t/tau)) from the start of the recording.",
+                  unphysical=lambda v: "" if min(v["drift_Fc0"], v["drift_Fc0"] + v["drift_dFc"]) >= 0 else
+                  "its friction level falls below 0 (a force pushing along the motion)")
 
 
 VOCABULARY: dict[str, Callable[[Context], Effect]] = {

@@ -5,16 +5,20 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import casadi as ca
 import numpy as np
 
 from motiontwin.ident import outputerror, startvalues
 from motiontwin.ident.diagnosis import effects as effect_models
 from motiontwin.ident.diagnosis import evidence
+from motiontwin.ident.diagnosis.bounds import at_bound, at_bound_text
 from motiontwin.ident.diagnosis.bundle import Bundle, BundleError
 from motiontwin.ident.diagnosis.locate import _mass_equivalent, _needed_force, _pitch_in_state_coordinates, _states_from
 from motiontwin.ident.diagnosis.plant_roles import PlantFormError, output_map
 from motiontwin.ident.diagnosis.structure import (AUGMENTED_CLASS, ModelFit, _fmt, _log, _moving_start,
                                                   _nominal_bounds, build_axes)
+
+SAME_PHYSICS = 0.9    # |cosine| between a plant parameter's force and an effect's force shape: the same physics
 from motiontwin.ident.plant_states import alias_state
 
 
@@ -25,19 +29,21 @@ def _divergence_hint(bundle: Bundle) -> str:
 
 def nominal_start(bundle: Bundle, progress=None) -> dict[str, float]:
     """Start values of the nominal refit: the Modelica defaults, over them ``plant.parameters`` of the bundle,
-    and for every other non-zero parameter that enters the plant's force linearly (mass, viscous
-    friction, ...) the inverse-dynamics least-squares estimate on the training recording (kept when it has
-    the default's sign), so that a 2 kg default never meets a 95 kg axis in a closed-loop free run."""
+    and for every other non-zero parameter (or zero one listed in ``plant.free``, e.g. Fc, F0 of a
+    PrismaticAxis) that enters the plant's force linearly (mass, viscous friction, ...) the inverse-dynamics
+    least-squares estimate on the training recording (kept when it has the default's sign, or the default is
+    zero), so that a 2 kg default never meets a 95 kg axis in a closed-loop free run."""
     model, plant = bundle.plant.model, bundle.plant
     values = {v.name: float(v.start) for v in model.parameters} | plant.parameters
-    guess = [n for n, v in values.items() if n not in plant.parameters and v != 0]
+    listed = plant.free or []
+    guess = [n for n, v in values.items() if n not in plant.parameters and (v != 0 or n in listed)]
     if alias_state(model, plant.output_name) != plant.position_state:
         _log(progress, "start values: the Modelica defaults and plant.parameters (the inverse-dynamics start "
                        "needs the output to be the position state itself)")
         return values
     estimate = startvalues.inverse_dynamics_start(model, bundle.train["q"], bundle.train["u"], bundle.controller.Ts,
                                                   plant.position_state, guess, values, input_name=plant.input_name)
-    kept = {n: v for n, v in estimate.items() if v * values[n] > 0}
+    kept = {n: v for n, v in estimate.items() if v * values[n] > 0 or (values[n] == 0 and v != 0)}
     if kept:
         _log(progress, f"start values from inverse dynamics: {_fmt(kept)} (defaults: "
                        f"{_fmt({n: values[n] for n in kept})})")
@@ -64,6 +70,9 @@ def fit_nominal(bundle: Bundle, progress=None) -> tuple[ModelFit, outputerror.We
                                   evidence.noise_level(bundle.train["u"] - result.u_sim, ts))
     result = outputerror.fit(loop.with_values(result.values), bundle.train, weights, bounds, max_nfev=15)
     _log(progress, f"nominal refit: {_fmt(result.values)}; rms q {result.rms_q:.3g} m")
+    hit = at_bound_text(at_bound(result.values, bounds, free))
+    if hit:
+        _log(progress, f"nominal refit: at bound: {hit}")
     return ModelFit([], loop.with_values(result.values), result, bounds), weights
 
 
@@ -86,8 +95,8 @@ def check_plant_form(bundle: Bundle, folder: Path) -> None:
 
 def nominal_free(bundle: Bundle) -> tuple[list[str], dict[str, tuple[float, float]]]:
     """The nominal parameters refitted: non-zero ones that enter the inverse-dynamics force linearly
-    (masses, viscous friction, gravity), bounded to a factor 5 around the start as in the single-axis
-    refit; geometry (lengths, offsets), which enters nonlinearly, stays at its value."""
+    (masses, viscous friction, gravity), within their physical bounds as in the single-axis refit; geometry
+    (lengths, offsets), which enters nonlinearly, stays at its value."""
     free, bounds = _nominal_bounds(bundle, "plant.")
     model = bundle.plant.model
     values = dict(bundle.start)
@@ -133,3 +142,37 @@ def fit_nominal_axes(bundle: Bundle, work: Path, progress=None) -> tuple[ModelFi
     _log(progress, f"nominal refit ({', '.join(loop.free)}): "
                    f"{_fmt({k: result.values[k] for k in loop.free})}; rms q {result.rms_q:.3g} m")
     return ModelFit([], loop.with_values(result.values), result, bounds), weights
+
+
+def plant_physics(bundle: Bundle, nominal: ModelFit, ctx: effect_models.Context) -> dict[str, str]:
+    """Catalogue effects whose force the plant already has as a refitted parameter (effect -> parameter): the
+    force the parameter adds along the recorded motion (d u_needed / d p from the plant's equations at the
+    filtered states of ``ctx``) points the same way as the effect's force shape (``Effect.regressor``), so the
+    effect would add the same physics a second time."""
+    plant = bundle.plant
+    if bundle.multi_axis or ctx.x is None or ctx.v is None or not nominal.loop.free:
+        return {}
+    model = plant.model
+    names, inputs = [s.name for s in model.states], [v.name for v in model.inputs]
+    params = [v.name for v in model.parameters]
+    i_v, k_u = names.index(plant.velocity_state), inputs.index(plant.input_name)
+    acc = model.dx[i_v]
+    fn = ca.Function("push", [model.x, model.u, model.p], [ca.jacobian(acc, model.u)[k_u], ca.jacobian(acc, model.p)])
+    p = np.array([nominal.fit.values.get(n, 0.0) for n in params])
+    x0 = np.array(ca.Function("x0", [model.p], [model.x0()])(p)).ravel()
+    x = np.tile(x0[:, None], (1, ctx.x.size))
+    x[names.index(plant.position_state)], x[i_v] = ctx.x, ctx.v
+    gain, dp = fn.map(ctx.x.size)(x, np.zeros((model.u.numel(), ctx.x.size)), p)
+    dp = np.array(dp).reshape(ctx.x.size, len(params)).T / np.array(gain).ravel()
+    owned = {}
+    for name in nominal.loop.free:
+        push = dp[params.index(name)]
+        for effect, factory in effect_models.VOCABULARY.items():
+            shape = factory(ctx).regressor
+            if shape is None or effect in owned:
+                continue
+            r = shape(ctx, ctx.x, ctx.v)
+            norm = float(np.linalg.norm(r) * np.linalg.norm(push))
+            if norm > 0 and abs(float(r @ push)) / norm > SAME_PHYSICS:
+                owned[effect] = name
+    return owned

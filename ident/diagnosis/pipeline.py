@@ -17,10 +17,11 @@ import numpy as np
 from motiontwin.fmus.files import move_file
 from motiontwin.ident import outputerror, startvalues
 from motiontwin.ident.diagnosis import report
+from motiontwin.ident.diagnosis.bounds import structure_at_bound
 from motiontwin.ident.diagnosis.bundle import Bundle
 from motiontwin.ident.diagnosis.locate import context
 from motiontwin.ident.diagnosis.nominal import (_divergence_hint, check_plant_form, fit_nominal, fit_nominal_axes,
-                                                nominal_free, nominal_start)
+                                                nominal_free, nominal_start, plant_physics)
 from motiontwin.ident.diagnosis.remainder import EMPIRICAL_EFFECT, explain_remainder, explain_remainder_axes
 from motiontwin.ident.diagnosis.select import VALIDATION_GAIN, select
 from motiontwin.ident.diagnosis.structure import (AUGMENTED_CLASS, LoopCache, _log, _nominal_bounds, build_axes,
@@ -46,7 +47,10 @@ def run(bundle: Bundle, work: Path, progress=None) -> dict:
                                {k: v for k, v in nominal.fit.values.items() if k in nominal.loop.free},
                                _divergence_hint(bundle))
     ctx = context(bundle, nominal)
-    final, log, _ = select(bundle, nominal, weights, ctx, work / "trials", progress)
+    owned = plant_physics(bundle, nominal, ctx)
+    for effect, name in owned.items():
+        _log(progress, f"{effect}: not offered, the plant's own {name} carries this force and is refitted")
+    final, log, _ = select(bundle, nominal, weights, ctx, work / "trials", progress, owned)
     final, remainder = explain_remainder(bundle, final, weights, ctx, work / "remainder", progress)
     model_dir = work / "final_model"
     values = dict(final.fit.values)
@@ -63,7 +67,8 @@ def run(bundle: Bundle, work: Path, progress=None) -> dict:
     return {"bundle": bundle, "nominal": nominal, "final": final, "weights": weights, "context": ctx,
             "log": log, "augmented_values": values, "q_augmented": q_aug, "u_augmented": u_aug,
             "remainder": remainder,
-            "augmented_model": written, "validation_floor": floor, "seconds": time.perf_counter() - t0}
+            "augmented_model": written, "validation_floor": floor, "seconds": time.perf_counter() - t0,
+            "plant_physics": owned}
 
 
 @dataclass
@@ -205,6 +210,7 @@ class MultiAxisDiagnosis:
                                           np.atleast_1d(result["weights"].sigma_u).tolist()))},
             "location": result["located"], "candidates": result["log"],
             "nominal_free": list(bundle.nominal_free[0]), "runtime_s": round(result["seconds"], 2),
+            "at_bound": structure_at_bound(final),
             "plant_roles": {a.output: a.as_dict() for a in bundle.plant.axes}})
 
     def write(self, folder: str | os.PathLike) -> dict:

@@ -83,7 +83,7 @@ def explain_remainder(bundle: Bundle, final: ModelFit, weights: outputerror.Weig
                                                        f"be fitted by output error: {exc}"}
     dof = sum(p.fitted for p in effect.params)
     null, reduction, threshold = _null_test(bundle, final, trial, weights, dof)
-    _log(progress, f"  empirical term: cost -{reduction:.4g}, null {threshold:.4g} (x{reduction / threshold:.2f})")
+    _log(progress, f"  empirical term: cost {-reduction:+.4g}, null {threshold:.4g} (x{reduction / threshold:.2f})")
     if empirical.verdict(reduction, threshold, None, VALIDATION_GAIN) == empirical.NONE:
         return final, {"status": empirical.NONE, "reason": f"the empirical term ({', '.join(law.names)}) is not "
                                                            f"significant: cost reduction {reduction:.4g} <= null "
@@ -188,7 +188,7 @@ def explain_remainder_axes(bundle: Bundle, final: ModelFit, weights: outputerror
                                                            f"could not be fitted by output error: {exc}"}
     dof = sum(p.fitted for p in effect.params)
     _, reduction, threshold = _null_test(bundle, final, trial, weights, dof)
-    _log(progress, f"  empirical term on {axis}: cost -{reduction:.4g}, null {threshold:.4g} "
+    _log(progress, f"  empirical term on {axis}: cost {-reduction:+.4g}, null {threshold:.4g} "
                    f"(x{reduction / threshold:.2f})")
     if empirical.verdict(reduction, threshold, None, VALIDATION_GAIN) == empirical.NONE:
         return final, {"status": empirical.NONE, "reason": f"the empirical term ({', '.join(law.names)}) on {axis} "

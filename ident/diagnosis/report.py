@@ -15,6 +15,7 @@ import numpy as np  # noqa: E402
 
 from motiontwin.fmus import frontend, symbolic  # noqa: E402
 from motiontwin.fmus.build import MODELICA_DIR, build_fmu  # noqa: E402
+from motiontwin.ident.diagnosis.bounds import at_bound_markdown, structure_at_bound  # noqa: E402
 from motiontwin.ident.diagnosis import evidence  # noqa: E402
 from motiontwin.ident.diagnosis.bundle import Bundle, PlantInfo  # noqa: E402
 from motiontwin.ident.diagnosis.empirical import POWER_SHARE  # noqa: E402
@@ -155,6 +156,8 @@ def diagnosis_document(result: dict, out: Path, fmu_path: Path | None) -> dict:
         "candidates": [{k: v for k, v in entry.items()} for entry in result["log"]],
         "runtime_s": round(result["seconds"], 2),
         "plant_roles": result["bundle"].plant.roles.as_dict(),
+        "at_bound": structure_at_bound(final),
+        "plant_physics": result.get("plant_physics", {}),
     }
 
 
@@ -294,7 +297,7 @@ def _markdown(doc: dict, plots: list[str], result: dict, clipped: dict[str, int]
         lines += ["## No missing physics", "", "After refitting the nominal parameters, no candidate effect "
                   "improved the fit beyond what a correct model leaves on the same excitation, or none improved "
                   "the validation fit: the nominal structure is kept, only its parameters were off.", ""]
-    lines += _unexplained_markdown(doc)
+    lines += _unexplained_markdown(doc) + at_bound_markdown(doc["at_bound"])
     lines += ["## Fit", "", "| model | validation RMS [m] |", "|---|---|",
               f"| nominal, refitted | {val['nominal_rms']:.4g} |", f"| augmented | {val['augmented_rms']:.4g} |", "",
               f"Noise floor (RMS that the fitted model leaves when re-simulated with the estimated encoder noise "
@@ -513,7 +516,7 @@ def report_markdown(doc: dict, bundle: Bundle, plots: list[str] = ()) -> str:
     else:
         lines += ["## No effect found", "", "Only the nominal parameters were off: no candidate effect on the "
                   "located axes beat the bootstrap null reference and improved validation."]
-    lines += [""] + _unexplained_markdown(doc)
+    lines += [""] + _unexplained_markdown(doc) + at_bound_markdown(doc["at_bound"])
     lines += ["## Validation RMS per axis", "", "| axis | nominal [m] | augmented [m] | noise floor [m] |",
               "|---|---|---|---|"]
     for axis, v in doc["validation"]["per_axis"].items():

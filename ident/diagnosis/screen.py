@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import concurrent.futures
 import itertools
+import math
 import multiprocessing
 import os
 import threading
@@ -22,41 +23,59 @@ from motiontwin.ident.diagnosis.structure import ModelFit, _log, build_axes, bui
 SCREEN_NFEV = 4             # cheap fit of every candidate, to rank them
 MAX_NFEV = 15               # full fit of the best-ranked candidates
 FULL_FITS = 3
+SCREEN_STARTS = 1           # data-driven starts fitted in the screening, besides the vanishing point
+FULL_STARTS = 3             # ... and in a full fit
 MULTI_START = ("position_ripple", "resonance")   # nonlinear in a period/frequency: screen every start
 _TOKENS = itertools.count()  # screening-job tokens (itertools.count is thread-safe in CPython)
 
 
 def fit_structure(bundle: Bundle, current: ModelFit, candidate: effect_models.Effect, ctx: effect_models.Context,
                   weights: outputerror.Weights, folder: Path, max_nfev: int = MAX_NFEV) -> ModelFit:
-    """Fit the current structure plus ``candidate`` from each of the candidate's starting points."""
+    """Fit the current structure plus ``candidate`` from its vanishing point and its data-driven starts."""
     effects = current.effects + [candidate]
     base = dict(current.fit.values) if current.effects else {"plant." + k: v for k, v in current.fit.values.items()}
-    starts = _starts(candidate, ctx, max_nfev)
+    starts = _starts(candidate, ctx)
     values = {**base, **{p.name: float(np.mean(p.bounds)) for p in candidate.params if not p.fitted}, **starts[0]}
     loop, bounds = build_structure(bundle, effects, values, folder, bundle.train.time.size,
                                    min_substeps=current.loop.substeps)
-    best = _best_fit(bundle, loop, bounds, weights, base, starts, max_nfev)
-    return ModelFit(effects, loop.with_values(best.values), best, bounds, folder)
+    best, start_cost = _best_fit(bundle, loop, bounds, weights, base, starts, max_nfev, candidate.name)
+    return ModelFit(effects, loop.with_values(best.values), best, bounds, folder, start_cost=start_cost)
 
 
-def _starts(candidate: effect_models.Effect, ctx: effect_models.Context, max_nfev: int) -> list[dict[str, float]]:
-    """The candidate's starting points; a screening fit (``SCREEN_NFEV``) takes only the first unless the
-    effect is nonlinear in a period or frequency (``MULTI_START``)."""
-    starts = candidate.initial(ctx)
-    return starts[:1] if max_nfev <= SCREEN_NFEV and candidate.name not in MULTI_START else starts
+def _starts(candidate: effect_models.Effect, ctx: effect_models.Context) -> list[dict[str, float]]:
+    """The candidate's starting points: first its vanishing point (the current model exactly), then its
+    data-driven starts (the inverse-dynamics force residual projected on the effect's regressors, and several
+    values of a parameter in which the cost is rough)."""
+    data = candidate.initial(ctx)
+    return [effect_models.vanishing_start(candidate, data)] + data
+
+
+def _start_cost(bundle: Bundle, loop: outputerror.Loop, weights: outputerror.Weights,
+                values: dict[str, float]) -> float:
+    """The training cost of ``loop`` at ``values`` (one free run, no fit)."""
+    r, _, _ = outputerror.residuals(loop, bundle.train, values, weights)
+    return float(r @ r) if np.all(np.isfinite(r)) else math.inf
 
 
 def _best_fit(bundle: Bundle, loop: outputerror.Loop, bounds: dict[str, tuple[float, float]],
               weights: outputerror.Weights, base: dict[str, float], starts: list[dict[str, float]],
-              max_nfev: int) -> outputerror.Fit:
-    """The lowest-cost fit of ``loop`` from ``base`` with each start (clipped into its bounds) over it."""
+              max_nfev: int, name: str = "") -> tuple[outputerror.Fit, float]:
+    """The lowest-cost fit of ``loop`` from ``base`` with the vanishing start (``starts[0]``) and the
+    lowest-cost data-driven starts over it (each clipped into its bounds): ``SCREEN_STARTS`` of them in a
+    screening fit (every one for ``MULTI_START`` effects), ``FULL_STARTS`` in a full fit. Returns the fit
+    and the cost at the vanishing start. The trust-region fit accepts only descent, so no fit ends above
+    the cost of its start."""
+    points = [{**base, **{k: float(np.clip(v, *bounds[k])) for k, v in start.items() if k in bounds}}
+              for start in starts]
+    costs = [_start_cost(bundle, loop, weights, point) for point in points]
+    data = sorted(range(1, len(points)), key=lambda k: costs[k])
+    count = len(data) if name in MULTI_START else SCREEN_STARTS if max_nfev <= SCREEN_NFEV else FULL_STARTS
     best = None
-    for start in starts:
-        clipped = {k: float(np.clip(v, *bounds[k])) for k, v in start.items() if k in bounds}
-        result = outputerror.fit(loop, bundle.train, weights, bounds, start={**base, **clipped}, max_nfev=max_nfev)
+    for k in [0] + data[:count]:
+        result = outputerror.fit(loop, bundle.train, weights, bounds, start=points[k], max_nfev=max_nfev)
         if best is None or result.cost < best.cost:
             best = result
-    return best
+    return best, costs[0]
 
 
 def refine(bundle: Bundle, structure: ModelFit, weights: outputerror.Weights, max_nfev: int = MAX_NFEV) -> ModelFit:
@@ -74,15 +93,15 @@ def refine(bundle: Bundle, structure: ModelFit, weights: outputerror.Weights, ma
 _SCREEN_JOBS: dict[int, tuple] = {}
 
 
-def _screen_one(token: int, name: str) -> tuple[str, outputerror.Fit | None, int, float, str]:
+def _screen_one(token: int, name: str) -> tuple[str, outputerror.Fit | None, int, float, str, float]:
     """Cheap fit of the current structure plus the effect ``name`` (run in a worker or in-process)."""
     fit_one = _SCREEN_JOBS[token]
     t0 = time.perf_counter()
     try:
         trial = fit_one(name)
     except (RuntimeError, ValueError, np.linalg.LinAlgError) as exc:
-        return name, None, 0, time.perf_counter() - t0, str(exc)
-    return name, trial.fit, trial.loop.substeps, time.perf_counter() - t0, ""
+        return name, None, 0, time.perf_counter() - t0, str(exc), math.nan
+    return name, trial.fit, trial.loop.substeps, time.perf_counter() - t0, "", trial.start_cost
 
 
 def screen_workers() -> int:
@@ -120,13 +139,30 @@ def screen(bundle: Bundle, current: ModelFit, names: list[str], ctx: effect_mode
     finally:
         del _SCREEN_JOBS[token]
     out: dict[str, tuple[outputerror.Fit, int]] = {}
-    for name, result, substeps, seconds, error in results:
+    for name, result, substeps, seconds, error, start_cost in results:
         if result is None:
             _log(progress, f"  {name}: fit failed ({error})")
             continue
         out[name] = (result, substeps)
-        _log(progress, f"  screen {name}: cost -{current.fit.cost - result.cost:.4g} ({seconds:.1f} s)")
+        _log(progress, f"  screen {name}: cost {result.cost - current.fit.cost:+.4g} ({seconds:.1f} s)")
+        defect = screening_defect(current.fit.cost, start_cost, result.cost)
+        if defect:
+            _log(progress, f"  defect: {name} {defect}")
     return out
+
+
+VANISHING_RTOL = 1e-6   # a candidate at its vanishing point reproduces the current cost within this (RK4 substeps)
+
+
+def screening_defect(current: float, start: float, end: float) -> str:
+    """What went wrong in one candidate's screening ("" if nothing): it ended above its vanishing start, or
+    that start does not reproduce the model it extends (``current``), so the search could end worse."""
+    if end > start:
+        return f"ended above its start (cost {end - current:+.4g}, at its vanishing point {start - current:+.4g})"
+    if not start <= current + VANISHING_RTOL * abs(current):
+        return (f"at its vanishing point does not reproduce the model it extends (cost {start - current:+.4g}), "
+                f"ended at {end - current:+.4g}")
+    return ""
 
 
 def ranked_with_nested(order: list[str], screened: dict) -> list[str]:
@@ -159,14 +195,15 @@ def fit_candidate(bundle: Bundle, current: ModelFit, effect: effect_models.Effec
     roles = next(a for a in bundle.plant.axes if a.output == axis)
     placed = on_axis(effect, roles)
     effects = current.placed + [(axis, placed)]
-    starts = _starts(placed, ctx, max_nfev)
+    starts = _starts(placed, ctx)
     base = dict(current.fit.values)
     values = {**base, **{p.name: float(np.mean(p.bounds)) for p in placed.params if not p.fitted}, **starts[0]}
     loop, bounds = build_axes(bundle, effects, values, folder, bundle.train.time.size,
                               min_substeps=current.loop.substeps)
-    best = _best_fit(bundle, loop, bounds, weights, {**loop.values, **base}, starts, max_nfev)
+    best, start_cost = _best_fit(bundle, loop, bounds, weights, {**loop.values, **base}, starts, max_nfev,
+                                 effect.name)
     return ModelFit(current.effects + [placed], loop.with_values(best.values), best, bounds, folder,
-                    evidence=dict(current.evidence), axes=current.axes + [axis])
+                    evidence=dict(current.evidence), axes=current.axes + [axis], start_cost=start_cost)
 
 
 def placed_structure(bundle: Bundle, current: ModelFit, name: str, axis: str, ctx: effect_models.Context,

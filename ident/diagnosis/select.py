@@ -28,14 +28,16 @@ BOOTSTRAP_COUNT = 30
 
 
 def select(bundle: Bundle, nominal: ModelFit, weights: outputerror.Weights, ctx: effect_models.Context | None,
-           work: Path, progress=None) -> tuple[ModelFit, list[dict], list[dict]]:
+           work: Path, progress=None, owned: dict[str, str] | None = None) -> tuple[ModelFit, list[dict], list[dict]]:
     """Greedy forward selection of effects with the bootstrap null reference and the validation check, for one
     axis or several. Each round takes the axis to screen (several axes: the one whose force residual stands
     highest above its noise reference, :func:`locate.locate`; one axis: the only one, with ``ctx``), screens
     the vocabulary's effects on it, fully fits the best ranked with their nested simpler and close richer ones,
     keeps the first significant one (its nested simpler one unless the extra parameters earn their place) that
     lowers that axis's validation RMS by the validation rule's margin, and lists the structures that explain
-    the data as well. Returns the final structure, the candidate log and the per-round axis scores."""
+    the data as well. Effects in ``owned`` (the plant refits the same physics as its own parameter,
+    :func:`nominal.plant_physics`) are not offered. Returns the final structure, the candidate log and the
+    per-round axis scores."""
     current = nominal
     log: list[dict] = []
     located: list[dict] = []
@@ -62,7 +64,7 @@ def select(bundle: Bundle, nominal: ModelFit, weights: outputerror.Weights, ctx:
                                             weights.sigma_u, bundle.train.time.size, BOOTSTRAP_COUNT, seed=rounds)
         base_gain = evidence.projected_gain(current.fit.jacobian, null)
         shortlist = shortlists.get(axis, list(effect_models.VOCABULARY))
-        names = [n for n in candidates(ctx, used.setdefault(axis, set())) if n in shortlist]
+        names = [n for n in candidates(ctx, used.setdefault(axis, set())) if n in shortlist and n not in (owned or {})]
         if axis is None:
             screened = screen(bundle, current, names, ctx, weights, work / f"r{rounds}", progress)
         else:
@@ -92,9 +94,10 @@ def select(bundle: Bundle, nominal: ModelFit, weights: outputerror.Weights, ctx:
                         "cost_reduction": gain, "null_threshold": threshold, "evidence_ratio": gain / threshold,
                         "parameters": _effect_values(trial, candidate),
                         "seconds": round(time.perf_counter() - t0, 2)})
-            _log(progress, f"  round {rounds} {name}{on}: cost -{gain:.4g}, null {threshold:.4g} "
+            _log(progress, f"  round {rounds} {name}{on}: cost {-gain:+.4g}, null {threshold:.4g} "
                            f"(x{gain / threshold:.2f}), {time.perf_counter() - t0:.1f} s")
-        significant = sorted((n for n, t in trials.items() if t[1] > t[2]), key=lambda n: -trials[n][1])
+        significant = sorted((n for n, t in trials.items() if t[1] > t[2] and not _unphysical(t[0], progress)),
+                             key=lambda n: -trials[n][1])
         chosen = None
         for name in significant:
             name = _simplest(name, trials, null, bundle, work, progress, axis)
@@ -127,6 +130,18 @@ def select(bundle: Bundle, nominal: ModelFit, weights: outputerror.Weights, ctx:
         used[axis].add(chosen.effects[-1].family)
         current = chosen
     return current, log, located
+
+
+def _unphysical(trial: ModelFit, progress) -> bool:
+    """True (and logged) when the fitted values of the trial's effect are not the physics it names."""
+    effect = trial.effects[-1]
+    if effect.unphysical is None:
+        return False
+    prefix = f"{trial.axes[-1]}_" if trial.axes else ""      # an effect placed on an axis (structure.on_axis)
+    reason = effect.unphysical({p.name[len(prefix):]: trial.fit.values[p.name] for p in effect.params})
+    if reason:
+        _log(progress, f"  {effect.name}: not reported as this physics, {reason}")
+    return bool(reason)
 
 
 def _round_axis(bundle: Bundle, current: ModelFit, weights: outputerror.Weights, rounds: int, located: list[dict],
@@ -183,7 +198,7 @@ def _simplest(name: str, trials: dict, null: np.ndarray, bundle: Bundle, work: P
         return simple
     rich_rms = _validation_rms(bundle, rich[0], work / f"n_{name}", axis)
     small_rms = _validation_rms(bundle, small[0], work / f"n_{simple}", axis)
-    _log(progress, f"  {name} vs {simple}: extra -{extra:.4g}, null {threshold:.4g}, validation "
+    _log(progress, f"  {name} vs {simple}: extra {-extra:+.4g}, null {threshold:.4g}, validation "
                    f"{rich_rms:.4g} vs {small_rms:.4g}")
     return name if rich_rms < VALIDATION_GAIN * small_rms else simple
 

@@ -40,6 +40,7 @@ class ModelFit:
     evidence: dict = field(default_factory=dict)
     axes: list[str] = field(default_factory=list)
     val_axes: dict[str, float] = field(default_factory=dict)
+    start_cost: float = math.nan   # training cost of a candidate at its vanishing point (the model it extends)
 
     @property
     def names(self) -> list[str]:
@@ -60,17 +61,17 @@ class ModelFit:
 
 
 def _nominal_bounds(bundle: Bundle, prefix: str = "") -> tuple[list[str], dict[str, tuple[float, float]]]:
-    """The nominal parameters the refit moves (``plant.free``, else every non-zero one), within a factor 5
-    of their start and their Modelica min/max."""
+    """The nominal parameters the refit moves (``plant.free``, zero ones included, else every non-zero one)
+    and their physical bounds: the plant's Modelica min/max (none where it declares none), never a window
+    around the start value."""
     free, bounds = [], {}
+    listed = bundle.plant.free
     for var in bundle.plant.model.parameters:
         value = float(bundle.start.get(var.name, var.start))
-        if value == 0 or (bundle.plant.free is not None and var.name not in bundle.plant.free):
+        if (listed is not None and var.name not in listed) or (listed is None and value == 0):
             continue
-        lo, hi = sorted((value / 5, value * 5))
-        lo, hi = max(lo, var.min), min(hi, var.max)
         free.append(prefix + var.name)
-        bounds[prefix + var.name] = (lo, hi)
+        bounds[prefix + var.name] = (float(var.min), float(var.max))
     return free, bounds
 
 

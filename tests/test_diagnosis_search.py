@@ -1,0 +1,51 @@
+"""The screening search cannot end worse than it started (issue 22, item 1): every candidate effect starts
+from its vanishing point, where the augmented model is the current model, so its screened cost is at most the
+current model's cost.
+
+Reference: the refitted nominal model's own training cost (an independent free run of the nominal loop); the
+bundle is the short concealed-cogging benchmark bundle (pole pitch given, so every effect of the vocabulary is
+offered), whose residual is far from zero, so a candidate started anywhere but its vanishing point can end
+above that cost.
+"""
+from __future__ import annotations
+
+import pytest
+
+from motiontwin.ident.benchmarks import single_axis as bench
+from motiontwin.ident.diagnosis import effects as effect_models
+from motiontwin.ident.diagnosis.bundle import read_bundle
+from motiontwin.ident.diagnosis.locate import context
+from motiontwin.ident.diagnosis.nominal import fit_nominal, nominal_start
+from motiontwin.ident.diagnosis.screen import SCREEN_NFEV, VANISHING_RTOL, fit_structure, screening_defect
+from motiontwin.ident.diagnosis.structure import LoopCache
+
+
+@pytest.fixture(scope="module")
+def nominal(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("search") / "cogging"
+    bench.write_bundle(folder, "cogging", seed=21, durations=(1.5, 0.75), engine="casadi")
+    bundle = read_bundle(folder)
+    bundle.cache = LoopCache()
+    bundle.start = nominal_start(bundle)
+    fit, weights = fit_nominal(bundle)
+    return bundle, fit, weights, context(bundle, fit), folder.parent / "work"
+
+
+@pytest.mark.parametrize("name", list(effect_models.VOCABULARY))
+def test_screened_cost_never_above_the_current_model(nominal, name):
+    bundle, current, weights, ctx, work = nominal
+    effect = effect_models.VOCABULARY[name](ctx)
+    assert effect.applicable
+    trial = fit_structure(bundle, current, effect, ctx, weights, work / name, SCREEN_NFEV)
+    cost = current.fit.cost
+    if name != "lugre_friction":   # its bristle force starts at the held force (a transient over a few z0)
+        assert trial.start_cost == pytest.approx(cost, rel=VANISHING_RTOL)     # the vanishing point is the model
+    assert trial.fit.cost <= trial.start_cost                               # only descent
+    assert trial.fit.cost <= cost * (1 + VANISHING_RTOL)
+    assert screening_defect(cost, trial.start_cost, trial.fit.cost) == ""
+
+
+def test_defect_line_names_what_went_wrong():
+    assert "ended above its start" in screening_defect(100.0, 100.0, 150.0)
+    assert "does not reproduce" in screening_defect(100.0, 130.0, 120.0)
+    assert "+50" in screening_defect(100.0, 100.0, 150.0) and "--" not in screening_defect(100.0, 100.0, 150.0)
