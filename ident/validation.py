@@ -266,6 +266,7 @@ class Validation:
     closed_loop: bool
     output: str
     input: str
+    unit: str = "m"                     # the output's unit as the recording declares it (m, rad, ...)
 
     @property
     def residual(self) -> np.ndarray:
@@ -357,7 +358,8 @@ def validate(model: symbolic.SymbolicModel, spec: ModelSpec, rec: Recording, *, 
     return Validation(spec, rec.time, measured, result.q_sim, u, fit_percent(measured, result.q_sim),
                       result.rms_q, autocorrelation_test(residual, lags),
                       cross_correlation_test(u, residual, lags), result.initial, controller is not None,
-                      signals.output, signals.input if controller is None else signals.reference)
+                      signals.output, signals.input if controller is None else signals.reference,
+                      rec.units.get(signals.output) or "m")
 
 
 def validation_document(result: Validation, recording_path: str) -> dict[str, Any]:
@@ -385,13 +387,14 @@ def plot_validation(result: Validation, path: Path) -> Path:
     ax.plot(result.time, result.measured, label=f"measured {result.output}", lw=1)
     ax.plot(result.time, result.simulated, "--", label=f"simulated (fit {result.fit_percent:.3f} %)", lw=1)
     ax.set_xlabel("time [s]")
-    ax.set_ylabel(f"{result.output} [m]")
+    ax.set_ylabel(f"{result.output} [{result.unit}]")
     ax.legend(loc="best")
-    ax.set_title(f"{result.spec.class_name}: RMS error {result.rms:.3g} m")
+    ax.set_title(f"{result.spec.class_name}: RMS error {result.rms:.3g} {result.unit}")
     ax = axes[1]
-    ax.plot(result.time, 1e6 * result.residual, lw=0.7)
+    scale, shown = (1e6, "u" + result.unit) if result.unit in ("m", "rad") else (1.0, result.unit)
+    ax.plot(result.time, scale * result.residual, lw=0.7)
     ax.set_xlabel("time [s]")
-    ax.set_ylabel("measured - simulated [um]")
+    ax.set_ylabel(f"measured - simulated [{shown}]")
     ax.set_title("output residual")
     for ax, test, title, measure in (
             (axes[2], result.autocorrelation, "residual autocorrelation", "Q"),

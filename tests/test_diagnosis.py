@@ -311,3 +311,45 @@ def test_validate_reads_what_diagnose_writes(small_bundle, diagnosed, tmp_path, 
     assert cli(["validate", str(lone / "Augmented.fmu"), str(recording), "--controller", str(controller)]) == 1
     err = capsys.readouterr().err
     assert "class 'Augmented' not found" in err and "augmented_model/NAME.mo" in err and "--modelica" in err
+
+
+ROTARY_UNITS = {'"kg"': '"kg.m2"', '"N.s/m"': '"N.m.s/rad"', '"N"': '"N.m"', '"m/s"': '"rad/s"', '"m"': '"rad"'}
+
+
+def test_rotary_axis_is_reported_in_rotary_units(small_bundle, diagnosed, tmp_path):
+    """Issue 23 item 1: the same numbers declared rad and N.m (recordings and plant) give the same diagnosis,
+    reported in rad, N.m, deg and deg/s (diagnosis.json, report.md, the summary line), never in m, N or mm."""
+    import contextlib
+    import io
+
+    bundle = _copy(small_bundle, tmp_path)
+    text = (bundle / "plant.mo").read_text()
+    for linear, rotary in ROTARY_UNITS.items():
+        text = text.replace(f"unit = {linear}", f"unit = {rotary}")
+    (bundle / "plant.mo").write_text(text)
+    for name in ("train.json", "validation.json"):
+        doc = json.loads((bundle / name).read_text())
+        doc["units"].update(r="rad", q="rad", u="N.m", **({"u_ext": "N.m"} if "u_ext" in doc["units"] else {}))
+        (bundle / name).write_text(json.dumps(doc))
+    out = tmp_path / "out"
+    printed = io.StringIO()
+    with contextlib.redirect_stdout(printed):
+        assert main([str(bundle), "--out", str(out), "--quiet"]) == 0
+    linear = json.loads((diagnosed[0] / "diagnosis.json").read_text())
+    doc = json.loads((out / "diagnosis.json").read_text())
+    assert [e["name"] for e in doc["effects"]] == [e["name"] for e in linear["effects"]] == ["gravity_offset"]
+    assert doc["validation"]["augmented_rms"] == pytest.approx(linear["validation"]["augmented_rms"], rel=1e-6)
+    assert doc["units"] == {"position": "rad", "velocity": "rad/s", "force": "N.m", "mass": "kg.m2"}
+    assert linear["units"] == {"position": "m", "velocity": "m/s", "force": "N", "mass": "kg"}
+    assert set(doc["effects"][0]["units"].values()) == {"N.m"}
+    assert "deg/s" in doc["effects"][0]["location_text"] and "mm" not in doc["effects"][0]["location_text"]
+    report = (out / "report.md").read_text()
+    assert "validation RMS [rad]" in report and "mm/s" not in report and " N " not in report
+    assert " rad -> " in printed.getvalue() and " m -> " not in printed.getvalue()
+    from motiontwin.cli import main as cli
+
+    printed = io.StringIO()
+    with contextlib.redirect_stdout(printed):
+        assert cli(["validate", str(out), str(bundle / "validation.csv"), "--controller", str(bundle / "experiment.json"),
+                    "--plot", str(tmp_path / "validate.png")]) == 0
+    assert "RMS output error" in printed.getvalue() and " rad (" in printed.getvalue()

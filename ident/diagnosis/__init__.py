@@ -40,10 +40,14 @@ def run(bundle: str, out: str, quiet: bool = False, allow_outside_paths: bool = 
     if unexplained:
         names += f"; {unexplained_text(unexplained)}"
     val = doc["validation"]
-    per_axis = "".join(f"; {axis} {_metres(v['nominal_rms'])} -> {_metres(v['augmented_rms'])}"
-                       for axis, v in val.get("per_axis", {}).items())
+    units = doc.get("units", {})
+    axis_unit = {axis: units.get(axis, {}).get("position", "m") for axis in val.get("per_axis", {})}
+    unit = units.get("position") or ("rad" if axis_unit and set(axis_unit.values()) == {"rad"} else "m")
+    per_axis = "".join(f"; {axis} {_length(v['nominal_rms'], axis_unit[axis])} -> "
+                       f"{_length(v['augmented_rms'], axis_unit[axis])}" for axis, v in val.get("per_axis", {}).items())
     bound = at_bound_text(doc.get("at_bound", {}))
-    print(f"effects: {names}; validation RMS {_metres(val['nominal_rms'])} -> {_metres(val['augmented_rms'])}"
+    print(f"effects: {names}; validation RMS {_length(val['nominal_rms'], unit)} -> "
+          f"{_length(val['augmented_rms'], unit)}"
           f"{per_axis}{f'; at bound: {bound}' if bound else ''}; report: {out}/report.md")
     return 0
 
@@ -61,9 +65,9 @@ def check_sizes(bundle: Path) -> None:
         check_size(bundle / modelica, "text", BundleError)
 
 
-def _metres(value: float | None) -> str:
-    """A length for the summary line; a diverged (None) value says so instead of failing to format."""
-    return "diverged" if value is None else f"{value:.3g} m"
+def _length(value: float | None, unit: str) -> str:
+    """A position error (m or rad) for the summary line; a diverged (None) value says so."""
+    return "diverged" if value is None else f"{value:.3g} {unit}"
 
 
 def main(argv: list[str] | None = None) -> int:

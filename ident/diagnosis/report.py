@@ -15,6 +15,7 @@ import numpy as np  # noqa: E402
 
 from motiontwin.fmus import frontend, symbolic  # noqa: E402
 from motiontwin.fmus.build import MODELICA_DIR, build_fmu  # noqa: E402
+from motiontwin.ident.diagnosis.axis_units import AxisUnits, axis_units  # noqa: E402
 from motiontwin.ident.diagnosis.bounds import at_bound_markdown, structure_at_bound  # noqa: E402
 from motiontwin.ident.diagnosis import evidence  # noqa: E402
 from motiontwin.ident.diagnosis.bundle import Bundle, PlantInfo  # noqa: E402
@@ -41,27 +42,32 @@ def _with_unit(value: float, unit: str) -> str:
 
 
 def plant_units(result: dict) -> dict[str, str]:
-    """Units of the plant parameters (their Modelica ``unit``) and of the effect parameters."""
+    """Units of the plant parameters (their Modelica ``unit``) and of the effect parameters (written for a linear
+    axis, in the axis's kind)."""
     units = {v.name: v.unit or "" for v in result["bundle"].plant.model.parameters}
+    axis = bundle_units(result["bundle"])
     for effect in result["final"].effects:
-        units.update({p.name: p.unit for p in effect.params})
+        units.update({p.name: axis.si(p.unit) for p in effect.params})
     return units
 
 
-def location_text(loc: dict, axis: str | None = None) -> str:
-    """The location of an effect in words and physical units (mm, mm/s, s, Hz); ``axis``: the output of the
-    axis it acts on (several axes: the sentence names it and its direction), None for the one axis x."""
+def location_text(loc: dict, axis: str | None = None, units: AxisUnits = AxisUnits()) -> str:
+    """The location of an effect in words and physical units (mm, mm/s or deg, deg/s; s, Hz); ``axis``: the
+    output of the axis it acts on (several axes: the sentence names it and its direction), None for the one
+    axis x."""
     parts = [] if axis is None else [f"on axis {axis}"]
     v_lo, v_hi = loc["velocity_range"]
     direction = axis or "x"
+    k, speed = units.shown_velocity
     if v_lo >= 0:
-        parts.append(f"while moving in +{direction} at {v_lo * 1e3:.3g} to {v_hi * 1e3:.3g} mm/s")
+        parts.append(f"while moving in +{direction} at {v_lo * k:.3g} to {v_hi * k:.3g} {speed}")
     elif v_hi <= 0:
-        parts.append(f"while moving in -{direction} at {-v_hi * 1e3:.3g} to {-v_lo * 1e3:.3g} mm/s")
+        parts.append(f"while moving in -{direction} at {-v_hi * k:.3g} to {-v_lo * k:.3g} {speed}")
     else:
-        parts.append(f"around standstill ({v_lo * 1e3:.3g} to {v_hi * 1e3:.3g} mm/s)")
+        parts.append(f"around standstill ({v_lo * k:.3g} to {v_hi * k:.3g} {speed})")
     x_lo, x_hi = loc["position_range"]
-    parts.append(f"between {x_lo * 1e3:.4g} and {x_hi * 1e3:.4g} mm")
+    k, length = units.shown_position
+    parts.append(f"between {x_lo * k:.4g} and {x_hi * k:.4g} {length}")
     text = "Strongest " + " ".join(parts) + f"; residual power peaks at {loc['frequency_peak_hz']:.3g} Hz"
     windows = loc.get("time_windows") or []
     if windows:
@@ -114,9 +120,15 @@ def _location(result: dict, name: str) -> dict:
     return loc
 
 
+def bundle_units(bundle: Bundle) -> AxisUnits:
+    """The units of a single-axis bundle (:mod:`ident.diagnosis.axis_units`)."""
+    return axis_units(bundle.train.units.get("q"), bundle.plant.model, bundle.plant.output_name)
+
+
 def diagnosis_document(result: dict, out: Path, fmu_path: Path | None) -> dict:
     final, nominal = result["final"], result["nominal"]
     ctx = result["context"]
+    units = bundle_units(result["bundle"])
     effects = []
     named = [e for e in final.effects if e.family != EMPIRICAL_EFFECT]   # the empirical term: "unexplained"
     order = sorted(named, key=lambda e: -final.evidence[e.name]["cost_reduction"])
@@ -127,14 +139,16 @@ def diagnosis_document(result: dict, out: Path, fmu_path: Path | None) -> dict:
         text = (f"{effect.explanation} Evidence: adding it lowers the noise-weighted output-error cost by "
                 f"{info['cost_reduction']:.4g}, {ratio:.1f} times the 99.9 % level that a correct model leaves "
                 f"on the same excitation (parametric bootstrap), and the validation RMS falls from "
-                f"{info['validation_rms_before']:.3g} m to {info['validation_rms_after']:.3g} m.")
+                f"{info['validation_rms_before']:.3g} {units.position} to {info['validation_rms_after']:.3g} "
+                f"{units.position}.")
         location = _location(result, effect.name)
         equivalents = [{**e, "parameters": effect_contract(e, ctx, final)} for e in info.get("equivalents", [])]
         effects.append({"name": effect.name, "parameters": {k: float(v) for k, v in params.items()},
-                        "units": {k: CONTRACT_UNITS.get(k, "") for k in params},
+                        "units": {k: units.si(CONTRACT_UNITS.get(k, "")) for k in params},
                         "equivalent_forms": equivalent_forms(effect.name, params),
                         "equivalent_explanations": equivalents, "selection_rule": info.get("rule", ""),
-                        "location": location, "location_text": location_text(location), "explanation": text,
+                        "location": location, "location_text": location_text(location, units=units),
+                        "explanation": text,
                         "evidence": {"cost_reduction": info["cost_reduction"],
                                      "null_threshold": info["null_threshold"],
                                      "validation_rms_before": info["validation_rms_before"],
@@ -158,6 +172,7 @@ def diagnosis_document(result: dict, out: Path, fmu_path: Path | None) -> dict:
         "plant_roles": result["bundle"].plant.roles.as_dict(),
         "at_bound": structure_at_bound(final),
         "plant_physics": result.get("plant_physics", {}),
+        "units": units.as_dict(),
     }
 
 
@@ -208,29 +223,33 @@ def _plots(result: dict, staging: Path) -> tuple[list[str], dict[str, int]]:
     res_aug = train["q"] - final.fit.q_sim
     names = []
     clipped: dict[str, int] = {}
+    units = bundle_units(bundle)
+    k_res, res_unit = units.shown_residual
+    k_pos, pos_unit = units.shown_position
+    k_vel, vel_unit = units.shown_velocity
 
     fig, ax = plt.subplots(figsize=(9, 3.5))
-    ax.plot(train.time, res_nom * 1e6, lw=0.6, label="nominal (refitted)")
-    ax.plot(train.time, res_aug * 1e6, lw=0.6, label="augmented")
+    ax.plot(train.time, res_nom * k_res, lw=0.6, label="nominal (refitted)")
+    ax.plot(train.time, res_aug * k_res, lw=0.6, label="augmented")
     for a, b in evidence.flagged_windows(res_nom, train.time, sigma, ts):
         ax.axvspan(a, b, color="red", alpha=0.12)
-    ax.set_xlabel("time [s]"), ax.set_ylabel("q residual [um]"), ax.legend(), ax.grid(alpha=0.3)
+    ax.set_xlabel("time [s]"), ax.set_ylabel(f"q residual [{res_unit}]"), ax.legend(), ax.grid(alpha=0.3)
     ax.set_title("Training residual; red: windows above 3 noise levels")
     names.append(_save(fig, staging, "residual_time.png"))
 
     ctx = result["context"]
     fig, axes = plt.subplots(1, 2, figsize=(10, 3.5))
     if ctx.force is not None:
-        shown, v, x, label = ctx.force, ctx.v, ctx.x, "force residual of the nominal model [N]"
+        shown, v, x, label = ctx.force, ctx.v, ctx.x, f"force residual of the nominal model [{units.force}]"
     else:
-        shown, v, x, label = res_nom * 1e6, np.gradient(train["q"], ts), train["q"], "q residual [um]"
+        shown, v, x, label = res_nom * k_res, np.gradient(train["q"], ts), train["q"], f"q residual [{res_unit}]"
     lo, hi, count = robust_limits(shown)
-    for a, axis in zip(axes, (v * 1e3, x * 1e3)):
+    for a, axis in zip(axes, (v * k_vel, x * k_pos)):
         a.plot(axis, np.clip(shown, lo, hi), ".", ms=1)
         a.set_ylim(lo - 0.05 * (hi - lo), hi + 0.05 * (hi - lo))
         a.grid(alpha=0.3)
     axes[0].set_ylabel(label)
-    axes[0].set_xlabel("velocity [mm/s]"), axes[1].set_xlabel("position [mm]")
+    axes[0].set_xlabel(f"velocity [{vel_unit}]"), axes[1].set_xlabel(f"position [{pos_unit}]")
     fig.suptitle(f"Inverse-dynamics residual against velocity and position; {count} of {shown.size} outliers "
                  f"clipped", fontsize=10)
     clipped["residual_velocity_position.png"] = count
@@ -240,17 +259,18 @@ def _plots(result: dict, staging: Path) -> tuple[list[str], dict[str, int]]:
     for res, label in ((res_nom, "nominal"), (res_aug, "augmented")):
         f, asd = evidence.spectrum(res, ts)
         ax.loglog(f[1:], asd[1:], lw=0.8, label=label)
-    ax.set_xlabel("frequency [Hz]"), ax.set_ylabel("residual ASD [m/sqrt(Hz)]"), ax.legend(), ax.grid(alpha=0.3)
+    ax.set_xlabel("frequency [Hz]"), ax.set_ylabel(f"residual ASD [{units.position}/sqrt(Hz)]"), ax.legend()
+    ax.grid(alpha=0.3)
     names.append(_save(fig, staging, "residual_spectrum.png"))
 
     fig, axes = plt.subplots(2, 1, figsize=(9, 5), sharex=True)
-    axes[0].plot(val.time, val["q"] * 1e3, lw=0.8, label="measured")
-    axes[0].plot(val.time, nominal.val_q * 1e3, lw=0.8, label="nominal")
-    axes[0].plot(val.time, result["q_augmented"] * 1e3, lw=0.8, ls="--", label="augmented")
-    axes[0].set_ylabel("q [mm]"), axes[0].legend()
-    axes[1].plot(val.time, (val["q"] - nominal.val_q) * 1e6, lw=0.6, label="nominal")
-    axes[1].plot(val.time, (val["q"] - result["q_augmented"]) * 1e6, lw=0.6, label="augmented")
-    axes[1].set_ylabel("error [um]"), axes[1].set_xlabel("time [s]"), axes[1].legend()
+    axes[0].plot(val.time, val["q"] * k_pos, lw=0.8, label="measured")
+    axes[0].plot(val.time, nominal.val_q * k_pos, lw=0.8, label="nominal")
+    axes[0].plot(val.time, result["q_augmented"] * k_pos, lw=0.8, ls="--", label="augmented")
+    axes[0].set_ylabel(f"q [{pos_unit}]"), axes[0].legend()
+    axes[1].plot(val.time, (val["q"] - nominal.val_q) * k_res, lw=0.6, label="nominal")
+    axes[1].plot(val.time, (val["q"] - result["q_augmented"]) * k_res, lw=0.6, label="augmented")
+    axes[1].set_ylabel(f"error [{res_unit}]"), axes[1].set_xlabel("time [s]"), axes[1].legend()
     for a in axes:
         a.grid(alpha=0.3)
     fig.suptitle("Validation: fit before and after")
@@ -268,6 +288,7 @@ def _save(fig, staging: Path, name: str) -> str:
 def _markdown(doc: dict, plots: list[str], result: dict, clipped: dict[str, int]) -> str:
     val = doc["validation"]
     units = plant_units(result)
+    axis = bundle_units(result["bundle"])
     lines = ["# Mismatch diagnosis", "", f"Bundle: `{result['bundle'].directory}`", ""]
     if doc["effects"]:
         lines += ["## Missing physics found", ""]
@@ -276,20 +297,21 @@ def _markdown(doc: dict, plots: list[str], result: dict, clipped: dict[str, int]
             lines += [f"### {e['name']} ({params})", "", e["explanation"], "", f"Location: {e['location_text']}", ""]
             if e["equivalent_forms"]:
                 f = e["equivalent_forms"]
-                lines += [f"Equivalent while moving: Coulomb friction Fc = {_with_unit(f['Fc_equivalent'], 'N')} plus "
-                          f"a constant force {_with_unit(f['offset_while_moving'], 'N')} (the two differ only at "
+                lines += [f"Equivalent while moving: Coulomb friction Fc = {_with_unit(f['Fc_equivalent'], axis.force)} "
+                          f"plus a constant force {_with_unit(f['offset_while_moving'], axis.force)} (the two differ only at "
                           f"rest, where asymmetric friction vanishes and a constant force does not).", ""]
             if e["equivalent_explanations"]:
                 lines += ["#### Equivalent explanations", "",
                           "These structures fit within noise on the training and the validation recording:", "",
-                          "| structure | parameters | training cost [-] | validation RMS [m] | fitted parameters | "
+                          f"| structure | parameters | training cost [-] | validation RMS [{axis.position}] | fitted parameters | "
                           "AIC = cost + 2k [-] |", "|---|---|---|---|---|---|"]
                 first = e["equivalent_explanations"][0]
                 lines.append(f"| **{e['name']}** (chosen) | {params} | {first['chosen_train_cost']:.6g} | "
                              f"{first['chosen_validation_rms']:.4g} | {first['chosen_fitted_parameters']} | "
                              f"{first['chosen_aic']:.6g} |")
                 for q in e["equivalent_explanations"]:
-                    text = ", ".join(f"{k} = {_with_unit(v, CONTRACT_UNITS.get(k, ''))}" for k, v in q["parameters"].items())
+                    text = ", ".join(f"{k} = {_with_unit(v, axis.si(CONTRACT_UNITS.get(k, '')))}"
+                                     for k, v in q["parameters"].items())
                     lines.append(f"| {q['name']} | {text} | {q['train_cost']:.6g} | {q['validation_rms']:.4g} | "
                                  f"{q['fitted_parameters']} | {q['aic']:.6g} |")
                 lines += ["", f"Rule that picked {e['name']}: {e['selection_rule']}.", ""]
@@ -297,12 +319,13 @@ def _markdown(doc: dict, plots: list[str], result: dict, clipped: dict[str, int]
         lines += ["## No missing physics", "", "After refitting the nominal parameters, no candidate effect "
                   "improved the fit beyond what a correct model leaves on the same excitation, or none improved "
                   "the validation fit: the nominal structure is kept, only its parameters were off.", ""]
-    lines += _unexplained_markdown(doc) + at_bound_markdown(doc["at_bound"])
-    lines += ["## Fit", "", "| model | validation RMS [m] |", "|---|---|",
+    lines += _unexplained_markdown(doc, axis) + at_bound_markdown(doc["at_bound"])
+    m = axis.position
+    lines += ["## Fit", "", f"| model | validation RMS [{m}] |", "|---|---|",
               f"| nominal, refitted | {val['nominal_rms']:.4g} |", f"| augmented | {val['augmented_rms']:.4g} |", "",
               f"Noise floor (RMS that the fitted model leaves when re-simulated with the estimated encoder noise "
-              f"fed back): {val['noise_floor_rms']:.4g} m. Model error above it: {val['nominal_excess_rms']:.4g} m "
-              f"(nominal) -> {val['augmented_excess_rms']:.4g} m (augmented).", "",
+              f"fed back): {val['noise_floor_rms']:.4g} {m}. Model error above it: {val['nominal_excess_rms']:.4g} "
+              f"{m} (nominal) -> {val['augmented_excess_rms']:.4g} {m} (augmented).", "",
               "## Parameters", "", "| parameter | unit | start | nominal, refitted | augmented, refitted |",
               "|---|---|---|---|---|"]
     start = result["bundle"].start
@@ -328,7 +351,7 @@ def _markdown(doc: dict, plots: list[str], result: dict, clipped: dict[str, int]
     return "\n".join(lines)
 
 
-def _unexplained_markdown(doc: dict) -> list[str]:
+def _unexplained_markdown(doc: dict, units: AxisUnits = AxisUnits()) -> list[str]:
     """The report section of the unexplained verdict, clearly labelled empirical (no lines when absent)."""
     entry = doc.get("unexplained")
     if not entry:
@@ -343,7 +366,8 @@ def _unexplained_markdown(doc: dict) -> list[str]:
              f"position, velocity, acceleration and force) found the terms below; refitted by output error with "
              f"every parameter, they lower the noise-weighted cost by {term['cost_reduction']:.4g}, "
              f"{term['cost_reduction'] / term['null_threshold']:.1f} times the 99.9 % null level, and the "
-             f"validation RMS goes {term['validation_rms_before']:.3g} m -> {term['validation_rms_after']:.3g} m "
+             f"validation RMS goes {term['validation_rms_before']:.3g} {units.position} -> "
+             f"{term['validation_rms_after']:.3g} {units.position} "
              f"(x{term['validation_gain']:.3g}; kept below x{VALIDATION_GAIN:g}).", ""]
     lines += ["| term | coefficient | unit |", "|---|---|---|"]
     lines += [f"| {name} | {value:.6g} | {term['units'].get(name, '')} |"
@@ -352,8 +376,10 @@ def _unexplained_markdown(doc: dict) -> list[str]:
     v_lo, v_hi = entry["velocity_range"]
     x_lo, x_hi = entry["position_range"]
     f_lo, f_hi = entry["frequency_band_hz"]
-    lines += ["", f"Where: velocity {v_lo * 1e3:.3g} to {v_hi * 1e3:.3g} mm/s, position {x_lo * 1e3:.4g} to "
-              f"{x_hi * 1e3:.4g} mm (the bins where the term acts most), {f_lo:.3g}-{f_hi:.3g} Hz "
+    k_v, speed = units.shown_velocity
+    k_x, length = units.shown_position
+    lines += ["", f"Where: velocity {v_lo * k_v:.3g} to {v_hi * k_v:.3g} {speed}, position {x_lo * k_x:.4g} to "
+              f"{x_hi * k_x:.4g} {length} (the bins where the term acts most), {f_lo:.3g}-{f_hi:.3g} Hz "
               f"({100 * POWER_SHARE:.0f} % of its power), time windows {windows}.", ""]
     if term.get("absorbed_effects"):
         lines += [f"Catalogue effects the empirical term carries, dropped: {', '.join(term['absorbed_effects'])} "
@@ -471,14 +497,16 @@ def _effect_entry(bundle: Bundle, final: ModelFit, axis: str, effect: effect_mod
     location["time_windows"] = evidence.flagged_windows(bundle.train[axis] - previous, bundle.train.time,
                                                         sigma, ts)[:10]
     ratio = info["cost_reduction"] / info["null_threshold"]
+    units = axis_units(bundle.train.units.get(axis), bundle.plant.model, axis)
     text = (f"{effect.explanation} Located on axis {axis}: its inverse-dynamics force residual is "
             f"{info['score']:.3g} times what a correct model leaves with the same encoder noise. Adding the effect "
             f"there lowers the noise-weighted output-error cost by {info['cost_reduction']:.4g}, {ratio:.1f} times "
             f"the 99.9 % bootstrap level, and the validation RMS of {axis} falls from "
-            f"{info['validation_rms_before']:.3g} m to {info['validation_rms_after']:.3g} m.")
+            f"{info['validation_rms_before']:.3g} {units.position} to {info['validation_rms_after']:.3g} "
+            f"{units.position}.")
     return {"name": effect.name, "axis": axis, "parameters": {n: float(v) for n, v in params.items()},
-            "units": {n: CONTRACT_UNITS.get(n, "") for n in params},
-            "location": location, "location_text": location_text(location, axis), "explanation": text,
+            "units": {n: units.si(CONTRACT_UNITS.get(n, "")) for n in params},
+            "location": location, "location_text": location_text(location, axis, units), "explanation": text,
             "equivalent_explanations": info.get("equivalents", []), "selection_rule": info.get("rule", ""),
             "evidence": {n: info[n] for n in ("cost_reduction", "null_threshold", "validation_rms_before",
                                               "validation_rms_after", "score")}}
@@ -495,9 +523,10 @@ def axis_plots(result: dict, staging: Path) -> list[str]:
             (bundle.validation, (nominal.val_q, final.val_q), "validation_fit.png", "Validation error")):
         fig, panels = plt.subplots(len(axes), 1, figsize=(9, 1.8 * len(axes) + 1.2), sharex=True, squeeze=False)
         for k, (axis, ax) in enumerate(zip(axes, panels[:, 0])):
-            ax.plot(rec.time, (rec[axis] - q_nominal[k]) * 1e6, lw=0.6, label="nominal (refitted)")
-            ax.plot(rec.time, (rec[axis] - q_final[k]) * 1e6, lw=0.6, label="augmented")
-            ax.set_ylabel(f"{axis} [um]"), ax.grid(alpha=0.3)
+            scale, unit = axis_units(bundle.train.units.get(axis), bundle.plant.model, axis).shown_residual
+            ax.plot(rec.time, (rec[axis] - q_nominal[k]) * scale, lw=0.6, label="nominal (refitted)")
+            ax.plot(rec.time, (rec[axis] - q_final[k]) * scale, lw=0.6, label="augmented")
+            ax.set_ylabel(f"{axis} [{unit}]"), ax.grid(alpha=0.3)
         panels[0, 0].legend(), panels[-1, 0].set_xlabel("time [s]")
         fig.suptitle(f"{title} per axis: nominal and augmented model")
         names.append(_save(fig, staging, name))
@@ -517,10 +546,12 @@ def report_markdown(doc: dict, bundle: Bundle, plots: list[str] = ()) -> str:
         lines += ["## No effect found", "", "Only the nominal parameters were off: no candidate effect on the "
                   "located axes beat the bootstrap null reference and improved validation."]
     lines += [""] + _unexplained_markdown(doc) + at_bound_markdown(doc["at_bound"])
-    lines += ["## Validation RMS per axis", "", "| axis | nominal [m] | augmented [m] | noise floor [m] |",
-              "|---|---|---|---|"]
+    lines += ["## Validation RMS per axis", "", "| axis | nominal | augmented | noise floor | unit |",
+              "|---|---|---|---|---|"]
     for axis, v in doc["validation"]["per_axis"].items():
-        lines.append(f"| {axis} | {v['nominal_rms']:.3g} | {v['augmented_rms']:.3g} | {v['noise_floor_rms']:.3g} |")
+        unit = axis_units(bundle.train.units.get(axis), bundle.plant.model, axis).position
+        lines.append(f"| {axis} | {v['nominal_rms']:.3g} | {v['augmented_rms']:.3g} | {v['noise_floor_rms']:.3g} | "
+                     f"{unit} |")
     lines += ["", "## Location (force residual / noise reference per axis, each round)", ""]
     for entry in doc["location"]:
         lines.append(f"- round {entry['round']}: " + ", ".join(f"{k} {v:.3g}" for k, v in entry["scores"].items()))
