@@ -7,9 +7,11 @@ fixed Ts), 2-100 kg linear and 0.02-1 kg.m2 rotary axes, the four plant forms of
 :data:`ident.benchmarks.truth.PLANT_FORMS` with mass and damping 20-50 % off.
 
 Each effect is concealed near the edge of detectability: its size is scaled so that it moves the measured
-position (noise-free) by a few micrometres (linear) or tens of microradians (rotary) on the validation drive;
-a current limit sits at 80-92 % of the largest force the loop asks for. Out-of-catalogue laws (v|v| drag,
-a friction bump at one place, an encoder cyclic error) have the right answer "unexplained".
+position (noise-free) by a few micrometres (linear) or tens of microradians (rotary) on the train or the
+validation drive; a current limit sits at the largest share of the peak force that conceals it as much (the
+PID winds up behind it); a constant offset force is drawn (the PID's integral takes it up: it shows in the
+force only). Out-of-catalogue laws (v|v| drag, a friction bump at one place, an encoder cyclic error) have the
+right answer "unexplained".
 
 Next to each bundle folder ``OUT/SET/CASE`` the file ``OUT/SET/CASE.truth.json`` holds the true laws and
 parameters, the expected answers, the concealment, and the ACHIEVABLE FLOOR: ``floor_rms``, the validation RMS
@@ -37,7 +39,7 @@ from motiontwin.ident.benchmarks.independent_sim import Axis, Loop, simulate
 from motiontwin.ident.benchmarks.truth import PLANT_FORMS, controller_json, pid_controller
 
 TS = 5e-4
-PRE_S = 1.0                 # pre-roll cut off the recordings: a 0.5 s move from x = 0 to r[0], then a dwell [s]
+PRE_S, PRE_MOVE_S = 2.5, 2.0   # pre-roll cut off the recordings: a slow move from x = 0 to r[0], then a dwell [s]
 ROTARY_SCALE = 20.0         # rad per m: a rotary axis is the linear one with lengths x20 (an arm of 5 cm)
 RESOLUTION = {False: 5e-9, True: 7.5e-7}    # encoder quantum: 5 nm linear, 2^23 counts per turn rotary
 NOISE = {False: 10e-9, True: 5e-7}          # encoder white noise std
@@ -52,6 +54,9 @@ CASES: dict[str, tuple[str, ...]] = {
     "drag": ("drag",), "friction_bump": ("friction_bump",), "encoder_error": ("encoder_error",),
 }
 SET_SEEDS = {"tuning": 7000, "heldout": 9000}
+#: laws not sized by their concealment: a constant force (the PID's integral takes it up, it shows in the
+#: force, not in the position) and the current limit (set below the largest force the loop asks for)
+FIXED_SIZE = ("offset", "current_limit")
 
 
 @dataclass
@@ -62,7 +67,7 @@ class Case:
     seed: int
     axis: Axis
     laws: list
-    targets: list[float]            # concealment target of each law [m or rad]
+    targets: list[float | None]     # concealment target of each law [m or rad] (None: sized otherwise)
     stroke: float
     scale: float                    # 1 (linear) or ROTARY_SCALE
     white_std: float                # process force noise, white per sample [N]
@@ -77,8 +82,8 @@ def _law_parameters(name: str, m_e: float, L: float, stroke: float, rng: np.rand
     """Trial parameters of a law (its size is calibrated afterwards) in the axis' own units. ``m_e``: the mass
     of the linear equivalent (J L^2), ``L``: 1 linear, ROTARY_SCALE rotary (x = q/L, F = torque*L)."""
     f, mass = m_e / L, m_e / L ** 2    # the force (torque) of 1 m/s2 on the equivalent, the own mass (inertia)
-    if name == "offset":
-        return {"F0": 0.05 * f * rng.choice([-1, 1])}
+    if name == "offset":      # not sized by concealment: the PID's integral action takes a constant force up
+        return {"F0": 0.1 * f * rng.uniform(0.5, 2) * rng.choice([-1, 1])}
     if name == "coulomb":
         return {"Fc": 0.03 * f}
     if name == "stribeck":
@@ -96,7 +101,7 @@ def _law_parameters(name: str, m_e: float, L: float, stroke: float, rng: np.rand
         k = m2 * (2 * math.pi * fa) ** 2
         return {"b": 5e-6 * L, "m2": m2, "k": k, "c": 2 * 0.1 * math.sqrt(k * m2)}
     if name == "current_limit":
-        return {"Fmax": math.inf, "fraction": rng.uniform(0.8, 0.92)}
+        return {"Fmax": math.inf, "fraction": rng.uniform(0.5, 1.5)}
     if name == "drag":
         return {"c": 0.5 * m_e / L ** 3}
     if name == "friction_bump":
@@ -119,7 +124,7 @@ def draw_case(name: str, seed: int) -> Case:
     # a rotary inertia J moves like a linear mass J*L^2 over lengths x L
     m_equiv = mass * L * L if rotary else mass
     laws = [make_law(n, _law_parameters(n, m_equiv, L, stroke, rng)) for n in CASES[name]]
-    targets = [rng.uniform(2e-6, 6e-6) * L for _ in laws]
+    targets = [rng.uniform(2e-6, 6e-6) * L if law.name not in FIXED_SIZE else None for law in laws]
     quiet = name == "params_quiet"
     white = 0.0 if quiet else 0.005 * m_equiv / L * rng.uniform(0.5, 2)     # 0.005 m/s2 on the equivalent
     coloured = 0.0 if quiet else 0.01 * m_equiv / L * rng.uniform(0.5, 2)
@@ -164,8 +169,9 @@ def drive(duration: float, stroke: float, force: float, rng: np.random.Generator
 
 
 def with_preroll(r: np.ndarray, u_ext: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
-    """Prepend the pre-roll: a 0.5 s minimum-jerk move from 0 to r[0], then a dwell; returns r, u_ext, its length."""
-    pre, move = int(round(PRE_S / TS)), int(round(0.5 / TS))
+    """Prepend the pre-roll: a slow minimum-jerk move from 0 to r[0] (gentler than any recorded move, so that a
+    current limit is not reached before the recording), then a dwell; returns r, u_ext, its length."""
+    pre, move = int(round(PRE_S / TS)), int(round(PRE_MOVE_S / TS))
     head = np.full(pre, r[0])
     head[:move] = r[0] * _quintic(move)
     return np.concatenate([head, r]), np.concatenate([np.zeros(pre), u_ext]), pre
@@ -190,28 +196,61 @@ def process_noise(case: Case, n: int, rng: np.random.Generator) -> np.ndarray:
     return white + (coloured_noise(n, case.coloured_std, case.coloured_tau, TS, rng) if case.coloured_std else 0.0)
 
 
-def calibrate(case: Case, r: np.ndarray, u_ext: np.ndarray, pre: int) -> list:
-    """The laws sized to their concealment targets on the drive (r, u_ext with pre-roll ``pre``): each law
-    alone, noise-free, scaled so that max |q_with - q_without| equals its target (one linear rescaling); a
-    current limit at its fraction of the largest force of the run without effects."""
+def _drive_lanes(drives: list[tuple[np.ndarray, np.ndarray, int]], per: int) -> tuple[np.ndarray, ...]:
+    """r and u_ext of ``per`` lanes per drive (padded to the longest), and the recorded span of each drive."""
+    n = max(d[0].size for d in drives)
+    r, u_ext = np.zeros((n, per * len(drives))), np.zeros((n, per * len(drives)))
+    for j, (rr, uu, _) in enumerate(drives):
+        r[:, j * per:(j + 1) * per] = np.concatenate([rr, np.full(n - rr.size, rr[-1])])[:, None]
+        u_ext[:rr.size, j * per:(j + 1) * per] = uu[:, None]
+    return r, u_ext, [slice(pre, rr.size) for rr, _, pre in drives]
+
+
+def _noise_free(case: Case, laws: list, gains: np.ndarray, r: np.ndarray, u_ext: np.ndarray) -> dict:
+    zeros = np.zeros_like(r)
+    return simulate(make_loop(case, laws, gains), r, u_ext, zeros, zeros, quantise=np.zeros(r.shape[1], bool))
+
+
+def calibrate(case: Case, drives: list[tuple[np.ndarray, np.ndarray, int]]) -> list:
+    """The laws sized to their concealment targets on the drives (r, u_ext, pre-roll length; train and
+    validation): each law alone, noise-free, scaled so that max |q_with - q_without| over both drives equals
+    its target (one linear rescaling); an offset as drawn; a current limit by :func:`_current_limit`."""
     if not case.laws:
         return []
-    lanes = 1 + len(case.laws)
-    gains = np.zeros((len(case.laws), lanes))
-    gains[np.arange(len(case.laws)), 1 + np.arange(len(case.laws))] = 1
-    zeros = np.zeros((r.size, lanes))
-    out = simulate(make_loop(case, case.laws, gains), np.tile(r[:, None], lanes), np.tile(u_ext[:, None], lanes),
-                   zeros, zeros, quantise=np.zeros(lanes, bool))
-    q = out["q"][pre:]
+    per = 1 + len(case.laws)                       # lanes per drive: without the laws, then each law alone
+    gains = np.zeros((len(case.laws), per * len(drives)))
+    for j in range(len(drives)):
+        gains[np.arange(len(case.laws)), j * per + 1 + np.arange(len(case.laws))] = 1
+    r, u_ext, spans = _drive_lanes(drives, per)
+    out = _noise_free(case, case.laws, gains, r, u_ext)
     sized = []
     for i, (law, target) in enumerate(zip(case.laws, case.targets)):
         if law.name == "current_limit":
-            fmax = law.params["fraction"] * float(np.max(np.abs(out["f"][pre:, 0])))
-            sized.append(make_law("current_limit", {**law.params, "Fmax": fmax}))
+            peak = max(float(np.max(np.abs(out["f"][span, j * per]))) for j, span in enumerate(spans))
+            sized.append(_current_limit(case, law, drives, peak))
             continue
-        moved = float(np.max(np.abs(q[:, 1 + i] - q[:, 0])))
-        sized.append(law.scaled(target / moved) if moved > 0 else law)
+        moved = max(float(np.max(np.abs(out["q"][span, j * per + 1 + i] - out["q"][span, j * per])))
+                    for j, span in enumerate(spans))
+        sized.append(law if target is None or moved == 0 else law.scaled(target / moved))
     return sized
+
+
+CLIP_SHARES = 1 - np.geomspace(0.003, 0.1, 10)   # current limits tried, as shares of the peak force
+
+
+def _current_limit(case: Case, law, drives: list, peak: float):
+    """The current limit at the largest share of ``peak`` whose concealment (max |q_with - q_without| over
+    both drives, noise-free) reaches the drawn ``fraction`` x 4 um (x L): the PID winds up behind the limit,
+    so the concealment grows steeply as the limit falls (all shares in one integration, one lane each)."""
+    per = 1 + CLIP_SHARES.size
+    r, u_ext, spans = _drive_lanes(drives, per)
+    fmax = np.tile(np.concatenate([[np.inf], CLIP_SHARES * peak]), len(drives))
+    out = _noise_free(case, [make_law("current_limit", {"Fmax": fmax})], np.ones((1, r.shape[1])), r, u_ext)
+    moved = np.max([np.max(np.abs(out["q"][span, j * per + 1:(j + 1) * per] - out["q"][span, j * per:j * per + 1]),
+                           axis=0) for j, span in enumerate(spans)], axis=0)
+    goal = law.params["fraction"] * 4e-6 * case.scale
+    k = int(np.flatnonzero(moved >= goal)[0]) if np.any(moved >= goal) else CLIP_SHARES.size - 1
+    return make_law("current_limit", {"Fmax": float(CLIP_SHARES[k] * peak), "share_of_peak": float(CLIP_SHARES[k])})
 
 
 def simulate_case(case: Case) -> dict:
@@ -223,7 +262,7 @@ def simulate_case(case: Case) -> dict:
     force = 0.02 * case.axis.mass * case.scale     # u_ext multisine RMS: 0.02 m/s2 x the equivalent mass x L
     drives = [with_preroll(*drive(d, case.stroke, force, rng)) for d in DURATIONS]
     pre = drives[0][2]
-    laws = calibrate(case, drives[1][0], drives[1][1], pre)
+    laws = calibrate(case, drives)
     n = max(d[0].size for d in drives)
     pad = [np.concatenate([x, np.full(n - x.size, x[-1])]) for d in drives for x in d[:2]]
     r = np.column_stack([pad[0]] * 3 + [pad[2]] * 3)
