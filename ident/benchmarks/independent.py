@@ -294,6 +294,12 @@ def simulate_case(case: Case) -> dict:
 
 # -- bundles ---------------------------------------------------------------------------------------
 
+def _main_parameter(law) -> dict:
+    """The law's main parameter as the catalogue effect's contract states it (name and value)."""
+    key, contract, factor = MAIN_PARAMETER[law.name]
+    return {"truth": key, "contract": contract, "value": factor * law.params[key]}
+
+
 def write_bundle(folder: Path, case: Case) -> dict:
     """Write the bundle (experiment.json, plant.mo, train.csv, validation.csv) into ``folder`` and
     ``folder.truth.json`` beside it; returns the truth document."""
@@ -314,9 +320,7 @@ def write_bundle(folder: Path, case: Case) -> dict:
     experiment = {"plant": plant, "controller": controller_json(ctrl),
                   "recordings": {"train": "train.csv", "validation": "validation.csv"}}
     laws = [{"law": law.name, "expected": EXPECTED[law.name], "parameters": law.params,
-             **({"main": {"truth": MAIN_PARAMETER[law.name][0], "contract": MAIN_PARAMETER[law.name][1],
-                          "value": law.params[MAIN_PARAMETER[law.name][0]]}} if law.name in MAIN_PARAMETER else {})}
-            for law in sim["laws"]]
+             **({"main": _main_parameter(law)} if law.name in MAIN_PARAMETER else {})} for law in sim["laws"]]
     truth = {"case": case.name, "seed": case.seed, "simulator": "ident.benchmarks.independent (RK4, Ts/%d)" % SUBSTEPS,
              "axis": {"mass": case.axis.mass, "damping": case.axis.damping, "rotary": case.axis.rotary},
              "plant_form": case.form, "mass_parameter": form.mass, "mass_scale": form.scale,

@@ -200,10 +200,11 @@ EXPECTED = {"offset": "gravity_offset", "coulomb": "coulomb_friction", "stribeck
             "backlash": "backlash", "drag": "unexplained", "friction_bump": "unexplained",
             "encoder_error": "unexplained"}
 
-#: law -> (truth parameter, the catalogue effect's contract parameter it is compared with)
-MAIN_PARAMETER = {"offset": ("F0", "F0"), "coulomb": ("Fc", "Fc"), "stribeck": ("Fs", "Fs"),
-                  "lugre": ("z0", "z0"), "cogging": ("A1", "A1"), "current_limit": ("Fmax", "Fmax"),
-                  "backlash": ("b", "b")}
+#: law -> (truth parameter, the catalogue effect's contract parameter it is compared with, factor from the
+#: truth's value to the contract's: the catalogue's F0 is a force opposing +x, this offset one along +x)
+MAIN_PARAMETER = {"offset": ("F0", "F0", -1.0), "coulomb": ("Fc", "Fc", 1.0), "stribeck": ("Fs", "Fs", 1.0),
+                  "lugre": ("z0", "z0", 1.0), "cogging": ("A1", "A1", 1.0), "current_limit": ("Fmax", "Fmax", 1.0),
+                  "backlash": ("b", "b", 1.0)}
 
 
 def make_law(name: str, params: dict[str, float]) -> Law:

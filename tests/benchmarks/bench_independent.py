@@ -55,14 +55,15 @@ def parameter_errors(truth: dict, doc: dict) -> list[str]:
 
 def confusion_table(rows: list[tuple[list[str], list[str]]]) -> str:
     """Rows: true answers (NONE for a control); columns: answers given; a true answer not given counts in
-    column NONE, an answer given that is not true in row NONE."""
+    column NONE (FAILED when the diagnosis stopped), an answer given that is not true in row NONE."""
     names = sorted({n for e, f in rows for n in e + f} - {UNEXPLAINED}) + [UNEXPLAINED, NONE]
     count = {t: {f: 0 for f in names} for t in names}
     for expected, found in rows:
+        missed = FAILED if FAILED in found else NONE
         for name in expected:
-            count[name][name if name in found else NONE] += 1
+            count[name][name if name in found else missed] += 1
         for name in found:
-            if name not in expected:
+            if name not in expected and (name != FAILED or not expected):
                 count[NONE][name] += 1
         if not expected and not found:
             count[NONE][NONE] += 1
