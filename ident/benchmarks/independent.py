@@ -287,7 +287,7 @@ def simulate_case(case: Case) -> dict:
     q_val = out["q"][pre:m_val, 3:]
     return {"recordings": parts, "laws": laws,
             "concealment": {"max_abs": float(np.max(np.abs(moved))), "rms": float(np.sqrt(np.mean(moved ** 2))),
-                            "force_max_abs": float(np.max(np.abs(out["u"][pre:m_train, 1] - out["u"][pre:m_train, 2])))},
+                            "force_max_abs": float(np.max(np.abs(np.diff(out["u"][pre:m_train, 1:3], axis=1))))},
             "floor_rms": float(np.sqrt(np.mean((q_val[:, 0] - q_val[:, 1]) ** 2))),
             "floor_reseed_rms": float(np.sqrt(np.mean((q_val[:, 0] - q_val[:, 2]) ** 2)))}
 

@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 #: velocity scale of the regularised sign v/sqrt(v^2 + eps^2) [m/s or rad/s]: 50x narrower than the
-#: library's tanh(v/5e-3), near the ideal discontinuous sign, still smooth enough for RK4 at Ts/4
+#: library's tanh(v/5e-3), near the ideal discontinuous sign, still smooth enough for RK4 at Ts/2
 V_EPS = 1e-4
 
 

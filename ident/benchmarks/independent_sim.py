@@ -7,9 +7,9 @@ side by side as numpy arrays.
 Integrator: classic fixed-step Runge-Kutta 4 with ``substeps`` steps per controller period, written here
 (no scipy, no CasADi, no FMU). Fixed steps because the loop is sampled: the force is constant over each period,
 so a step never straddles an input jump and no event location is needed; the laws are continuous in the
-state (regularised sign, continuous dead zone), so RK4 keeps its order except at contact onsets. With
-Ts/4 steps the fastest dynamics of the benchmark (LuGre's pre-sliding, the backlash contact, the friction
-regularisation) stay inside RK4's stability region (|h lambda| < 2.7).
+state (regularised sign, continuous dead zone), so RK4 keeps its order except at contact onsets. With Ts/2
+steps (the benchmark's ``independent.SUBSTEPS``) its fastest dynamics (LuGre's pre-sliding, the backlash
+contact, the friction regularisation) stay inside RK4's stability region (|h lambda| < 2.7).
 """
 from __future__ import annotations
 

@@ -92,7 +92,8 @@ def main() -> int:
         independent.generate(args.bench, args.set)
     cases = args.case or [n for n, _ in independent.case_list(args.set)]    # --case: in the order given
     cases = [c for c in cases if (folder / c / "experiment.json").is_file()]
-    print(f"{'case':18s} {'axis':14s} {'form':18s} {'expected':30s} {'named':40s} ok  {'main parameter found/true':34s} "
+    print(f"{'case':18s} {'axis':14s} {'form':18s} {'expected':30s} {'named':40s} ok  "
+          f"{'main parameter found/true':34s} "
           f"{'val RMS nominal->augmented':>27s} {'aug/floor':>9s} {'wall s':>6s}")
     rows, right, worst = [], 0, 0.0
     for case in cases:
@@ -122,7 +123,8 @@ def main() -> int:
     print("\nconfusion (rows: true answer, columns: named):")
     print(confusion_table(rows))
     stopped = sum(FAILED in found for _, found in rows)
-    print(f"named right: {right} of {len(rows)} ({stopped} stopped); worst augmented validation RMS / achievable floor: {worst:.2f}")
+    print(f"named right: {right} of {len(rows)} ({stopped} stopped); worst augmented validation RMS / achievable "
+          f"floor: {worst:.2f}")
     ratio("independent.fraction_named_right", right / max(len(rows), 1),
           "every case named right (issue-22 target >= 0.9)")
     ratio("independent.worst_val_rms_over_floor", worst,
