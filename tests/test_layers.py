@@ -12,6 +12,7 @@ ARGPARSE_ALLOWED = {
     "harness/examples/joint_bode.py": "example script (python -m motiontwin.harness.examples.joint_bode)",
     "ident/benchmarks/single_axis.py": "benchmark script (python -m motiontwin.ident.benchmarks.single_axis)",
     "ident/benchmarks/multi_axis.py": "benchmark script (python -m motiontwin.ident.benchmarks.multi_axis)",
+    "ident/benchmarks/independent.py": "benchmark script (python -m motiontwin.ident.benchmarks.independent)",
     "ident/diagnosis/__init__.py": "python -m motiontwin.ident.diagnosis; the diagnosis work moves it to the app",
 }
 # What each library layer may import of the project (itself and the layers below it).
