@@ -3,6 +3,7 @@ parameters (Modelica defaults, ``plant.parameters``, inverse dynamics) and the c
 Units: SI (s, m, N)."""
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import casadi as ca
@@ -34,7 +35,7 @@ def nominal_start(bundle: Bundle, progress=None) -> dict[str, float]:
     least-squares estimate on the training recording (kept when it has the default's sign, or the default is
     zero), so that a 2 kg default never meets a 95 kg axis in a closed-loop free run."""
     model, plant = bundle.plant.model, bundle.plant
-    values = {v.name: float(v.start) for v in model.parameters} | plant.parameters
+    values = default_start(bundle)
     listed = plant.free or []
     guess = [n for n, v in values.items() if n not in plant.parameters and (v != 0 or n in listed)]
     if alias_state(model, plant.output_name) != plant.position_state:
@@ -50,13 +51,38 @@ def nominal_start(bundle: Bundle, progress=None) -> dict[str, float]:
     return values | kept
 
 
+def default_start(bundle: Bundle) -> dict[str, float]:
+    """The Modelica defaults of the plant's parameters with ``plant.parameters`` of the bundle over them."""
+    return {v.name: float(v.start) for v in bundle.plant.model.parameters} | bundle.plant.parameters
+
+
+def _free_run_rms(loop: outputerror.Loop, bundle: Bundle) -> float:
+    """RMS of the nominal loop's free run against the training q (inf when it diverges)."""
+    q0, _ = outputerror.simulate(loop, bundle.train)
+    with np.errstate(over="ignore", invalid="ignore"):
+        rms = float(np.sqrt(np.mean((q0 - bundle.train["q"]) ** 2)))
+    return rms if np.isfinite(rms) else math.inf
+
+
 def fit_nominal(bundle: Bundle, progress=None) -> tuple[ModelFit, outputerror.Weights]:
     model = bundle.plant.model
     free, bounds = _nominal_bounds(bundle)
+
+    def loop_at(values: dict[str, float]) -> outputerror.Loop:
+        return outputerror.build_loop(model, bundle.controller, bundle.plant.output_name, free, values,
+                                      bundle.train.time.size, input_name=bundle.plant.input_name,
+                                      tracking=_moving_start(bundle))
+
     values = dict(bundle.start)
-    loop = outputerror.build_loop(model, bundle.controller, bundle.plant.output_name, free, values,
-                                  bundle.train.time.size, input_name=bundle.plant.input_name,
-                                  tracking=_moving_start(bundle))
+    loop = loop_at(values)
+    defaults = default_start(bundle)
+    if any(values[n] != defaults[n] for n in free):   # an inverse-dynamics start must free-run better
+        estimated, plain = _free_run_rms(loop, bundle), _free_run_rms(loop_at(defaults), bundle)
+        if plain < estimated:
+            _log(progress, f"start values: the defaults free-run closer to the recording (rms q {plain:.3g}) than "
+                           f"the inverse-dynamics estimate ({estimated:.3g}); the refit starts from the defaults")
+            values = bundle.start = defaults
+            loop = loop_at(values)
     q0, u0 = outputerror.simulate(loop, bundle.train)
     startvalues.check_free_run(q0, bundle.train["q"], bundle.train.time,
                                f"the nominal closed loop ({bundle.plant.class_name} with the bundle's controller) on "
