@@ -157,7 +157,7 @@ def _closed_loop_q(form: Form, folder: Path) -> np.ndarray:
                                               "Augmented")
     text = (folder / "all" / "Augmented.mo").read_text()
     assert "$" not in text and f"plant.{roles.position}" in text and f"plant.{roles.velocity}" in text
-    assert {f"plant.{form.position}", f"plant.{form.velocity}", "resonance_x2", "delay_a", "backlash_x2",
+    assert {f"plant.{form.position}", f"plant.{form.velocity}", "resonance_x2", "delay_s", "backlash_x2",
             "lugre_Fz", "drift_s"} <= {s.name for s in augmented.states}
     values = {**_state_values(form), **{f"plant.{k}": v for k, v in form.truth().items()}}
     n = 800
