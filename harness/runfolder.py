@@ -62,6 +62,16 @@ def damage(files: Any, locate: Callable[[str], Path]) -> str | None:
 
 
 @dataclass
+class Outcome:
+    """What a run over a folder did: items finished now, kept from before (resume), failed (name -> error)."""
+
+    completed: list[str]
+    resumed: list[str]
+    failed: dict[str, str]
+    seconds: float
+
+
+@dataclass
 class RunFolder:
     """The output folder ``out`` of many runs: its manifest file ``manifest``, the word for what it holds
     (``kind``: "sweep", "fleet"), the row field naming a run (``key``), the error raised on a folder that

@@ -57,11 +57,11 @@ import numpy as np
 
 from .inputs import InputError, add_input_noise, resolve_input
 from .recording import atomic_write_texts, recording_texts, sidecar_path
-from .runfolder import RunFolder, commit_each, damage, file_records
+from .runfolder import Outcome, RunFolder, commit_each, damage, file_records
 from .simulation import recording_from_log
 from .system import System, check_run_length, load_system
 
-__all__ = ["SweepError", "SweepCase", "Sweep", "SweepOutcome", "load_sweep", "run", "run_to_folder",
+__all__ = ["SweepError", "SweepCase", "Sweep", "load_sweep", "run", "run_to_folder",
            "safe_name", "MAX_RUNS"]
 
 INPUT_PREFIX = "input."   # a [grid] key "input.r" sets the external input r to a constant
@@ -231,16 +231,6 @@ def run(sweep: Sweep, executor: Any = None) -> list[dict[str, np.ndarray]]:
     return run_sweep(sweep.system, [c.run_arguments(sweep.stop_time) for c in sweep.cases], executor)
 
 
-@dataclass
-class SweepOutcome:
-    """What :func:`run_to_folder` did: runs finished now, kept from before (resume), failed (name -> error)."""
-
-    completed: list[str]
-    resumed: list[str]
-    failed: dict[str, str]
-    seconds: float
-
-
 def _inside(folder: Path, name: str) -> Path:
     """``folder / name``, refused unless it resolves to a file directly inside ``folder``."""
     path = folder / name
@@ -281,7 +271,7 @@ def _prepare_folder(sweep: Sweep, out: Path, fingerprint: str, resume: bool, ove
 
 def run_to_folder(sweep: Sweep, out: str | Path, executor: Any = None, *, executor_name: str = "inprocess",
                   resume: bool = False, overwrite: bool = False, retries: int = 2,
-                  log: Callable[[str], None] = print) -> SweepOutcome:
+                  log: Callable[[str], None] = print) -> Outcome:
     """Run every case of ``sweep`` and commit each run's recording to ``out`` as soon as it finishes.
 
     Parameters
@@ -305,7 +295,7 @@ def run_to_folder(sweep: Sweep, out: str | Path, executor: Any = None, *, execut
 
     Returns
     -------
-    SweepOutcome
+    Outcome
         Runs finished now, runs kept from before, failed runs (name -> error), seconds.
     """
     from .executor import InProcessExecutor, run_case
@@ -338,7 +328,7 @@ def run_to_folder(sweep: Sweep, out: str | Path, executor: Any = None, *, execut
     write_manifest("running")
     if not todo:
         write_manifest("complete")
-        return SweepOutcome(completed, resumed, failed, 0.0)
+        return Outcome(completed, resumed, failed, 0.0)
     executor = executor or InProcessExecutor()
     arguments = [case.run_arguments(sweep.stop_time) for case in todo]
 
@@ -358,4 +348,4 @@ def run_to_folder(sweep: Sweep, out: str | Path, executor: Any = None, *, execut
 
     commit_each(executor, functools.partial(run_case, sweep.system), arguments, retries, commit, fail,
                 write_manifest)
-    return SweepOutcome(completed, resumed, failed, time.perf_counter() - t0)
+    return Outcome(completed, resumed, failed, time.perf_counter() - t0)

@@ -30,10 +30,10 @@ from pathlib import Path
 from typing import Any, Callable, Iterator, Sequence
 
 from motiontwin.harness.recording import atomic_write_texts
-from motiontwin.harness.runfolder import RunFolder, commit_each, damage, tree_records
+from motiontwin.harness.runfolder import Outcome, RunFolder, commit_each, damage, tree_records
 from motiontwin.harness.sweep import safe_name
 
-__all__ = ["FleetError", "FleetOutcome", "MANIFEST", "SUMMARY_COLUMNS", "find_bundles", "is_fleet", "run_fleet"]
+__all__ = ["FleetError", "MANIFEST", "SUMMARY_COLUMNS", "find_bundles", "is_fleet", "run_fleet"]
 
 MANIFEST = "fleet.json"
 MANIFEST_FORMAT = "motiontwin-diagnose-fleet"
@@ -166,16 +166,6 @@ def summary_texts(rows: list[dict[str, Any]]) -> tuple[str, str]:
     return buffer.getvalue(), page
 
 
-@dataclass
-class FleetOutcome:
-    """What :func:`run_fleet` did: bundles diagnosed now, kept from before (resume), failed (name -> error)."""
-
-    completed: list[str]
-    resumed: list[str]
-    failed: dict[str, str]
-    seconds: float
-
-
 def _inside(out: Path, name: str) -> Path:
     """``out / name``, refused unless it resolves inside ``out``."""
     path = out / name
@@ -198,7 +188,7 @@ def _kept(out: Path, hashes: dict[str, str], row: dict[str, Any]) -> str | None:
 
 def run_fleet(paths: Sequence[str | os.PathLike], out: str | os.PathLike, executor: Any = None, *,
               executor_name: str = "inprocess", resume: bool = False, overwrite: bool = False, retries: int = 2,
-              allow_outside_paths: bool = False, log: Callable[[str], None] = print) -> FleetOutcome:
+              allow_outside_paths: bool = False, log: Callable[[str], None] = print) -> Outcome:
     """Diagnose every bundle of ``paths`` (bundle folders or folders of bundles) into ``out`` (see the module
     docstring), committing each as it finishes; ``executor`` a :mod:`harness.executor` executor (default
     in-process), ``resume``/``overwrite``/``retries`` as for sweeps (:func:`harness.sweep.run_to_folder`);
@@ -250,10 +240,10 @@ def run_fleet(paths: Sequence[str | os.PathLike], out: str | os.PathLike, execut
     write_manifest("running")
     if not todo:
         write_manifest("complete")
-        return FleetOutcome(completed, resumed, failed, 0.0)
+        return Outcome(completed, resumed, failed, 0.0)
     executor = executor or InProcessExecutor()
     screen = None if isinstance(executor, InProcessExecutor) else 1   # the bundles share the cores, not the fits
     # absolute paths: a worker of a remote scheduler runs in another folder
     jobs = [FleetJob(str(bundles[n].absolute()), str(out.absolute() / n), allow_outside_paths, screen) for n in todo]
     commit_each(executor, diagnose_job, jobs, retries, commit, fail, write_manifest)
-    return FleetOutcome(completed, resumed, failed, time.perf_counter() - t0)
+    return Outcome(completed, resumed, failed, time.perf_counter() - t0)
