@@ -9,7 +9,7 @@ name the same effects per bundle.
 
 Run: .venv/bin/python tests/benchmarks/bench_fleet.py [BUNDLES] [--train SECONDS]   (default 8 bundles, 2 s of
 training + half as much validation at 2 kHz)
---smoke: 2 bundles of 0.5 s + 0.25 s (parameters only): only proves the path runs.
+--smoke: 1 bundle of 0.5 s + 0.25 s (parameters only): only proves the path runs.
 Ratio: fleet.speedup_2_workers = wall time on 1 worker / wall time on 2 workers (baseline: the same fleet on 1
 Dask worker).
 """
@@ -48,7 +48,7 @@ def main() -> None:
     parser.add_argument("bundles", nargs="?", type=int, default=8, help="bundles in the fleet (default 8)")
     parser.add_argument("--train", type=float, default=2.0, help="training seconds per bundle (default 2)")
     args = parser.parse_args()
-    count, train, cases = (2, 0.5, CASES[:1]) if small else (args.bundles, args.train, CASES)
+    count, train, cases = (1, 0.5, CASES[:1]) if small else (args.bundles, args.train, CASES)
     with tempfile.TemporaryDirectory(prefix="bench-fleet-") as tmp:
         root = Path(tmp)
         for k in range(count):
