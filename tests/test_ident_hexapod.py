@@ -99,11 +99,11 @@ def _period(excited=None):
 
 
 def test_monte_carlo_recovers_base_parameters_with_calibrated_intervals():
-    """10 seeds: every base parameter within 2 % on average, 95 % intervals cover the truth ~95 %."""
+    """6 seeds: every base parameter within 2 % on average, 95 % intervals cover the truth ~95 %."""
     _, _, lengths, forces = _period()
     truth_base = base().from_full(truth().theta())
     errors, covered, variance_factors = [], [], []
-    for seed in range(10):
+    for seed in range(6):
         measured = measure_periods(lengths, forces, N_PERIODS, NOISE, np.random.default_rng(seed))
         result = identify_hexapod_periodic(*measured, FS, F0, NH * F0, base=base())
         ci = result.fit.confidence_interval(0.95)

@@ -60,7 +60,7 @@ def python_control_margins(loop: control.StateSpace) -> tuple[float, float, np.n
 
 @pytest.fixture(scope="module")
 def tuned() -> tuning.TuningResult:
-    return tuning.tune(tuning.position_sets(NOMINAL), TS, SPEC, seed=1, popsize=6, maxiter=12, refine=1,
+    return tuning.tune(tuning.position_sets(NOMINAL), TS, SPEC, seed=1, popsize=5, maxiter=8, refine=1,
                        refine_evaluations=250, progress=False, points=600)
 
 
