@@ -337,3 +337,21 @@ def test_design_excitation_then_excite_then_identify(tmp_path, capsys):
     assert main(["design-excitation", "joint", "--f0", "0.3", "--harmonics", "5", *limits, "--sample-time", "7e-4",
                  "--out", str(bad)]) == 1
     assert "--sample-time" in capsys.readouterr().err and not bad.exists()
+
+
+def test_the_command_runs_blas_single_threaded_unless_told_otherwise():
+    """motiontwin sets one BLAS thread per process (its workers inherit it) before numpy loads; a value the user
+    set is kept."""
+    import os
+    import subprocess
+    import sys
+
+    code = ("import motiontwin.cli, numpy, threadpoolctl; "
+            "print(max(p['num_threads'] for p in threadpoolctl.threadpool_info() if p['user_api'] == 'blas'))")
+    env = {k: v for k, v in os.environ.items() if k not in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS",
+                                                            "MKL_NUM_THREADS")}
+    ours = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120)
+    theirs = subprocess.run([sys.executable, "-c", code], env={**env, "OPENBLAS_NUM_THREADS": "2"},
+                            capture_output=True, text=True, timeout=120)
+    assert ours.stdout.split() == ["1"], ours.stderr
+    assert theirs.stdout.split() == ["2"], theirs.stderr
