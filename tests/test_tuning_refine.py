@@ -25,7 +25,7 @@ NARROW_NOTCH = {"Kp": 4366.328, "Ki": 52006.4347, "Kd": 91.6465, "KL": 4.2062, "
 
 @pytest.fixture(scope="module")
 def refined() -> tuning.TuningResult:
-    return tuning.tune(tuning.position_sets(NOMINAL), TS, SPEC, gradient_iterations=40, **SEARCH)
+    return tuning.tune(tuning.position_sets(NOMINAL), TS, SPEC, **SEARCH)   # the default gradient stage (60 steps)
 
 
 def _margins(gm_db: float, pm_deg: float, ms: float, bandwidth_hz: float) -> tuning.LoopMargins:
