@@ -116,13 +116,7 @@ def plot(result: ComparisonResult, out: Path) -> list[Path]:
         ax.set_title(f"Fig. {4 + k}: position error of {joint}")
         ax.set_ylabel("r - q [um]")
         ax.grid(alpha=0.3)
-    for ax in axes[1]:
-        ax.set_xlabel("time [ms]")
-    axes[0, 0].legend(fontsize=8)
-    fig.tight_layout()
-    paths.append(out / "comparison_joint_errors.png")
-    write_figure(paths[-1], fig, dpi=120)
-    plt.close(fig)
+    paths.append(_finish(fig, axes, out / "comparison_joint_errors.png"))
 
     fig, axes = plt.subplots(2, 2, figsize=(10, 6.5), sharex=True)
     for k, (ax, axis) in enumerate(zip(axes.flat, POSE_AXES)):
@@ -136,14 +130,21 @@ def plot(result: ComparisonResult, out: Path) -> list[Path]:
         ax.set_title(f"end-effector error in {axis}")
         ax.set_ylabel(f"[{unit}]")
         ax.grid(alpha=0.3)
+    paths.append(_finish(fig, axes, out / "comparison_end_effector.png"))
+    return paths
+
+
+def _finish(fig, axes, path: Path) -> Path:
+    """Time axis on the bottom row, legend on the first panel, the PNG written atomically and the figure closed."""
+    import matplotlib.pyplot as plt
+
     for ax in axes[1]:
         ax.set_xlabel("time [ms]")
     axes[0, 0].legend(fontsize=8)
     fig.tight_layout()
-    paths.append(out / "comparison_end_effector.png")
-    write_figure(paths[-1], fig, dpi=120)
+    write_figure(path, fig, dpi=120)
     plt.close(fig)
-    return paths
+    return path
 
 
 def write_outputs(result: ComparisonResult, out: str | Path) -> list[Path]:

@@ -4,17 +4,14 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-for _variable in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
-    os.environ.setdefault(_variable, "1")   # as the motiontwin command does (motiontwin.cli), for subprocesses too
-
 import pytest
 import threadpoolctl
 
-threadpoolctl.threadpool_limits(1)   # if a plugin imported numpy before this file, its BLAS is limited here
-
+import motiontwin.cli  # noqa: F401  first: one BLAS thread per process, as the command (and its subprocesses) run
 from motiontwin.fmus import build
 from tests.fmi_util import gemseo_fmu_folder
 
+threadpoolctl.threadpool_limits(1)   # numpy loaded before motiontwin.cli set the variables: limit it here too
 MODELS = Path(__file__).parent / "models"
 TEST_MODELS = {
     "LinearMotorJoint": ("MotionTwin.Plants.LinearMotorJoint", build.MODELICA_DIR),

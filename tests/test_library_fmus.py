@@ -3,6 +3,7 @@ pass fmpy's and fmu-manipulation-toolbox's checks and run in Co-Simulation and M
 from __future__ import annotations
 
 import logging
+from pathlib import Path
 
 import fmpy
 import numpy as np
@@ -36,9 +37,9 @@ class _Errors(logging.Handler):
         self.messages.append(record.getMessage())
 
 
-def test_library_fmus_validate(library_fmus):
-    """fmpy's validation and the checkers of ``fmutool -check`` (run in this process: one interpreter instead of
-    one per FMU) find nothing in any library FMU."""
+def _checker_errors(path: Path) -> list[str]:
+    """What the checkers of ``fmutool -check`` report on the FMU at ``path``, run in this process (one interpreter
+    instead of one per FMU)."""
     from fmu_manipulation_toolbox.checker import get_checkers
     from fmu_manipulation_toolbox.operations import FMU
 
@@ -46,14 +47,19 @@ def test_library_fmus_validate(library_fmus):
     logger = logging.getLogger("fmu_manipulation_toolbox")
     logger.addHandler(errors)
     try:
-        for fmu in library_fmus:
-            assert validate_fmu(str(fmu.path)) == [], fmu.path
-            with FMU(str(fmu.path)) as archive:
-                for checker in get_checkers():
-                    archive.apply_operation(checker(), None)
-            assert errors.messages == [], f"{fmu.path}: {errors.messages}"
+        with FMU(str(path)) as archive:
+            for checker in get_checkers():
+                archive.apply_operation(checker(), None)
     finally:
         logger.removeHandler(errors)
+    return errors.messages
+
+
+def test_library_fmus_validate(library_fmus):
+    """fmpy's validation and the checkers of ``fmutool -check`` find nothing in any library FMU."""
+    for fmu in library_fmus:
+        assert validate_fmu(str(fmu.path)) == [], fmu.path
+        assert _checker_errors(fmu.path) == [], fmu.path
 
 
 def test_the_in_process_check_sees_a_broken_fmu(library_fmus, tmp_path):
@@ -61,12 +67,8 @@ def test_the_in_process_check_sees_a_broken_fmu(library_fmus, tmp_path):
     continuous variability (not allowed by FMI) is caught."""
     import zipfile
 
-    from fmu_manipulation_toolbox.checker import get_checkers
-    from fmu_manipulation_toolbox.operations import FMU
-
-    source = library_fmus[0].path
     broken = tmp_path / "broken.fmu"
-    with zipfile.ZipFile(source) as zin, zipfile.ZipFile(broken, "w") as zout:
+    with zipfile.ZipFile(library_fmus[0].path) as zin, zipfile.ZipFile(broken, "w") as zout:
         for item in zin.infolist():
             data = zin.read(item.filename)
             if item.filename == "modelDescription.xml":
@@ -74,16 +76,7 @@ def test_the_in_process_check_sees_a_broken_fmu(library_fmus, tmp_path):
                                     b'causality="parameter" variability="continuous"', 1)
                 assert b'variability="continuous" initial="exact"' in data
             zout.writestr(item, data)
-    errors = _Errors()
-    logger = logging.getLogger("fmu_manipulation_toolbox")
-    logger.addHandler(errors)
-    try:
-        with FMU(str(broken)) as archive:
-            for checker in get_checkers():
-                archive.apply_operation(checker(), None)
-    finally:
-        logger.removeHandler(errors)
-    assert errors.messages
+    assert _checker_errors(broken)
 
 
 @pytest.mark.parametrize("fmi_type", ["CoSimulation", "ModelExchange"])

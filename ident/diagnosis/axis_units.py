@@ -9,7 +9,12 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from typing import TYPE_CHECKING
+
 from motiontwin.fmus.symbolic import SymbolicModel
+
+if TYPE_CHECKING:
+    from motiontwin.ident.diagnosis.bundle import Bundle
 
 _LINEAR_TO_ROTARY = {"m": "rad", "N": "N.m", "m/s": "rad/s", "kg": "kg.m2", "N.s/m": "N.m.s/rad", "N/m": "N.m/rad",
                      "m/s2": "rad/s2"}
@@ -63,3 +68,9 @@ def axis_units(recording_unit: str | None, model: SymbolicModel | None = None,
         variables = [*flat.states, *flat.algebraics, *flat.inputs]
         plant_unit = next((v.unit for v in variables if v.name == output and v.unit), "")
     return AxisUnits(rotary="rad" in (recording_unit, plant_unit))
+
+
+def bundle_units(bundle: "Bundle", axis: str | None = None) -> AxisUnits:
+    """The units of a single-axis bundle (``axis`` None: column q) or of the axis with output ``axis``."""
+    column, output = ("q", bundle.plant.output_name) if axis is None else (axis, axis)
+    return axis_units(bundle.train.units.get(column), bundle.plant.model, output)

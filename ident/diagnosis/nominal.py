@@ -65,6 +65,8 @@ def _free_run_rms(loop: outputerror.Loop, bundle: Bundle) -> float:
 
 
 def fit_nominal(bundle: Bundle, progress=None) -> tuple[ModelFit, outputerror.Weights]:
+    """Refit the nominal parameters in closed loop from ``bundle.start`` (replaced by the Modelica defaults when
+    those free-run closer to the recording, so the report's start column stays true) and estimate the noise."""
     model = bundle.plant.model
     free, bounds = _nominal_bounds(bundle)
 

@@ -18,7 +18,7 @@ from motiontwin.fmus.files import move_file
 from motiontwin.ident import outputerror, startvalues
 from motiontwin.ident.diagnosis import report
 from motiontwin.ident.diagnosis.bounds import structure_at_bound
-from motiontwin.ident.diagnosis.axis_units import axis_units
+from motiontwin.ident.diagnosis.axis_units import bundle_units
 from motiontwin.ident.diagnosis.bundle import Bundle
 from motiontwin.ident.diagnosis.locate import context
 from motiontwin.ident.diagnosis.nominal import (_divergence_hint, check_plant_form, fit_nominal, fit_nominal_axes,
@@ -213,8 +213,7 @@ class MultiAxisDiagnosis:
             "nominal_free": list(bundle.nominal_free[0]), "runtime_s": round(result["seconds"], 2),
             "at_bound": structure_at_bound(final),
             "plant_roles": {a.output: a.as_dict() for a in bundle.plant.axes},
-            "units": {a.output: axis_units(bundle.train.units.get(a.output), bundle.plant.model, a.output).as_dict()
-                      for a in bundle.plant.axes}})
+            "units": {a.output: bundle_units(bundle, a.output).as_dict() for a in bundle.plant.axes}})
 
     def write(self, folder: str | os.PathLike) -> dict:
         """Write diagnosis.json, validation_prediction.csv, report.md/html and the augmented Modelica model

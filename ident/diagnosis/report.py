@@ -15,7 +15,7 @@ import numpy as np  # noqa: E402
 
 from motiontwin.fmus import frontend, symbolic  # noqa: E402
 from motiontwin.fmus.build import MODELICA_DIR, build_fmu  # noqa: E402
-from motiontwin.ident.diagnosis.axis_units import AxisUnits, axis_units  # noqa: E402
+from motiontwin.ident.diagnosis.axis_units import AxisUnits, bundle_units  # noqa: E402
 from motiontwin.ident.diagnosis.bounds import at_bound_markdown, structure_at_bound  # noqa: E402
 from motiontwin.ident.diagnosis import evidence  # noqa: E402
 from motiontwin.ident.diagnosis.bundle import Bundle, PlantInfo  # noqa: E402
@@ -118,11 +118,6 @@ def _location(result: dict, name: str) -> dict:
     windows = evidence.flagged_windows(bundle.train["q"] - previous.fit.q_sim, bundle.train.time, sigma, ts)
     loc["time_windows"] = windows[:10]
     return loc
-
-
-def bundle_units(bundle: Bundle) -> AxisUnits:
-    """The units of a single-axis bundle (:mod:`ident.diagnosis.axis_units`)."""
-    return axis_units(bundle.train.units.get("q"), bundle.plant.model, bundle.plant.output_name)
 
 
 def diagnosis_document(result: dict, out: Path, fmu_path: Path | None) -> dict:
@@ -497,7 +492,7 @@ def _effect_entry(bundle: Bundle, final: ModelFit, axis: str, effect: effect_mod
     location["time_windows"] = evidence.flagged_windows(bundle.train[axis] - previous, bundle.train.time,
                                                         sigma, ts)[:10]
     ratio = info["cost_reduction"] / info["null_threshold"]
-    units = axis_units(bundle.train.units.get(axis), bundle.plant.model, axis)
+    units = bundle_units(bundle, axis)
     text = (f"{effect.explanation} Located on axis {axis}: its inverse-dynamics force residual is "
             f"{info['score']:.3g} times what a correct model leaves with the same encoder noise. Adding the effect "
             f"there lowers the noise-weighted output-error cost by {info['cost_reduction']:.4g}, {ratio:.1f} times "
@@ -523,7 +518,7 @@ def axis_plots(result: dict, staging: Path) -> list[str]:
             (bundle.validation, (nominal.val_q, final.val_q), "validation_fit.png", "Validation error")):
         fig, panels = plt.subplots(len(axes), 1, figsize=(9, 1.8 * len(axes) + 1.2), sharex=True, squeeze=False)
         for k, (axis, ax) in enumerate(zip(axes, panels[:, 0])):
-            scale, unit = axis_units(bundle.train.units.get(axis), bundle.plant.model, axis).shown_residual
+            scale, unit = bundle_units(bundle, axis).shown_residual
             ax.plot(rec.time, (rec[axis] - q_nominal[k]) * scale, lw=0.6, label="nominal (refitted)")
             ax.plot(rec.time, (rec[axis] - q_final[k]) * scale, lw=0.6, label="augmented")
             ax.set_ylabel(f"{axis} [{unit}]"), ax.grid(alpha=0.3)
@@ -549,7 +544,7 @@ def report_markdown(doc: dict, bundle: Bundle, plots: list[str] = ()) -> str:
     lines += ["## Validation RMS per axis", "", "| axis | nominal | augmented | noise floor | unit |",
               "|---|---|---|---|---|"]
     for axis, v in doc["validation"]["per_axis"].items():
-        unit = axis_units(bundle.train.units.get(axis), bundle.plant.model, axis).position
+        unit = bundle_units(bundle, axis).position
         lines.append(f"| {axis} | {v['nominal_rms']:.3g} | {v['augmented_rms']:.3g} | {v['noise_floor_rms']:.3g} | "
                      f"{unit} |")
     lines += ["", "## Location (force residual / noise reference per axis, each round)", ""]
