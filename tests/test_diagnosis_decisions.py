@@ -288,3 +288,24 @@ def test_location_in_words():
                                  "frequency_peak_hz": 12.0, "time_windows": [(1.0, 2.5)]})
     assert "while moving in -x at 10 to 20 mm/s between 234 and 246 mm" in text
     assert "12 Hz" in text and "1-2.5 s" in text
+
+
+def test_every_contract_parameter_has_a_unit():
+    """Every parameter an effect reports (its contract) has a unit in diagnosis.json (the cogging amplitudes had
+    none); the units are those of the effect's own Modelica parameters where the contract passes one through."""
+    import numpy as np
+
+    from motiontwin.ident.diagnosis import effects as effect_models
+    from motiontwin.ident.diagnosis.report import CONTRACT_UNITS
+
+    ctx = effect_models.Context(5e-4, 0.0, 0.1, 0.2, 2.0, pole_pitch=0.032)
+    for name, make in effect_models.VOCABULARY.items():
+        effect = make(ctx)
+        values = {p.name: float(np.mean(p.bounds)) if np.all(np.isfinite(p.bounds)) else 1.0 for p in effect.params}
+        declared = {p.name: p.unit for p in effect.params}
+        for key in effect.contract(values, ctx):
+            assert key in CONTRACT_UNITS, (name, key)
+        for key, source in (("A1", "cogging_a1"), ("gap", "backlash_b"), ("Fmax", "saturation_Fmax"),
+                            ("tau", "drift_tau"), ("Fc0", "load_Fc0")):
+            if source in declared:
+                assert CONTRACT_UNITS[key] == declared[source], (name, key)

@@ -29,7 +29,9 @@ from motiontwin.ident.diagnosis.structure import ModelFit, write_axes_structure 
 #: units of the effects' parameters as the report states them (the contract's names)
 CONTRACT_UNITS = {"F0": "N", "Fc": "N", "Fs": "N", "vs": "m/s", "Fc_pos": "N", "Fc_neg": "N", "amplitude": "N",
                   "period": "m", "delay": "s", "frequency": "Hz", "damping": "1", "mass_min": "kg", "mass_max": "kg",
-                  "Fc_equivalent": "N", "offset_while_moving": "N"}
+                  "Fc_equivalent": "N", "offset_while_moving": "N", "A1": "N", "A2": "N", "n": "1", "b": "m",
+                  "gap": "m", "z0": "m", "sigma0": "N/m", "Fmax": "N", "Fc0": "N", "mu": "1", "Fc_start": "N",
+                  "dFc": "N", "tau": "s"}
 CLIP_WIDEN = 0.5     # residual plots: the 1-99 % range widened by this share of its width; beyond: clipped, counted
 
 
