@@ -106,6 +106,7 @@ class Bundle:
     start: dict[str, float] = dataclass_field(default_factory=dict)   # nominal start values (set by the pipeline)
     cache: Any = None            # the compiled loops of the diagnosis running on this bundle (set by the pipeline)
     nominal_free: tuple = ()     # multi-axis: (free nominal parameters, their bounds) (set by the diagnosis)
+    process_noise: Any = None    # noise.ProcessNoise of the training recording (set by the pipeline; None: none)
 
     def recording_path(self, part: str) -> Path:
         """Path of the ``train`` or ``validation`` recording."""

@@ -79,6 +79,15 @@ def inverse_dynamics(rec: Recording, model: symbolic.SymbolicModel, values: dict
     return InverseDynamics(x, v, a, udot, force, fc, u_f)
 
 
+def mass_equivalent(model: symbolic.SymbolicModel, values: dict[str, float], velocity_state: str,
+                    input_index: int = 0) -> float:
+    """1 / (d velocity' / d force) at rest [kg or kg.m2 in the plant's coordinates]."""
+    i_v = [s.name for s in model.states].index(velocity_state)
+    gain = ca.Function("g", [model.x, model.u, model.p], [ca.jacobian(model.dx[i_v], model.u[input_index])])
+    p = np.array([values[s.name] for s in model.parameters])
+    return float(1 / np.array(gain(np.zeros(model.x.numel()), np.zeros(model.u.numel()), p)).item())
+
+
 def flagged_windows(residual: np.ndarray, time: np.ndarray, sigma: float, ts: float,
                     width: float = 0.1) -> list[tuple[float, float]]:
     """Time windows where the moving RMS of the residual exceeds 3 noise levels (merged, in s)."""
@@ -136,7 +145,8 @@ def locate(residual: np.ndarray, v: np.ndarray, x: np.ndarray, ts: float) -> dic
 def bootstrap_residuals(simulate_noisy, q_model: np.ndarray, u_model: np.ndarray, sigma_q: float,
                         sigma_u: float, n: int, count: int, seed: int = 0) -> np.ndarray:
     """``count`` weighted residual vectors of the fitted model re-simulated with white measurement noise
-    (a multi-axis loop: one noise level per axis, arrays ``sigma_q``/``sigma_u``; rows channel-major)."""
+    (a multi-axis loop: one noise level per axis, arrays ``sigma_q``/``sigma_u``; rows channel-major).
+    ``simulate_noisy(noise, rng)`` returns (q, u); it may add process noise of its own (:mod:`noise`)."""
     rng = np.random.default_rng(seed)
     out = []
     per_axis = np.ndim(sigma_q) > 0
@@ -144,7 +154,7 @@ def bootstrap_residuals(simulate_noisy, q_model: np.ndarray, u_model: np.ndarray
     s_u = np.reshape(sigma_u, (-1, 1)) if per_axis else sigma_u
     for _ in range(count):
         noise = rng.normal(0.0, 1.0, (np.size(sigma_q), n)) * s_q if per_axis else rng.normal(0.0, sigma_q, n)
-        q, u = simulate_noisy(noise)
+        q, u = simulate_noisy(noise, rng)
         out.append(np.concatenate([((q + noise - q_model) / s_q).ravel(), ((u - u_model) / s_u).ravel()]))
     return np.array(out)
 

@@ -51,11 +51,7 @@ def _pitch_in_state_coordinates(pole_pitch: float | None, gain: float) -> float 
 
 
 def _mass_equivalent(bundle: Bundle, values: dict[str, float]) -> float:
-    model = bundle.plant.model
-    i_v = [s.name for s in model.states].index(bundle.plant.velocity_state)
-    gain = ca.Function("g", [model.x, model.u, model.p], [ca.jacobian(model.dx[i_v], model.u[_input_index(bundle)])])
-    p = np.array([values[s.name] for s in model.parameters])
-    return float(1 / np.array(gain(np.zeros(model.x.numel()), np.zeros(model.u.numel()), p)).item())
+    return evidence.mass_equivalent(bundle.plant.model, values, bundle.plant.velocity_state, _input_index(bundle))
 
 
 def _input_index(bundle: Bundle) -> int:

@@ -16,7 +16,7 @@ import numpy as np
 
 from motiontwin.fmus.files import move_file
 from motiontwin.ident import outputerror, startvalues
-from motiontwin.ident.diagnosis import report
+from motiontwin.ident.diagnosis import empirical, noise, report
 from motiontwin.ident.diagnosis.bounds import structure_at_bound
 from motiontwin.ident.diagnosis.axis_units import bundle_units
 from motiontwin.ident.diagnosis.bundle import Bundle
@@ -26,8 +26,12 @@ from motiontwin.ident.diagnosis.nominal import (_divergence_hint, check_plant_fo
 from motiontwin.ident.diagnosis.remainder import EMPIRICAL_EFFECT, explain_remainder, explain_remainder_axes
 from motiontwin.ident.diagnosis.select import VALIDATION_GAIN, select
 from motiontwin.ident.diagnosis.structure import (AUGMENTED_CLASS, LoopCache, _log, _nominal_bounds, build_axes,
-                                                  build_structure, validate, validate_axes, validation_floor,
+                                                  build_structure, floor_rms, validate, validate_axes,
+                                                  validation_floor,
                                                   write_structure)
+
+#: the final validation RMS may exceed the estimated floor by this factor before the verdict is "unexplained"
+FLOOR_MARGIN = 1.5
 
 #: names of the stages that tests and scripts read from here
 __all__ = ["AUGMENTED_CLASS", "VALIDATION_GAIN", "Diagnosis", "_nominal_bounds", "check_plant_form", "run"]
@@ -42,6 +46,8 @@ def run(bundle: Bundle, work: Path, progress=None) -> dict:
     _log(progress, f"every candidate effect's augmented model builds ({time.perf_counter() - t0:.1f} s)")
     bundle.start = nominal_start(bundle, progress)
     nominal, weights = fit_nominal(bundle, progress)
+    bundle.process_noise = noise.of_bundle(bundle, nominal.fit.values, weights.sigma_q)
+    _log(progress, f"process force noise (not predictable from the motion): {bundle.process_noise.describe()}")
     validate(bundle, nominal, work / "v_nominal")
     startvalues.check_free_run(nominal.val_q, bundle.validation["q"], bundle.validation.time,
                                f"the refitted nominal closed loop on {bundle.recording_path('validation')}",
@@ -63,13 +69,43 @@ def run(bundle: Bundle, work: Path, progress=None) -> dict:
                               with_jacobian=False, min_substeps=final.loop.substeps)
     written = bundle.cache.models[names]
     q_aug, u_aug = outputerror.simulate(loop, bundle.validation, values)
-    floor = validation_floor(loop, bundle, values, weights.sigma_q)
+    bundle.process_noise = noise.within_residual(
+        bundle.process_noise, floor_rms(final.loop, bundle.train, final.fit.values, weights.sigma_q),
+        floor_rms(final.loop, bundle.train, final.fit.values, weights.sigma_q, bundle.process_noise),
+        float(final.fit.rms_q))
+    _log(progress, f"process force noise within the final model's training residual: "
+                   f"{bundle.process_noise.describe()}")
+    floor = validation_floor(loop, bundle, values, weights.sigma_q, process=bundle.process_noise)
+    remainder = above_floor(bundle, remainder, q_aug, floor, weights.sigma_q, progress)
     _log(progress, f"diagnosis done in {time.perf_counter() - t0:.1f} s")
     return {"bundle": bundle, "nominal": nominal, "final": final, "weights": weights, "context": ctx,
             "log": log, "augmented_values": values, "q_augmented": q_aug, "u_augmented": u_aug,
             "remainder": remainder,
             "augmented_model": written, "validation_floor": floor, "seconds": time.perf_counter() - t0,
-            "plant_physics": owned}
+            "plant_physics": owned, "process_noise": bundle.process_noise}
+
+
+def above_floor(bundle: Bundle, remainder: dict, q_final: np.ndarray, floor: float, sigma_q: float,
+                progress=None) -> dict:
+    """The last word of a single-axis diagnosis: when neither a catalogue effect nor the empirical stage
+    left the final model's validation RMS within ``FLOOR_MARGIN`` times the floor a correct model reaches
+    (encoder and process noise, :mod:`noise`), the answer is "unexplained, no term validated" with where the
+    validation residual sits, never "only parameters were off"."""
+    rec = bundle.validation
+    residual = rec["q"] - q_final
+    rms = float(np.sqrt(np.mean(residual ** 2)))
+    above = rms > FLOOR_MARGIN * floor
+    if remainder.get("status", "").startswith("unexplained") or not above:
+        return remainder
+    ts = bundle.controller.Ts
+    _, v, _ = startvalues.mirror_derivatives(rec["q"], 1 / ts, min(0.1 / ts, 150.0))
+    where = empirical.locate_remainder(residual, residual, rec.time, v, rec["q"], sigma_q, ts)
+    reason = (f"the validation RMS {rms:.4g} is {rms / floor:.3g} times the floor a correct model reaches on this "
+              f"data ({floor:.4g}: encoder and process noise estimated from the recording; the margin is "
+              f"{FLOOR_MARGIN}); {remainder.get('reason', 'no catalogue effect or empirical term took it up')}")
+    _log(progress, f"unexplained, no term validated: {reason}")
+    return {"status": empirical.NOT_VALIDATED, "axis": bundle.plant.output_name, **where,
+            "reason": reason, "validation_rms": rms, "floor_rms": floor}
 
 
 @dataclass

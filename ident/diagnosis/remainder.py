@@ -11,7 +11,7 @@ import numpy as np
 from motiontwin.ident import outputerror
 from motiontwin.ident.diagnosis import effects as effect_models
 from motiontwin.ident.diagnosis import empirical
-from motiontwin.ident.diagnosis import evidence
+from motiontwin.ident.diagnosis import evidence, noise
 from motiontwin.ident.diagnosis.bundle import Bundle
 from motiontwin.ident.diagnosis.locate import _in_state_coordinates, locate
 from motiontwin.ident.diagnosis.plant_roles import output_map
@@ -150,7 +150,7 @@ def _null_test(bundle: Bundle, final: ModelFit, trial: ModelFit, weights: output
                dof: int) -> tuple[np.ndarray, float, float]:
     """The parametric-bootstrap null residuals of the final model (seeded after the selection's rounds), the
     empirical term's cost reduction and its 99.9 % null threshold for ``dof`` fitted parameters."""
-    noisy = lambda n: outputerror.simulate(final.loop, bundle.train, final.fit.values, noise=n)  # noqa: E731
+    noisy = noise.noisy_simulator(final.loop, bundle.train, final.fit.values, bundle.process_noise)
     null = evidence.bootstrap_residuals(noisy, final.fit.q_sim, final.fit.u_sim, weights.sigma_q, weights.sigma_u,
                                         bundle.train.time.size, BOOTSTRAP_COUNT, seed=MAX_EFFECTS + 1)
     null_gain = evidence.projected_gain(trial.fit.jacobian, null) - evidence.projected_gain(final.fit.jacobian, null)

@@ -163,7 +163,9 @@ def diagnosis_document(result: dict, out: Path, fmu_path: Path | None) -> dict:
         "augmented_parameters": _strip({k: v for k, v in result["augmented_values"].items()}),
         "augmented_model": str(out / "augmented_model" / f"{AUGMENTED_CLASS}.mo"),
         "augmented_fmu": str(out / fmu_path) if fmu_path else None,
-        "noise": {"sigma_q": result["weights"].sigma_q, "sigma_u": result["weights"].sigma_u},
+        "noise": {"sigma_q": result["weights"].sigma_q, "sigma_u": result["weights"].sigma_u,
+                  "process": (result["process_noise"].as_dict() if result.get("process_noise") is not None
+                              else None)},
         "candidates": [{k: v for k, v in entry.items()} for entry in result["log"]],
         "runtime_s": round(result["seconds"], 2),
         "plant_roles": result["bundle"].plant.roles.as_dict(),
@@ -178,12 +180,16 @@ def unexplained_entry(remainder: dict) -> dict | None:
     empirical term (or the rejected one); None when nothing significant remains or it was not tested."""
     if not remainder.get("status", "").startswith("unexplained"):
         return None
-    return {k: v for k, v in remainder.items() if k != "reason"}
+    has_term = "empirical_term" in remainder or "rejected_term" in remainder
+    return {k: v for k, v in remainder.items() if k != "reason" or not has_term}
 
 
 def unexplained_text(entry: dict) -> str:
     """The unexplained verdict in one line: status, axis, the empirical law and its validation gain."""
-    term = entry.get("empirical_term") or entry.get("rejected_term") or {}
+    term = entry.get("empirical_term") or entry.get("rejected_term")
+    if term is None:
+        return (f"{entry['status']} (on axis {entry['axis']}: validation RMS {entry['validation_rms']:.3g}, "
+                f"{entry['validation_rms'] / entry['floor_rms']:.3g} times the floor from the data)")
     law = " + ".join(f"{c:.4g}*{name}" for name, c in term.get("coefficients", {}).items())
     label = "empirical term" if "empirical_term" in entry else "rejected term"
     return (f"{entry['status']} ({label} F = {law} on axis {entry['axis']}, validation RMS x"
@@ -356,8 +362,12 @@ def _unexplained_markdown(doc: dict, units: AxisUnits = AxisUnits()) -> list[str
         return [f"Remaining structure after the catalogue: {check['status']} ({check.get('reason', '')}).", ""] \
             if check else []
     validated = "empirical_term" in entry
-    term = entry["empirical_term"] if validated else entry["rejected_term"]
-    lines = ["## Unexplained: structure no catalogue effect explains (EMPIRICAL term, not a physical law)", "",
+    term = entry.get("empirical_term") or entry.get("rejected_term")
+    heading = ["## Unexplained: structure no catalogue effect explains (EMPIRICAL term, not a physical law)", ""]
+    if term is None:      # above the floor with no term at all (pipeline.above_floor)
+        return heading + [f"Status: **{entry['status']}** on axis `{entry['axis']}`: {entry['reason']}.", ""] \
+            + _where_lines(entry, units, "where the validation residual is largest")
+    lines = heading + [
              f"Status: **{entry['status']}** on axis `{entry['axis']}`. After the catalogue effects, the force "
              f"residual still holds significant structure: the sparse regression (PySINDy STLSQ over functions of "
              f"position, velocity, acceleration and force) found the terms below; refitted by output error with "
@@ -369,15 +379,7 @@ def _unexplained_markdown(doc: dict, units: AxisUnits = AxisUnits()) -> list[str
     lines += ["| term | coefficient | unit |", "|---|---|---|"]
     lines += [f"| {name} | {value:.6g} | {term['units'].get(name, '')} |"
               for name, value in term["coefficients"].items()]
-    windows = ", ".join(f"{a:.3g}-{b:.3g} s" for a, b in entry["time_windows"][:5]) or "none above 3 noise levels"
-    v_lo, v_hi = entry["velocity_range"]
-    x_lo, x_hi = entry["position_range"]
-    f_lo, f_hi = entry["frequency_band_hz"]
-    k_v, speed = units.shown_velocity
-    k_x, length = units.shown_position
-    lines += ["", f"Where: velocity {v_lo * k_v:.3g} to {v_hi * k_v:.3g} {speed}, position {x_lo * k_x:.4g} to "
-              f"{x_hi * k_x:.4g} {length} (the bins where the term acts most), {f_lo:.3g}-{f_hi:.3g} Hz "
-              f"({100 * POWER_SHARE:.0f} % of its power), time windows {windows}.", ""]
+    lines += [""] + _where_lines(entry, units, "the bins where the term acts most")
     if term.get("absorbed_effects"):
         lines += [f"Catalogue effects the empirical term carries, dropped: {', '.join(term['absorbed_effects'])} "
                   f"(without them the training cost rises by less than their own null threshold and the validation "
@@ -390,6 +392,20 @@ def _unexplained_markdown(doc: dict, units: AxisUnits = AxisUnits()) -> list[str
         lines += ["The term is significant on the training recording but does not improve the validation fit by "
                   "10 %: it is not added to the augmented model (unexplained, no term validated).", ""]
     return lines
+
+
+def _where_lines(entry: dict, units: AxisUnits, what: str) -> list[str]:
+    """One paragraph: the velocity, position and frequency ranges and the time windows of an unexplained
+    verdict, in the axis's units."""
+    windows = ", ".join(f"{a:.3g}-{b:.3g} s" for a, b in entry["time_windows"][:5]) or "none above 3 noise levels"
+    v_lo, v_hi = entry["velocity_range"]
+    x_lo, x_hi = entry["position_range"]
+    f_lo, f_hi = entry["frequency_band_hz"]
+    k_v, speed = units.shown_velocity
+    k_x, length = units.shown_position
+    return [f"Where: velocity {v_lo * k_v:.3g} to {v_hi * k_v:.3g} {speed}, position {x_lo * k_x:.4g} to "
+            f"{x_hi * k_x:.4g} {length} ({what}), {f_lo:.3g}-{f_hi:.3g} Hz "
+            f"({100 * POWER_SHARE:.0f} % of its power), time windows {windows}.", ""]
 
 
 def html_from_markdown(text: str, title: str = "Mismatch diagnosis") -> str:

@@ -15,9 +15,10 @@ from typing import Callable
 
 import numpy as np
 
-from motiontwin.ident import outputerror
+from motiontwin.ident import outputerror, startvalues
 from motiontwin.ident.diagnosis import effects as effect_models
 from motiontwin.ident.diagnosis.bundle import Bundle
+from motiontwin.ident.plant_states import alias_state
 from motiontwin.ident.diagnosis.structure import ModelFit, _log, build_axes, build_structure, on_axis
 
 SCREEN_NFEV = 4             # cheap fit of every candidate, to rank them
@@ -38,6 +39,8 @@ def fit_structure(bundle: Bundle, current: ModelFit, candidate: effect_models.Ef
     values = {**base, **{p.name: float(np.mean(p.bounds)) for p in candidate.params if not p.fitted}, **starts[0]}
     loop, bounds = build_structure(bundle, effects, values, folder, bundle.train.time.size,
                                    min_substeps=current.loop.substeps)
+    joint = _joint_start(bundle, loop, candidate, {**values, **(starts[1] if len(starts) > 1 else {})})
+    starts = starts + ([joint] if joint else [])
     best, start_cost = _best_fit(bundle, loop, bounds, weights, base, starts, max_nfev, candidate.name)
     return ModelFit(effects, loop.with_values(best.values), best, bounds, folder, start_cost=start_cost)
 
@@ -48,6 +51,26 @@ def _starts(candidate: effect_models.Effect, ctx: effect_models.Context) -> list
     values of a parameter in which the cost is rough)."""
     data = candidate.initial(ctx)
     return [effect_models.vanishing_start(candidate, data)] + data
+
+
+def _joint_start(bundle: Bundle, loop: outputerror.Loop, candidate: effect_models.Effect,
+                 values: dict[str, float]) -> dict[str, float]:
+    """The nominal parameters and the candidate's together from inverse dynamics of the augmented model (least
+    squares of those entering the force linearly; the others keep ``values``). A missing effect distorts
+    the nominal refit (a Coulomb friction taken up by a mass a tenth of the true one, a local minimum the
+    output-error fit of the candidate does not leave); this start is free of that distortion. Empty when
+    the augmented model has extra states or its output is not the position state itself."""
+    model = loop.model
+    position = "plant." + bundle.plant.position_state
+    if model.x.numel() != 2 or alias_state(model, "q") != position:
+        return {}
+    free = [n for n in loop.free if n.startswith("plant.")] + [p.name for p in candidate.params if p.fitted]
+    try:
+        estimate = startvalues.inverse_dynamics_start(model, bundle.train["q"], bundle.train["u"],
+                                                      bundle.controller.Ts, position, free, values, input_name="u")
+    except (ValueError, np.linalg.LinAlgError, RuntimeError):
+        return {}
+    return {**{p.name: values[p.name] for p in candidate.params if p.fitted and p.name in values}, **estimate}
 
 
 def _start_cost(bundle: Bundle, loop: outputerror.Loop, weights: outputerror.Weights,

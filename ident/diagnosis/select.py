@@ -12,7 +12,7 @@ from scipy import stats
 
 from motiontwin.ident import outputerror
 from motiontwin.ident.diagnosis import effects as effect_models
-from motiontwin.ident.diagnosis import evidence
+from motiontwin.ident.diagnosis import evidence, noise
 from motiontwin.ident.diagnosis.bundle import Bundle
 from motiontwin.ident.diagnosis.locate import AxisEvidence, locate
 from motiontwin.ident.diagnosis.screen import (FULL_FITS, MAX_NFEV, SCREEN_NFEV, _close_richer, candidates,
@@ -59,7 +59,7 @@ def select(bundle: Bundle, nominal: ModelFit, weights: outputerror.Weights, ctx:
             current = ModelFit(current.effects, loop.with_values(result.values), result, bounds,
                                work / f"c{rounds}", evidence=current.evidence, axes=current.axes)
             validate_any(bundle, current, work / f"v{rounds}_refined")
-        noisy = lambda n, c=current: outputerror.simulate(c.loop, bundle.train, c.fit.values, noise=n)  # noqa: E731
+        noisy = noise.noisy_simulator(current.loop, bundle.train, current.fit.values, bundle.process_noise)
         null = evidence.bootstrap_residuals(noisy, current.fit.q_sim, current.fit.u_sim, weights.sigma_q,
                                             weights.sigma_u, bundle.train.time.size, BOOTSTRAP_COUNT, seed=rounds)
         base_gain = evidence.projected_gain(current.fit.jacobian, null)

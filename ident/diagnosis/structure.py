@@ -18,6 +18,7 @@ from motiontwin.harness.recording import Recording
 from motiontwin.ident import outputerror
 from motiontwin.ident.diagnosis import effects as effect_models
 from motiontwin.ident.diagnosis.bundle import Bundle, PlantInfo
+from motiontwin.ident.diagnosis.noise import ProcessNoise, with_force_noise
 from motiontwin.ident.diagnosis.plant_roles import PlantRoles
 
 AUGMENTED_CLASS = effect_models.AUGMENTED_CLASS
@@ -167,13 +168,20 @@ def validate(bundle: Bundle, structure: ModelFit, folder: Path) -> None:
 
 
 def validation_floor(loop: outputerror.Loop, bundle: Bundle, values: dict[str, float], sigma_q: float | np.ndarray,
-                     count: int = FLOOR_REPLICATES) -> float | np.ndarray:
+                     count: int = FLOOR_REPLICATES, process: ProcessNoise | None = None) -> float | np.ndarray:
     """RMS of measured minus free-run q that the fitted model itself leaves on the validation excitation
-    [m]: the model is re-simulated with white encoder noise of the estimated level fed back through the
-    controller (the noise and its closed-loop echo, which no free-run simulation can predict). No model
-    can bring the validation RMS below this floor, so the improvement is also reported above it.
-    A multi-axis loop takes one noise level per axis and returns one floor per axis."""
-    rec = bundle.validation
+    [m]: :func:`floor_rms` on the validation recording. No model can bring the validation RMS below this
+    floor, so the improvement is also reported above it."""
+    return floor_rms(loop, bundle.validation, values, sigma_q, process, count)
+
+
+def floor_rms(loop: outputerror.Loop, rec: Recording, values: dict[str, float], sigma_q: float | np.ndarray,
+              process: ProcessNoise | None = None, count: int = FLOOR_REPLICATES) -> float | np.ndarray:
+    """RMS of ``rec``'s q minus the free run that a correct model leaves [m]: the model re-simulated with white
+    encoder noise of the estimated level fed back through the controller and, for one axis, the process
+    force noise ``process`` (:mod:`noise`) acting on the plant: the noise and its closed-loop echo, which no
+    free-run simulation can predict. A multi-axis loop takes one noise level per axis and returns one floor
+    per axis."""
     q_free, _ = outputerror.simulate(loop, rec, values)
     rng = np.random.default_rng(0)
     power = []
@@ -183,7 +191,9 @@ def validation_floor(loop: outputerror.Loop, bundle: Bundle, values: dict[str, f
             noise = rng.normal(0.0, 1.0, (np.size(sigma_q), rec.time.size)) * np.reshape(sigma_q, (-1, 1))
         else:
             noise = rng.normal(0.0, sigma_q, rec.time.size)
-        q_noisy, _ = outputerror.simulate(loop, rec, values, noise=noise)
+        forced = rec if process is None or per_axis else with_force_noise(rec, process.sample(rec.time.size,
+                                                                                            loop.ts, rng))
+        q_noisy, _ = outputerror.simulate(loop, forced, values, noise=noise)
         power.append(np.mean((q_noisy + noise - q_free) ** 2, axis=-1))
     return np.sqrt(np.mean(power, axis=0)) if per_axis else float(np.sqrt(np.mean(power)))
 

@@ -1,0 +1,228 @@
+"""What no model can predict: the encoder noise and the process (force) noise, estimated from the data.
+
+A correct model's free run differs from a recording by the encoder noise *and* by the closed loop's echo of
+the forces nobody measured (process noise, coloured disturbances). Estimating the floor from encoder noise
+alone makes it too low whenever such forces act, and every candidate then looks significant. The process
+noise is estimated from the inverse-dynamics force residual of the refitted nominal model, after removing
+everything that is a function of the motion: a cross-fitted level per (position, velocity) bin (the
+structure of any friction, ripple, offset or drag law; what is left is not predictable from the state).
+The acceleration and the force are not regressors: the force noise is a linear combination of them. Its
+spectrum, below the inverse-dynamics filter's cut-off, is fitted as the
+sum of three shapes measured through the same filter: differentiated encoder noise, white force noise
+held over each sample, and first-order coloured force noise (time constant chosen on a grid). The result
+drives the bootstrap null (:func:`evidence.bootstrap_residuals`) and the validation floor
+(:func:`structure.validation_floor`). Units: SI, in the plant's state coordinates (N or N.m, s).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+from scipy import optimize
+from scipy import signal as sps
+from scipy import spatial
+
+from motiontwin.harness.recording import Recording
+from motiontwin.ident import outputerror
+from motiontwin.ident.diagnosis import evidence
+from motiontwin.ident.diagnosis.bundle import Bundle
+from motiontwin.ident.diagnosis.plant_roles import output_map
+from motiontwin.ident.oeloop import Loop
+from motiontwin.ident.startvalues import mirror_derivatives
+
+#: time constants [s] tried for the coloured part
+TAU_GRID = (0.005, 0.01, 0.02, 0.05, 0.1, 0.2, 0.5)
+NEIGHBOURS = 8
+BACKFITTING = 3         # rounds of the least-squares laws and the neighbours' means fitted in turn
+INERTIA_HARMONICS = 1   # the linear stage's mass varies along the stroke by this many harmonics
+BLOCK = 0.25        # [s] time blocks of the cross-fitting (even blocks fit the odd ones, and back)
+
+
+@dataclass(frozen=True)
+class ProcessNoise:
+    """Force noise acting on the plant's driven input: white per sample (held over the sample period) with
+    standard deviation ``white`` plus first-order coloured noise of standard deviation ``coloured`` and
+    time constant ``tau`` [s]. Zero when the data show none."""
+
+    white: float = 0.0
+    coloured: float = 0.0
+    tau: float = 0.0
+
+    @property
+    def present(self) -> bool:
+        return self.white > 0 or self.coloured > 0
+
+    def sample(self, n: int, ts: float, rng: np.random.Generator) -> np.ndarray:
+        """One realisation of ``n`` samples [N]."""
+        out = self.white * rng.standard_normal(n)
+        if self.coloured > 0:
+            out = out + coloured(n, self.coloured, self.tau, ts, rng)
+        return out
+
+    def scaled(self, factor: float) -> "ProcessNoise":
+        """The same spectrum with ``factor`` times the standard deviations."""
+        return ProcessNoise(self.white * factor, self.coloured * factor, self.tau)
+
+    def describe(self) -> str:
+        if not self.present:
+            return "none"
+        return f"white {self.white:.3g}, coloured {self.coloured:.3g} (tau {self.tau:.3g} s)"
+
+    def as_dict(self) -> dict[str, float]:
+        return {"white_std": self.white, "coloured_std": self.coloured, "coloured_tau_s": self.tau}
+
+
+def coloured(n: int, std: float, tau: float, ts: float, rng: np.random.Generator) -> np.ndarray:
+    """First-order (AR(1)) noise of stationary standard deviation ``std`` and time constant ``tau``."""
+    a = float(np.exp(-ts / tau))
+    e = rng.standard_normal(n) * std * np.sqrt(1 - a * a)
+    e[0] = rng.standard_normal() * std
+    return sps.lfilter([1.0], [1.0, -a], e, zi=[a * e[0]])[0] if n > 1 else e
+
+
+def unpredictable_part(force: np.ndarray, x: np.ndarray, v: np.ndarray, a: np.ndarray, ts: float) -> np.ndarray:
+    """``force`` minus what the motion predicts of it, in two parts fitted in turn (backfitting, so that a
+    large law does not bias the other part). The laws every axis has a share of, by least squares: linear
+    in acceleration (a mass with ``INERTIA_HARMONICS`` harmonics along the stroke: the mass left by the
+    refit, or one that varies along it), in velocity (damping), a constant and a Coulomb level; a handful
+    of coefficients takes out a negligible share of the noise. Then any law of the state, cross-fitted (each
+    half of the time blocks predicted from the other half, so the noise is not fitted away): by forward
+    selection, the mean of the ``NEIGHBOURS`` nearest samples in the velocity (drag-like laws), in the
+    position for the same direction of motion (ripple, a bump on the rail), or in (position, velocity,
+    acceleration), each while it lowers the held-out power; where the motion never revisits a state the
+    neighbours are far and their mean would add error instead. A neighbours' mean carries ``1/k`` of the
+    noise variance, which is taken out. The force is not a feature: with the acceleration it would rebuild
+    the force noise itself."""
+    n = force.size
+    block = (np.arange(n) * ts // BLOCK).astype(int) % 2
+    halves = [(block != k, block == k) for k in (0, 1)]
+    phase = np.pi * (x - x.min()) / max(float(np.ptp(x)), 1e-300)
+    mass = [np.ones(n)] + [f(k * phase) for k in range(1, INERTIA_HARMONICS + 1) for f in (np.cos, np.sin)]
+    laws = np.column_stack([a[:, None] * np.column_stack(mass), v, np.ones(n),
+                            np.tanh(v / max(1e-3 * np.ptp(v), 1e-300))])
+    span = [max(float(np.ptp(s)), 1e-300) for s in (x, v, a)]
+    direction = np.sign(v) * 1e6      # never a neighbour across a reversal
+    features = [np.column_stack([v / span[1] * 400]), np.column_stack([x / span[0] * 400, direction]),
+                np.column_stack([x / span[0] * 400, v / span[1] * 40, a / span[2] * 20])]
+    local = np.zeros(n)
+    for _ in range(BACKFITTING):
+        coef, *_ = np.linalg.lstsq(laws, force - local, rcond=None)
+        linear = force - laws @ coef
+        rest, chosen, remaining = linear, 0, list(features)
+        while remaining:
+            trials = [_neighbour_residual(rest, points, halves) for points in remaining]
+            k = int(np.argmin([np.mean(t ** 2) for t in trials]))
+            if not np.mean(trials[k] ** 2) < np.mean(rest ** 2):
+                break
+            rest, chosen = trials[k], chosen + 1
+            del remaining[k]
+        local = linear - rest
+    return rest * np.sqrt(NEIGHBOURS / (NEIGHBOURS + 1)) ** chosen
+
+
+def _neighbour_residual(rest: np.ndarray, points: np.ndarray, halves: list) -> np.ndarray:
+    """``rest`` minus the mean of its ``NEIGHBOURS`` nearest samples in ``points`` from the other half."""
+    out = np.array(rest)
+    for fit, use in halves:
+        _, idx = spatial.cKDTree(points[fit]).query(points[use], k=NEIGHBOURS)
+        out[use] = rest[use] - rest[fit][idx].mean(axis=1)
+    return out
+
+
+def estimate(force: np.ndarray, x: np.ndarray, v: np.ndarray, a: np.ndarray, input_gain: float, sigma_x: float,
+             ts: float, cutoff: float) -> ProcessNoise:
+    """The process force noise in the inverse-dynamics force residual ``force`` [N] (computed with the force
+    held over each sample, so no half-sample lag is left in it).
+
+    x, v, a: the filtered motion the residual was computed from; input_gain: d(acceleration)/d(force) of the
+    model [1/kg]; sigma_x: the encoder noise in the plant's position coordinates; cutoff: the
+    inverse-dynamics low-pass [Hz]. The Welch spectrum of the unpredictable part is fitted (non-negative
+    least squares, each frequency weighted equally in relative terms) by three shapes, each the spectrum of
+    a unit realisation passed through the same filter: the encoder noise differentiated twice, white force
+    noise per sample, first-order coloured force noise (each time constant of ``TAU_GRID``)."""
+    e = unpredictable_part(force, x, v, a, ts)
+    n, fs = e.size, 1 / ts
+    nper = min(4096, n // 4)
+    f, p_e = sps.welch(e, fs=fs, nperseg=nper)
+    band = (f > 2 * fs / nper) & (f < 0.8 * cutoff)
+    if np.count_nonzero(band) < 8:
+        return ProcessNoise()
+    rng = np.random.default_rng(12345)
+
+    def shape(series: np.ndarray, second: bool = False) -> np.ndarray:
+        low, _, acc = mirror_derivatives(series, fs, cutoff)
+        return sps.welch(acc / input_gain if second else low, fs=fs, nperseg=nper)[1][band]
+
+    encoder = shape(sigma_x * rng.standard_normal(n), second=True)
+    white = shape(rng.standard_normal(n))
+    target = p_e[band]
+    weight = 1 / np.maximum(target, 1e-300)
+    best: tuple[float, ProcessNoise] | None = None
+    for tau in TAU_GRID:
+        col = shape(coloured(n, 1.0, tau, ts, rng))
+        design = np.column_stack([encoder, white, col]) * weight[:, None]
+        coef, res = optimize.nnls(design, np.ones_like(target))
+        if best is None or res < best[0]:
+            best = (res, ProcessNoise(float(np.sqrt(coef[1])), float(np.sqrt(coef[2])), tau if coef[2] > 0 else 0.0))
+    return best[1]
+
+
+def with_force_noise(rec: Recording, w: np.ndarray, disturbance: str = "u_ext") -> Recording:
+    """``rec`` with the force ``w`` added to its disturbance column (created when absent)."""
+    base = rec.columns.get(disturbance, np.zeros(rec.time.size))
+    return Recording(rec.time, {**rec.columns, disturbance: np.asarray(base, float) + w}, rec.units, rec.meta)
+
+
+def within_residual(process: ProcessNoise, encoder_floor: float, with_process: float,
+                    residual_rms: float) -> ProcessNoise:
+    """``process`` scaled down so that the noise it predicts on the training recording (``with_process``, the
+    floor with encoder and process noise; ``encoder_floor``, with encoder noise alone) is no more than the
+    final model's training residual ``residual_rms``: noise cannot leave more residual than a fitted model
+    has. Structure a regression of the motion could not fit away (a law at the motion's own harmonics) is
+    taken for process noise at first; once the final model explains it, this bound removes it again. The
+    floor's power is the sum of both parts, so the process part scales with the square of the factor."""
+    excess = with_process ** 2 - encoder_floor ** 2
+    if not process.present or with_process <= residual_rms or excess <= 0:
+        return process
+    return process.scaled(float(np.sqrt(max(residual_rms ** 2 - encoder_floor ** 2, 0.0) / excess)))
+
+
+def held_force(inv: evidence.InverseDynamics, input_gain: float, ts: float) -> np.ndarray:
+    """The force residual with the acceleration taken as the central second difference of the filtered
+    position: for a force held over each sample, x[k+1] - 2 x[k] + x[k-1] = ts^2/m (u[k-1] + u[k])/2 exactly,
+    the mean the held-input inverse dynamics uses. The spectral derivative differs from it by up to 2 % at
+    the cut-off, and the controller's broadband force (its derivative action on encoder noise) would turn
+    that difference into a force noise no one applied."""
+    a = np.array(inv.a)
+    a[1:-1] = (inv.x[2:] - 2 * inv.x[1:-1] + inv.x[:-2]) / ts ** 2
+    return inv.force + (inv.a - a) / input_gain
+
+
+def of_bundle(bundle: Bundle, values: dict[str, float], sigma_q: float) -> ProcessNoise:
+    """The process noise of a single-axis bundle's training recording under the refitted nominal plant
+    (``values``); ``sigma_q``: the encoder noise in the measured unit."""
+    plant = bundle.plant
+    gain, offset = output_map(plant.model, plant.roles, values)
+    rec = Recording(bundle.train.time, {**bundle.train.columns, "q": (bundle.train["q"] - offset) / gain})
+    inputs = [v.name for v in plant.model.inputs]
+    inv = evidence.inverse_dynamics(rec, plant.model, values, plant.position_state, plant.velocity_state,
+                                    bundle.controller.Ts, inputs.index(plant.input_name), held_input=True)
+    if inv is None:
+        return ProcessNoise()
+    input_gain = 1 / evidence.mass_equivalent(plant.model, values, plant.velocity_state, inputs.index(plant.input_name))
+    return estimate(held_force(inv, input_gain, bundle.controller.Ts), inv.x, inv.v, inv.a, input_gain, sigma_q / abs(gain), bundle.controller.Ts, inv.cutoff)
+
+
+def noisy_simulator(loop: Loop, rec: Recording, values: dict[str, float], process: ProcessNoise | None,
+                    ) -> Callable[[np.ndarray, np.random.Generator], tuple[np.ndarray, np.ndarray]]:
+    """(encoder noise, rng) -> the loop's (q, u) re-simulated along ``rec`` with that encoder noise fed back
+    and, for one axis, a fresh realisation of ``process`` acting on the plant. The returned u is the force
+    the controller commanded (the process noise is not in a recorded force)."""
+    def simulate(noise: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+        if process is None or not process.present or loop.axes:
+            return outputerror.simulate(loop, rec, values, noise=noise)
+        w = process.sample(rec.time.size, loop.ts, rng)
+        q, u = outputerror.simulate(loop, with_force_noise(rec, w), values, noise=noise)
+        return q, u - w
+    return simulate
