@@ -117,6 +117,23 @@ def simulate(loop: Loop, rec: Recording, values: dict[str, float] | None = None,
     return _shaped(loop, np.array(q)), _shaped(loop, np.array(u))
 
 
+def simulate_states(loop: Loop, rec: Recording, values: dict[str, float] | None = None,
+                    initial: dict[str, float] | None = None) -> np.ndarray:
+    """The plant state trajectory of the same free run as :func:`simulate` (plant states x samples, rows in
+    ``loop.model.states`` order, at the sample instants: column k is the state the output q_k is read from),
+    for the states no measurement gives (delay, load, bristle, drift states). One CasADi ``mapaccum`` of
+    ``loop.step``, not a Python loop over the samples."""
+    if loop.step is None:
+        raise ValueError("the loop has no one-sample step function to chain")
+    values = {**loop.values, **(values or {})}
+    s0 = initial_state(loop, rec, values, initial)
+    pf = np.array([values[n] for n in loop.fixed])
+    chain = loop.step.mapaccum("states", rec.time.size, [0], [0])
+    s_next = np.array(chain(s0, drive(rec, None, loop.channels, loop.closed), loop.theta(values), pf)[0])
+    states = np.hstack([s0[:, None], s_next[:, :-1]])
+    return states[:loop.model.x.numel()]
+
+
 @dataclass
 class Fit:
     """Result of an output-error refit."""

@@ -46,13 +46,14 @@ from motiontwin.ident.controller import Controller
 from motiontwin.ident.leastsquares import (LeastSquaresResult, UnidentifiableError, check_identifiability,
                                           hac_covariance)
 from motiontwin.ident.oefit import (Fit, Weights, _column, _interior, bound_arrays, drive, fit, initial_state,
-                                    measured, residuals, simulate, state_indices, weighted_jacobian)
+                                    measured, residuals, simulate, simulate_states, state_indices,
+                                    weighted_jacobian)
 from motiontwin.ident.oeloop import (Loop, Signals, _check_names, axis_signals, build_loop, default_bounds,
                                      initial_motion_states, output_state, stable_substeps)
 
 __all__ = ["Signals", "Loop", "Weights", "Fit", "OutputErrorResult", "build_loop", "default_bounds",
-           "simulate", "residuals", "fit", "statistics", "identify", "bound_arrays", "axis_signals", "drive",
-           "initial_state", "measured", "stable_substeps", "_column", "_interior",
+           "simulate", "simulate_states", "residuals", "fit", "statistics", "identify", "bound_arrays",
+           "axis_signals", "drive", "initial_state", "measured", "stable_substeps", "_column", "_interior",
            "state_indices", "weighted_jacobian", "output_state", "initial_motion_states"]
 
 

@@ -20,8 +20,12 @@ import pytest
 
 from motiontwin.ident import outputerror
 from motiontwin.ident.benchmarks import single_axis as bench
-from motiontwin.ident.diagnosis import empirical, pipeline, report
+from motiontwin.ident.diagnosis import effects, empirical, pipeline, report
 from motiontwin.ident.diagnosis.bundle import read_bundle
+from motiontwin.ident.diagnosis.locate import context
+from motiontwin.ident.diagnosis.nominal import fit_nominal, nominal_start
+from motiontwin.ident.diagnosis.remainder import explain_remainder
+from motiontwin.ident.diagnosis.structure import LoopCache, ModelFit, build_structure
 
 SEED = 21
 DURATIONS = (3.0, 1.5)          # train, validation [s] at 2 kHz
@@ -119,6 +123,32 @@ def test_term_that_does_not_validate_is_reported_not_kept(tmp_path):
     assert "empirical_term" not in entry and entry["velocity_range"] and entry["frequency_band_hz"]
     assert [e.name for e in result["final"].effects] == []
     assert report.unexplained_text(entry).startswith("unexplained, no term validated (rejected term F = ")
+
+
+def test_remainder_is_tested_after_an_effect_that_adds_states(tmp_path):
+    """The final model carries a time delay (two Pade states driven by the command, so no two-state inverse
+    dynamics): with those states from its free run the force residual still holds the concealed drag, and the
+    stage answers "unexplained" with the law's term v*|v| and its coefficient within 3 % of the truth (before
+    issue 22 item 5: "not tested")."""
+    truth = bench.write_bundle(tmp_path / "drag", "quadratic_drag", seed=SEED, scale=DRAG_SCALE, durations=DURATIONS,
+                               engine="casadi")
+    bundle = read_bundle(tmp_path / "drag")
+    bundle.cache = LoopCache()
+    bundle.start = nominal_start(bundle)
+    nominal, weights = fit_nominal(bundle)
+    ctx = context(bundle, nominal)
+    delay = effects.VOCABULARY["time_delay"](ctx)
+    values = {"plant." + k: v for k, v in nominal.fit.values.items()} | {"delay_T": bundle.controller.Ts / 4}
+    loop, bounds = build_structure(bundle, [delay], values, tmp_path / "delay", bundle.train.time.size)
+    assert loop.model.x.numel() == 4
+    fit = outputerror.fit(loop, bundle.train, weights, bounds, start=values, max_nfev=5)
+    final = ModelFit([delay], loop.with_values(fit.values), fit, bounds, tmp_path / "delay")
+    _, check = explain_remainder(bundle, final, weights, ctx, tmp_path / "remainder")
+    assert check["status"] == "unexplained", check
+    term = check["empirical_term"]
+    assert term["terms"] == ["v*|v|"]
+    assert term["coefficients"]["v*|v|"] == pytest.approx(truth["effects"][0]["contract"]["v*|v|"],
+                                                          rel=COEFFICIENT_TOLERANCE)
 
 
 def test_parameters_only_gives_no_unexplained_entry(tmp_path):

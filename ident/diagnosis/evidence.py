@@ -50,13 +50,25 @@ class InverseDynamics:
 
 def inverse_dynamics(rec: Recording, model: symbolic.SymbolicModel, values: dict[str, float],
                      position_state: str, velocity_state: str, ts: float,
-                     input_index: int = 0, held_input: bool = False) -> InverseDynamics | None:
-    """Force residual u - (force the nominal model needs for the measured motion), for two-state plants
-    (``input_index``: the driven input; the others are held at 0). ``held_input``: the recorded force was
-    held over each sample (zero-order hold), so the force acting around sample k is the mean of samples k-1
-    and k; without this the half-sample lag leaves a residual proportional to du/dt (large under a swept
-    sine) that hides small force laws."""
-    if model.x.numel() != 2:
+                     input_index: int = 0, held_input: bool = False,
+                     states: np.ndarray | None = None) -> InverseDynamics | None:
+    """Force residual u - (force the nominal model needs for the measured motion) (``input_index``: the driven
+    input; the others are held at 0). ``held_input``: the recorded force was held over each sample (zero-order
+    hold), so the force acting around sample k is the mean of samples k-1 and k; without this the half-sample
+    lag leaves a residual proportional to du/dt (large under a swept sine) that hides small force laws.
+
+    ``states``: the model's state trajectory (``model.states`` x samples, e.g. its free run,
+    :func:`outputerror.simulate_states`) for a model with more than the two motion states (delay, load,
+    bristle, drift states): the filtered measured position and velocity replace their rows, the other rows are
+    low-passed by the same filter. Without it a model of more than two states gives None.
+
+    The residual is a force at the plant's input, where an effect's force enters (``plant.<input> = u - ... -
+    F``): (a_model - a) divided by d(acc)/du at zero command, which is the plant's force gain with any mass an
+    effect adds (a load behind backlash, a position-dependent inertia), since the effects that shape the
+    command pass a small command through with unit gain (the Pade delay's direct feedthrough u - delay_s, the
+    saturation's unit slope); at the recorded command a saturated force would have a vanishing gain. None when
+    the acceleration does not respond to the input directly (no finite non-zero gain)."""
+    if states is None and model.x.numel() != 2:
         return None
     fs = 1 / ts
     fc = min(0.1 * fs, 150.0)
@@ -69,12 +81,17 @@ def inverse_dynamics(rec: Recording, model: symbolic.SymbolicModel, values: dict
     i_x, i_v = names.index(position_state), names.index(velocity_state)
     p = np.array([values[s.name] for s in model.parameters])
     acc = model.dx[i_v]
-    fn = ca.Function("acc", [model.x, model.u, model.p], [acc, ca.jacobian(acc, model.u[input_index])])
-    states = np.zeros((2, x.size))
-    states[i_x], states[i_v] = x, v
+    fn = ca.Function("acc", [model.x, model.u, model.p], [acc, ca.jacobian(acc, model.u[input_index])]).map(x.size)
+    full = np.zeros((model.x.numel(), x.size))
+    if states is not None:
+        full = np.array([mirror_derivatives(row, fs, fc)[0] for row in np.asarray(states, float)])
+    full[i_x], full[i_v] = x, v
     inputs = np.zeros((model.u.numel(), x.size))
     inputs[input_index] = u_f
-    a_model, gain = (np.array(o).ravel() for o in fn.map(x.size)(states, inputs, p))
+    a_model = np.array(fn(full, inputs, p)[0]).ravel()
+    gain = np.array(fn(full, np.zeros_like(inputs), p)[1]).ravel()
+    if not np.all(np.isfinite(gain)) or np.any(gain == 0):
+        return None
     force = (a_model - a) / gain
     return InverseDynamics(x, v, a, udot, force, fc, u_f)
 

@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
+from motiontwin.fmus import symbolic
 from motiontwin.ident import outputerror
 from motiontwin.ident.diagnosis import effects as effect_models
 from motiontwin.ident.diagnosis import empirical
@@ -34,19 +35,15 @@ def explain_remainder(bundle: Bundle, final: ModelFit, weights: outputerror.Weig
     Returns the final structure (with the empirical effect when kept) and the check: ``status`` is "none"
     (no term, or not significant), "unexplained" (a term validated: ``empirical_term``), "unexplained, no
     term validated" (significant, but the validation fit does not improve) or "not tested" (the final
-    model has extra states, e.g. a delay or a resonance, so it has no two-state inverse dynamics), with
-    ``where`` the axis, time windows, velocity/position ranges (measured units) and frequency band."""
+    model's acceleration does not respond to its input directly), with ``where`` the axis, time windows,
+    velocity/position ranges (measured units) and frequency band. The states a measurement does not give
+    (delay, load, bristle, drift states) come from the final model's free run (:func:`_free_run_states`)."""
     plant = bundle.plant
     if final.effects:
         model = bundle.cache.models[tuple(final.names)]
         prefix = "plant."
     else:
         model, prefix = plant.model, ""
-    if model.x.numel() != 2:
-        reason = (f"not tested: the final model has {model.x.numel()} states (effects "
-                  f"{', '.join(final.names)}), and its force residual needs the two-state inverse dynamics")
-        _log(progress, f"remaining structure {reason}")
-        return final, {"status": "not tested", "reason": reason}
     values = {v.name: float(v.start) for v in model.parameters} | final.fit.values
     gain, offset = output_map(plant.model, plant.roles, {k[len(prefix):]: v for k, v in values.items()
                                                           if k.startswith(prefix)})
@@ -54,7 +51,13 @@ def explain_remainder(bundle: Bundle, final: ModelFit, weights: outputerror.Weig
     inputs = [v.name for v in model.inputs]
     inv = evidence.inverse_dynamics(rec, model, values, prefix + plant.position_state,
                                     prefix + plant.velocity_state, bundle.controller.Ts,
-                                    inputs.index("u" if final.effects else plant.input_name), held_input=True)
+                                    inputs.index("u" if final.effects else plant.input_name), held_input=True,
+                                    states=_free_run_states(bundle, final, model))
+    if inv is None:
+        reason = (f"not tested: the final model's acceleration (effects {', '.join(final.names) or 'none'}) does "
+                  f"not respond to its force input directly, so its force residual has no gain to divide by")
+        _log(progress, f"remaining structure {reason}")
+        return final, {"status": "not tested", "reason": reason}
     law = empirical.fit_empirical_force({"x": inv.x, "v": inv.v, "a": inv.a, "u": inv.u}, inv.force,
                                         library=empirical.residual_library())
     _log(progress, f"remaining force residual: {law.describe()}")
@@ -144,6 +147,17 @@ def explain_remainder(bundle: Bundle, final: ModelFit, weights: outputerror.Weig
         "cost_reduction": reduction, "null_threshold": threshold, "validation_rms_before": final.val_rms,
         "validation_rms_after": trial.val_rms, "previous": final}}
     return trial, check
+
+
+def _free_run_states(bundle: Bundle, final: ModelFit,
+                     model: symbolic.SymbolicModel) -> np.ndarray | None:
+    """The state trajectory of the final model's free run on the training recording, rows in ``model.states``
+    order; None for a two-state model (the measured position and velocity are all its states)."""
+    if model.x.numel() == 2:
+        return None
+    run = outputerror.simulate_states(final.loop, bundle.train, final.fit.values, final.fit.initial)
+    rows = {s.name: row for s, row in zip(final.loop.model.states, run)}
+    return np.array([rows[s.name] for s in model.states])
 
 
 def _null_test(bundle: Bundle, final: ModelFit, trial: ModelFit, weights: outputerror.Weights,
