@@ -44,7 +44,7 @@ def initial_state(loop: Loop, rec: Recording, values: dict[str, float] | None = 
             positions[sig.output] = q_rec[0]
         else:
             x0 = _state_for_output(model, output, x0, p, q_rec[0])
-            i_pos = output_state(model, output)
+            i_pos = output_state(model, output, affine=False)
             positions[sig.output] = q_rec[0] if i_pos is None else x0[i_pos]
     by_output = {sig.output: sig for sig in loop.channels}
     for state, tracked in loop.tracking.items():

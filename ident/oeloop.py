@@ -136,7 +136,7 @@ def _output_gain(model: symbolic.SymbolicModel, name: str, x0: np.ndarray, p: np
     no single state carries it)."""
     if name in [v.name for v in model.states]:
         return 1.0
-    i = output_state(model, name)
+    i = output_state(model, name, affine=False)
     if i is None:
         return 1.0
     expr = _output_expression(model, name)
@@ -145,18 +145,26 @@ def _output_gain(model: symbolic.SymbolicModel, name: str, x0: np.ndarray, p: np
     return slope or 1.0
 
 
+NEWTON_STEPS = 20      # most Newton steps for the state of an output nonlinear in it (one when affine)
+
+
 def _state_for_output(model: symbolic.SymbolicModel, name: str, x0: np.ndarray, p: np.ndarray,
                       target: float) -> np.ndarray:
-    """``x0`` with the state the output ``name`` is affine in set so that the output equals ``target``."""
-    i = output_state(model, name)
+    """``x0`` with the state the output ``name`` depends on set so that the output equals ``target``: one
+    Newton step when the output is affine in it, until the step vanishes when not (a position read with a
+    small sensor error periodic in it: the step shrinks by the error's slope, about 1e-2, each time)."""
+    i = output_state(model, name, affine=False)
     if i is None:
         return x0
     expr = _output_expression(model, name)
     fn = ca.Function("h", [model.x, model.u, model.p], [expr, ca.jacobian(expr, model.x[i])])
-    value, slope = (float(o) for o in fn(x0, np.zeros(model.u.numel()), p))
     x0 = x0.copy()
-    if slope != 0:
-        x0[i] += (target - value) / slope
+    for _ in range(NEWTON_STEPS):
+        value, slope = (float(o) for o in fn(x0, np.zeros(model.u.numel()), p))
+        step = (target - value) / slope if slope != 0 else 0.0
+        x0[i] += step
+        if abs(step) <= 1e-14 * max(1.0, abs(x0[i])):
+            break
     return x0
 
 

@@ -22,14 +22,15 @@ def output_expression(model: symbolic.SymbolicModel, name: str) -> ca.SX | None:
     return found[0] if found else None
 
 
-def output_state(model: symbolic.SymbolicModel, name: str) -> int | None:
+def output_state(model: symbolic.SymbolicModel, name: str, affine: bool = True) -> int | None:
     """Index of the state the output ``name`` is affine in when it depends on exactly one state and on no
-    input (a position state, an alias, a gear ratio or an offset of one), else None."""
+    input (a position state, an alias, a gear ratio or an offset of one), else None. ``affine=False``: also
+    when the output is nonlinear in that one state (a position read with a sensor error periodic in it)."""
     expr = output_expression(model, name)
     if expr is None or ca.depends_on(expr, model.u):
         return None
     hits = [i for i in range(model.x.numel()) if ca.depends_on(expr, model.x[i])]
-    if len(hits) != 1 or ca.depends_on(ca.jacobian(expr, model.x[hits[0]]), model.x):
+    if len(hits) != 1 or (affine and ca.depends_on(ca.jacobian(expr, model.x[hits[0]]), model.x)):
         return None
     return hits[0]
 

@@ -180,7 +180,7 @@ def library_q(tmp_path_factory) -> np.ndarray:
     text = (folder / "all" / "Augmented.mo").read_text()
     for written in ("plant.u = u - delay_a - (gravity_F0)", "CoulombFriction(plant.v, coulomb_Fc",
                     "RippleForce(plant.x, ripple_a", "inertia_slope*(plant.x - inertia_centre)*der(plant.v)",
-                    "*(plant.x - resonance_x2)", "q = plant.q;"):
+                    "*(plant.x - resonance_x2)", "q = plant.q + (encoder_a1*sin(6.283185307179586*plant.x/"):
         assert written in text, written
     return q
 

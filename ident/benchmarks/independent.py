@@ -10,8 +10,8 @@ Each effect is concealed near the edge of detectability: its size is scaled so t
 position (noise-free) by a few micrometres (linear) or tens of microradians (rotary) on the train or the
 validation drive; a current limit sits at the largest share of the peak force that conceals it as much (the
 PID winds up behind it); a constant offset force is drawn (the PID's integral takes it up: it shows in the
-force only). Out-of-catalogue laws (v|v| drag, a friction bump at one place, an encoder cyclic error) have the
-right answer "unexplained".
+force only). Out-of-catalogue laws (v|v| drag, a friction bump at one place) have the right answer
+"unexplained"; an encoder cyclic error is the catalogue's sensor effect ``encoder_error``.
 
 Next to each bundle folder ``OUT/SET/CASE`` the file ``OUT/SET/CASE.truth.json`` holds the true laws and
 parameters, the expected answers, the concealment, and the ACHIEVABLE FLOOR: ``floor_rms``, the validation RMS

@@ -198,13 +198,13 @@ LAWS = {"offset": Offset, "coulomb": Stribeck, "stribeck": Stribeck, "lugre": Lu
 EXPECTED = {"offset": "gravity_offset", "coulomb": "coulomb_friction", "stribeck": "stribeck_friction",
             "lugre": "lugre_friction", "cogging": "cogging", "current_limit": "actuator_saturation",
             "backlash": "backlash", "drag": "unexplained", "friction_bump": "unexplained",
-            "encoder_error": "unexplained"}
+            "encoder_error": "encoder_error"}
 
 #: law -> (truth parameter, the catalogue effect's contract parameter it is compared with, factor from the
 #: truth's value to the contract's: the catalogue's F0 is a force opposing +x, this offset one along +x)
 MAIN_PARAMETER = {"offset": ("F0", "F0", -1.0), "coulomb": ("Fc", "Fc", 1.0), "stribeck": ("Fs", "Fs", 1.0),
                   "lugre": ("z0", "z0", 1.0), "cogging": ("A1", "A1", 1.0), "current_limit": ("Fmax", "Fmax", 1.0),
-                  "backlash": ("b", "b", 1.0)}
+                  "backlash": ("b", "b", 1.0), "encoder_error": ("a1", "error_amplitude", 1.0)}
 
 
 def make_law(name: str, params: dict[str, float]) -> Law:

@@ -63,6 +63,9 @@ class Effect:
     #: why fitted values are not this physics ("" when they are), e.g. a friction level below 0 (a force
     #: pushing along the motion): such a fit is not reported as the effect
     unphysical: Callable[[dict[str, float]], str] | None = None
+    #: Modelica expression added to the measured output (a sensor error, "" if none): the loop feeds it back,
+    #: so it moves the plant through the controller instead of acting on it as a force
+    sensor: str = ""
 
 
 def _p(name: str, unit: str, text: str, lo: float, hi: float, fitted: bool = True, zero: float | None = None

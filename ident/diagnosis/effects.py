@@ -4,11 +4,12 @@ The augmented class instantiates the nominal class as ``plant`` and drives its i
 ``plant.<input> = u_applied - sum(F_effect)``, the library's sign convention ``m*der(v) = u - d*v - F_effect``
 (a positive effect force opposes positive motion). Force laws come from ``MotionTwin.Effects`` functions,
 copied next to the written model so that the folder is self-contained; structural effects (an extra
-mass, a Pade input delay, a position-dependent mass) add states or terms. Effects write the plant's position
-and velocity as ``$x`` and ``$v``; they become the plant's own states (:class:`plant_roles.PlantRoles`),
-so the augmented model does not depend on how the plant names them. Positions, velocities and the
-:class:`Context` are in the plant's state coordinates (``position_gain`` converts them to the measured
-output). Units: SI (m, s, N, kg, Hz).
+mass, a Pade input delay, a position-dependent mass) add states or terms; a sensor effect
+(:mod:`ident.diagnosis.sensor_effects`) adds its error to the measured output, ``q = plant.<output> + e``.
+Effects write the plant's position and velocity as ``$x`` and ``$v``; they become the plant's own states
+(:class:`plant_roles.PlantRoles`), so the augmented model does not depend on how the plant names them.
+Positions, velocities and the :class:`Context` are in the plant's state coordinates (``position_gain``
+converts them to the measured output). Units: SI (m, s, N, kg, Hz).
 """
 from __future__ import annotations
 
@@ -25,6 +26,7 @@ from motiontwin.fmus.build import MODELICA_DIR
 from motiontwin.ident.diagnosis.effect_base import (Context, Effect, Param, _decl, _eps_bounds, _ls, _p,  # noqa: F401
                                                     _scale, _sign, _v_eps, vanishing_start)
 from motiontwin.ident.diagnosis.plant_roles import PlantFormError, PlantRoles, declaration_line
+from motiontwin.ident.diagnosis.sensor_effects import encoder_error
 
 LIBRARY = MODELICA_DIR / "MotionTwin"
 AUGMENTED_CLASS = "Augmented"   # the class of the augmented model the diagnosis writes
@@ -468,6 +470,7 @@ VOCABULARY: dict[str, Callable[[Context], Effect]] = {
     "cogging": cogging,
     "load_dependent_friction": load_dependent_friction,
     "friction_drift": friction_drift,
+    "encoder_error": encoder_error,
 }
 
 #: richer effect -> the simpler effect it contains (preferred unless the extra parameters earn their place)
@@ -494,7 +497,8 @@ def modelica_text(plant_class: str, effects: list[Effect], values: dict[str, flo
     lines.append(f"  plant.{roles.input} = {applied}" + "".join(f" - {f}" for f in forces) + ";")
     lines.extend(f"  plant.{name} = {value!r};" for name, value in roles.held_inputs.items())
     lines.extend(f"  {eq};" for e in effects for eq in e.equations)
-    lines.append(f"  q = plant.{roles.output};")
+    sensed = "".join(f" + ({e.sensor})" for e in effects if e.sensor)
+    lines.append(f"  q = plant.{roles.output}{sensed};")
     lines.append(f"end {class_name};")
     text = "\n".join(lines) + "\n"
     return string.Template(text).substitute(x=f"plant.{roles.position}", v=f"plant.{roles.velocity}")
@@ -567,7 +571,7 @@ def check_buildable(folder: Path, plant_text: str, plant_path: Path, plant_class
         try:
             build([effect], effect.name)
         except (frontend.ModelicaError, PlantFormError, RuntimeError, ValueError, KeyError) as exc:
-            source = effect.force + " ".join(effect.equations)
+            source = " ".join([effect.force, effect.sensor, *effect.equations])
             used = [roles.input] + [name for token, name in (("$x", roles.position), ("$v", roles.velocity))
                                     if token in source]
             construct = ", ".join(f"plant.{name}" for name in used)

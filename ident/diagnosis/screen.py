@@ -26,7 +26,8 @@ MAX_NFEV = 15               # full fit of the best-ranked candidates
 FULL_FITS = 3
 SCREEN_STARTS = 1           # data-driven starts fitted in the screening, besides the vanishing point
 FULL_STARTS = 3             # ... and in a full fit
-MULTI_START = ("position_ripple", "resonance")   # nonlinear in a period/frequency: screen every start
+#: nonlinear in a period or a frequency: every start is screened
+MULTI_START = ("position_ripple", "resonance", "encoder_error")
 _TOKENS = itertools.count()  # screening-job tokens (itertools.count is thread-safe in CPython)
 
 

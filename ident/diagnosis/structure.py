@@ -224,7 +224,8 @@ def on_axis(effect: effect_models.Effect, roles: PlantRoles) -> effect_models.Ef
 
     params = [dataclasses.replace(p, name=prefix + p.name) for p in effect.params]
     return dataclasses.replace(effect, params=params, declarations=rename(effect.declarations),
-                               force=rename(effect.force), equations=[rename(e) for e in effect.equations],
+                               force=rename(effect.force), sensor=rename(effect.sensor),
+                               equations=[rename(e) for e in effect.equations],
                                initial=initial, contract=contract,
                                tracks_position=[prefix + s for s in effect.tracks_position],
                                tracks_force=[prefix + s for s in effect.tracks_force])
@@ -252,7 +253,9 @@ def modelica_text(plant: PlantInfo, effects: list[tuple[str, effect_models.Effec
         lines.append(f"  plant.{a.input} = {applied}{forces};")
     lines.extend(f"  plant.{name} = {value!r};" for name, value in plant.axes[0].held_inputs.items())
     lines.extend(f"  {eq};" for _, e in effects for eq in e.equations)
-    lines.extend(f"  {a.output} = plant.{a.output};" for a in plant.axes)
+    for a in plant.axes:
+        sensed = "".join(f" + ({e.sensor})" for axis, e in effects if axis == a.output and e.sensor)
+        lines.append(f"  {a.output} = plant.{a.output}{sensed};")
     lines.append(f"end {AUGMENTED_CLASS};")
     return "\n".join(lines) + "\n"
 
