@@ -189,8 +189,11 @@ def projected_gain(jac: np.ndarray, samples: np.ndarray) -> np.ndarray:
 
 
 def null_threshold(null_gains: np.ndarray, dof: int) -> float:
-    """99.9 % quantile of the null improvement: a scaled chi-square matched to the bootstrap mean, and at
-    least the largest bootstrap value."""
+    """99.9 % quantile of the null improvement: a scaled chi-square matched to the bootstrap mean, at least
+    the largest bootstrap value, and at least the chi-square quantile of unit variance per parameter (the
+    cost is noise-weighted, so no noise gives less; a candidate whose Jacobian the bootstrap barely
+    excites would otherwise meet a threshold of ~0)."""
     dof = max(dof, 1)
     mean = max(float(np.mean(null_gains)), 1e-12)
-    return float(max(mean / dof * stats.chi2.ppf(NULL_QUANTILE, dof), np.max(null_gains)))
+    unit = stats.chi2.ppf(NULL_QUANTILE, dof)
+    return float(max(mean / dof * unit, np.max(null_gains), unit))

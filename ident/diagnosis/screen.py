@@ -32,10 +32,15 @@ _TOKENS = itertools.count()  # screening-job tokens (itertools.count is thread-s
 
 
 def fit_structure(bundle: Bundle, current: ModelFit, candidate: effect_models.Effect, ctx: effect_models.Context,
-                  weights: outputerror.Weights, folder: Path, max_nfev: int = MAX_NFEV) -> ModelFit:
-    """Fit the current structure plus ``candidate`` from its vanishing point and its data-driven starts."""
-    effects = current.effects + [candidate]
+                  weights: outputerror.Weights, folder: Path, max_nfev: int = MAX_NFEV,
+                  replacing: effect_models.Effect | None = None) -> ModelFit:
+    """Fit the current structure plus ``candidate`` (in place of its effect ``replacing``, when given) from
+    its vanishing point and its data-driven starts."""
+    effects = ([candidate if e is replacing else e for e in current.effects] if replacing is not None
+               else current.effects + [candidate])
     base = dict(current.fit.values) if current.effects else {"plant." + k: v for k, v in current.fit.values.items()}
+    if replacing is not None:
+        base = {k: v for k, v in base.items() if k not in {p.name for p in replacing.params}}
     starts = _starts(candidate, ctx)
     values = {**base, **{p.name: float(np.mean(p.bounds)) for p in candidate.params if not p.fitted}, **starts[0]}
     loop, bounds = build_structure(bundle, effects, values, folder, bundle.train.time.size,
