@@ -102,6 +102,13 @@ def _v_eps(ctx: Context) -> float:
     return max(1e-5 / _scale(ctx), 2e-3 * ctx.v_max)
 
 
+def _eps_grid(ctx: Context) -> list[float]:
+    """Starting velocity scales of a sign function: the default and two sharper ones (the cost is rough in it:
+    from a smooth start the fit can settle with a mass a tenth of the true one), inside the bounds."""
+    low = _eps_bounds(ctx)[0]
+    return sorted({max(_v_eps(ctx) * k, 2 * low) for k in (1.0, 0.2, 0.04)}, reverse=True)
+
+
 def _eps_bounds(ctx: Context) -> tuple[float, float]:
     return 1e-5 / _scale(ctx), max(2e-5 / _scale(ctx), 0.05 * ctx.v_max)
 

@@ -23,7 +23,7 @@ import numpy as np
 
 from motiontwin.fmus import frontend, symbolic
 from motiontwin.fmus.build import MODELICA_DIR
-from motiontwin.ident.diagnosis.effect_base import (Context, Effect, Param, _decl, _eps_bounds, _ls, _p,  # noqa: F401
+from motiontwin.ident.diagnosis.effect_base import (Context, Effect, Param, _decl, _eps_bounds, _eps_grid, _ls, _p,  # noqa: F401
                                                     _scale, _sign, _v_eps, vanishing_start)
 from motiontwin.ident.diagnosis.plant_roles import PlantFormError, PlantRoles, declaration_line
 from motiontwin.ident.diagnosis.sensor_effects import encoder_error
@@ -48,8 +48,10 @@ def gravity_offset(ctx: Context) -> Effect:
 
 def coulomb_friction(ctx: Context) -> Effect:
     def init(c: Context) -> list[dict[str, float]]:
-        fc = abs(float(_ls([_sign(c), np.ones_like(c.v)], c.force)[0])) if c.force is not None else 0.1
-        return [{"coulomb_Fc": max(fc, 1e-3), "coulomb_v_eps": _v_eps(c)}]
+        if c.force is None:
+            return [{"coulomb_Fc": 0.1, "coulomb_v_eps": _v_eps(c)}]
+        return [{"coulomb_Fc": max(abs(float(_ls([np.tanh(c.v / e), np.ones_like(c.v)], c.force)[0])), 1e-3),
+                 "coulomb_v_eps": e} for e in _eps_grid(c)]
     params = [_p("coulomb_Fc", "N", "Coulomb friction level", 0.0, 1e4, zero=0.0),
               _p("coulomb_v_eps", "m/s", "Velocity scale of the tanh (presliding)",
                  *_eps_bounds(ctx))]

@@ -25,9 +25,10 @@ SCREEN_NFEV = 4             # cheap fit of every candidate, to rank them
 MAX_NFEV = 15               # full fit of the best-ranked candidates
 FULL_FITS = 3
 SCREEN_STARTS = 1           # data-driven starts fitted in the screening, besides the vanishing point
+SHORT_NFEV = 2              # steps of the short fit that ranks the data-driven starts
 FULL_STARTS = 3             # ... and in a full fit
 #: nonlinear in a period or a frequency: every start is screened
-MULTI_START = ("position_ripple", "resonance", "encoder_error")
+MULTI_START = ("position_ripple", "resonance", "encoder_error", "coulomb_friction")
 _TOKENS = itertools.count()  # screening-job tokens (itertools.count is thread-safe in CPython)
 
 
@@ -35,7 +36,9 @@ def fit_structure(bundle: Bundle, current: ModelFit, candidate: effect_models.Ef
                   weights: outputerror.Weights, folder: Path, max_nfev: int = MAX_NFEV,
                   replacing: effect_models.Effect | None = None) -> ModelFit:
     """Fit the current structure plus ``candidate`` (in place of its effect ``replacing``, when given) from
-    its vanishing point and its data-driven starts."""
+    its vanishing point and its data-driven starts, these also with the nominal parameters from a joint
+    inverse-dynamics estimate (:func:`_joint_start`) and at the plant's own start values (the missing effect
+    may have pulled the nominal refit into a basin the candidate's fit does not leave)."""
     effects = ([candidate if e is replacing else e for e in current.effects] if replacing is not None
                else current.effects + [candidate])
     base = dict(current.fit.values) if current.effects else {"plant." + k: v for k, v in current.fit.values.items()}
@@ -45,8 +48,11 @@ def fit_structure(bundle: Bundle, current: ModelFit, candidate: effect_models.Ef
     values = {**base, **{p.name: float(np.mean(p.bounds)) for p in candidate.params if not p.fitted}, **starts[0]}
     loop, bounds = build_structure(bundle, effects, values, folder, bundle.train.time.size,
                                    min_substeps=current.loop.substeps)
-    joint = _joint_start(bundle, loop, candidate, {**values, **(starts[1] if len(starts) > 1 else {})})
-    starts = starts + ([joint] if joint else [])
+    first = starts[1] if len(starts) > 1 else {}
+    joint = _joint_start(bundle, loop, candidate, {**values, **first})
+    prior = {"plant." + k: v for k, v in ({p.name: float(p.start) for p in bundle.plant.model.parameters}
+                                          | bundle.plant.parameters).items() if "plant." + k in loop.free}
+    starts = starts + ([joint] if joint else []) + ([{**prior, **first}] if prior else [])
     best, start_cost = _best_fit(bundle, loop, bounds, weights, base, starts, max_nfev, candidate.name)
     return ModelFit(effects, loop.with_values(best.values), best, bounds, folder, start_cost=start_cost)
 
@@ -89,22 +95,26 @@ def _start_cost(bundle: Bundle, loop: outputerror.Loop, weights: outputerror.Wei
 def _best_fit(bundle: Bundle, loop: outputerror.Loop, bounds: dict[str, tuple[float, float]],
               weights: outputerror.Weights, base: dict[str, float], starts: list[dict[str, float]],
               max_nfev: int, name: str = "") -> tuple[outputerror.Fit, float]:
-    """The lowest-cost fit of ``loop`` from ``base`` with the vanishing start (``starts[0]``) and the
-    lowest-cost data-driven starts over it (each clipped into its bounds): ``SCREEN_STARTS`` of them in a
-    screening fit (every one for ``MULTI_START`` effects), ``FULL_STARTS`` in a full fit. Returns the fit
-    and the cost at the vanishing start. The trust-region fit accepts only descent, so no fit ends above
-    the cost of its start."""
+    """The lowest-cost fit of ``loop`` from ``base`` with the vanishing start (``starts[0]``) and the best
+    data-driven starts over it (each clipped into its bounds, ranked by the cost after ``SHORT_NFEV`` steps):
+    ``SCREEN_STARTS`` of them in a screening fit (every one for ``MULTI_START`` effects), ``FULL_STARTS`` in a
+    full fit. Returns the fit and the cost at the vanishing start. The trust-region fit accepts only descent,
+    so no fit ends above the cost of its start."""
     points = [{**base, **{k: float(np.clip(v, *bounds[k])) for k, v in start.items() if k in bounds}}
               for start in starts]
-    costs = [_start_cost(bundle, loop, weights, point) for point in points]
-    data = sorted(range(1, len(points)), key=lambda k: costs[k])
-    count = len(data) if name in MULTI_START else SCREEN_STARTS if max_nfev <= SCREEN_NFEV else FULL_STARTS
+    count = len(points) - 1 if name in MULTI_START else SCREEN_STARTS if max_nfev <= SCREEN_NFEV else FULL_STARTS
+    data = list(range(1, len(points)))
+    if len(data) > count:     # a free run's cost misleads: a start can free-run worse and descend further
+        short = {k: outputerror.fit(loop, bundle.train, weights, bounds, start=points[k], max_nfev=SHORT_NFEV)
+                 for k in data}
+        data = sorted(data, key=lambda k: short[k].cost)
+        points = [p if k not in short else short[k].values for k, p in enumerate(points)]
     best = None
     for k in [0] + data[:count]:
         result = outputerror.fit(loop, bundle.train, weights, bounds, start=points[k], max_nfev=max_nfev)
         if best is None or result.cost < best.cost:
             best = result
-    return best, costs[0]
+    return best, _start_cost(bundle, loop, weights, points[0])
 
 
 def refine(bundle: Bundle, structure: ModelFit, weights: outputerror.Weights, max_nfev: int = MAX_NFEV) -> ModelFit:
