@@ -106,7 +106,9 @@ def stribeck_friction(ctx: Context) -> Effect:
                   lambda v, c: {"Fc": v["stribeck_Fc"], "Fs": v["stribeck_Fs"],
                                 "vs": v["stribeck_vs"] * abs(c.position_gain)},
                   "Friction that is higher near standstill than at speed (Stribeck curve): the force residual "
-                  "opposes the motion and its magnitude falls with |v| over the first few mm/s.")
+                  "opposes the motion and its magnitude falls with |v| over the first few mm/s.",
+                  unphysical=lambda v: "" if v["stribeck_Fs"] >= v["stribeck_Fc"] else "its breakaway level lies "
+                  "below the Coulomb level (friction rising with speed is not a Stribeck curve)")
 
 
 def position_ripple(ctx: Context) -> Effect:

@@ -25,7 +25,6 @@ SCREEN_NFEV = 4             # cheap fit of every candidate, to rank them
 MAX_NFEV = 15               # full fit of the best-ranked candidates
 FULL_FITS = 3
 SCREEN_STARTS = 1           # data-driven starts fitted in the screening, besides the vanishing point
-SHORT_NFEV = 2              # steps of the short fit that ranks the data-driven starts
 FULL_STARTS = 3             # ... and in a full fit
 #: nonlinear in a period or a frequency: every start is screened
 MULTI_START = ("position_ripple", "resonance", "encoder_error", "coulomb_friction")
@@ -95,26 +94,21 @@ def _start_cost(bundle: Bundle, loop: outputerror.Loop, weights: outputerror.Wei
 def _best_fit(bundle: Bundle, loop: outputerror.Loop, bounds: dict[str, tuple[float, float]],
               weights: outputerror.Weights, base: dict[str, float], starts: list[dict[str, float]],
               max_nfev: int, name: str = "") -> tuple[outputerror.Fit, float]:
-    """The lowest-cost fit of ``loop`` from ``base`` with the vanishing start (``starts[0]``) and the best
-    data-driven starts over it (each clipped into its bounds, ranked by the cost after ``SHORT_NFEV`` steps):
-    ``SCREEN_STARTS`` of them in a screening fit (every one for ``MULTI_START`` effects), ``FULL_STARTS`` in a
-    full fit. Returns the fit and the cost at the vanishing start. The trust-region fit accepts only descent,
+    """The lowest-cost fit of ``loop`` from ``base`` with the vanishing start (``starts[0]``) and the
+    lowest-cost data-driven starts over it (each clipped into its bounds): ``SCREEN_STARTS`` of them in a
+    screening fit (every one for ``MULTI_START`` effects), ``FULL_STARTS`` in a full fit. Returns the fit and the cost at the vanishing start. The trust-region fit accepts only descent,
     so no fit ends above the cost of its start."""
     points = [{**base, **{k: float(np.clip(v, *bounds[k])) for k, v in start.items() if k in bounds}}
               for start in starts]
-    count = len(points) - 1 if name in MULTI_START else SCREEN_STARTS if max_nfev <= SCREEN_NFEV else FULL_STARTS
-    data = list(range(1, len(points)))
-    if len(data) > count:     # a free run's cost misleads: a start can free-run worse and descend further
-        short = {k: outputerror.fit(loop, bundle.train, weights, bounds, start=points[k], max_nfev=SHORT_NFEV)
-                 for k in data}
-        data = sorted(data, key=lambda k: short[k].cost)
-        points = [p if k not in short else short[k].values for k, p in enumerate(points)]
+    costs = [_start_cost(bundle, loop, weights, point) for point in points]
+    data = sorted(range(1, len(points)), key=lambda k: costs[k])
+    count = len(data) if name in MULTI_START else SCREEN_STARTS if max_nfev <= SCREEN_NFEV else FULL_STARTS
     best = None
     for k in [0] + data[:count]:
         result = outputerror.fit(loop, bundle.train, weights, bounds, start=points[k], max_nfev=max_nfev)
         if best is None or result.cost < best.cost:
             best = result
-    return best, _start_cost(bundle, loop, weights, points[0])
+    return best, costs[0]
 
 
 def refine(bundle: Bundle, structure: ModelFit, weights: outputerror.Weights, max_nfev: int = MAX_NFEV) -> ModelFit:
