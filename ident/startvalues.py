@@ -80,6 +80,12 @@ def first_samples(q: np.ndarray, ts: float) -> tuple[float, float]:
     return float(np.polyval(coef, 0.0)), float(np.polyval(np.polyder(coef), 0.0))
 
 
+def derivative_cutoff(fs: float) -> float:
+    """The low-pass [Hz] of the inverse dynamics at sample rate ``fs`` [Hz]: a tenth of it, at most 150 Hz
+    (the encoder noise, differentiated twice, grows with the fourth power of frequency)."""
+    return min(0.1 * fs, 150.0)
+
+
 def mirror_derivatives(signal: np.ndarray, fs: float, fc: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Zero-phase low-pass and derivatives of a non-periodic record: the even extension is periodic and
     continuous, so the DFT filter/differentiator of Abdellatif sec. 3.3 applies to it."""
@@ -128,7 +134,7 @@ def inverse_dynamics_start(model: symbolic.SymbolicModel, q: np.ndarray, u: np.n
     pnames = [v.name for v in model.parameters]
     fn = ca.Function("force", [model.x, a_sym, model.p], [force, ca.jacobian(force, model.p)])
     fs = 1 / ts
-    fc = min(0.1 * fs, 150.0)
+    fc = derivative_cutoff(fs)
     x, v, a = mirror_derivatives(np.asarray(q, float), fs, fc)
     u = np.asarray(u, float)
     held = np.concatenate([u[:1], 0.5 * (u[1:] + u[:-1])])   # the force held over the half samples around t_k

@@ -19,7 +19,7 @@ from scipy import stats
 
 from motiontwin.fmus import symbolic
 from motiontwin.harness.recording import Recording
-from motiontwin.ident.startvalues import mirror_derivatives
+from motiontwin.ident.startvalues import derivative_cutoff, mirror_derivatives
 
 NULL_QUANTILE = 0.999
 VALIDATION_GAIN = 0.9        # an effect must reduce the validation RMS by at least 10 %
@@ -71,7 +71,7 @@ def inverse_dynamics(rec: Recording, model: symbolic.SymbolicModel, values: dict
     if states is None and model.x.numel() != 2:
         return None
     fs = 1 / ts
-    fc = min(0.1 * fs, 150.0)
+    fc = derivative_cutoff(fs)
     x, v, a = mirror_derivatives(rec["q"], fs, fc)
     u = np.asarray(rec["u"], float)
     if held_input:

@@ -80,7 +80,7 @@ def _states_from(bundle: Bundle, rec: Recording, values: dict[str, float],
     model = bundle.plant.model
     ts = bundle.controller.Ts
     fs = 1 / ts
-    fc = fc or min(0.1 * fs, 150.0)
+    fc = fc or startvalues.derivative_cutoff(fs)
     names = [s.name for s in model.states]
     p = np.array([values[v.name] for v in model.parameters])
     x0 = np.array(ca.Function("x0", [model.p], [model.x0()])(p)).ravel()

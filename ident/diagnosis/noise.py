@@ -4,13 +4,12 @@ A correct model's free run differs from a recording by the encoder noise *and* b
 the forces nobody measured (process noise, coloured disturbances). Estimating the floor from encoder noise
 alone makes it too low whenever such forces act, and every candidate then looks significant. The process
 noise is estimated from the inverse-dynamics force residual of the refitted nominal model, after removing
-everything that is a function of the motion: a cross-fitted level per (position, velocity) bin (the
-structure of any friction, ripple, offset or drag law; what is left is not predictable from the state).
-The acceleration and the force are not regressors: the force noise is a linear combination of them. Its
-spectrum, below the inverse-dynamics filter's cut-off, is fitted as the
-sum of three shapes measured through the same filter: differentiated encoder noise, white force noise
-held over each sample, and first-order coloured force noise (time constant chosen on a grid). The result
-drives the bootstrap null (:func:`evidence.bootstrap_residuals`) and the validation floor
+everything that is a function of the motion (:func:`unpredictable_part`: least squares of the laws every axis
+has, then cross-fitted nearest-neighbour means in the state); the force is never a regressor, since with the
+acceleration it would rebuild the force noise itself. The spectrum of what is left, below the inverse-dynamics
+filter's cut-off, is fitted as the sum of three shapes measured through the same filter: differentiated encoder
+noise, white force noise held over each sample, and first-order coloured force noise (time constant chosen on a
+grid). The result drives the bootstrap null (:func:`evidence.bootstrap_residuals`) and the validation floor
 (:func:`structure.validation_floor`). Units: SI, in the plant's state coordinates (N or N.m, s).
 """
 from __future__ import annotations
@@ -28,7 +27,7 @@ from motiontwin.ident import outputerror
 from motiontwin.ident.diagnosis import evidence
 from motiontwin.ident.diagnosis.bundle import Bundle
 from motiontwin.ident.diagnosis.plant_roles import output_map
-from motiontwin.ident.oeloop import Loop
+from motiontwin.ident.oeloop import Loop, Signals
 from motiontwin.ident.startvalues import mirror_derivatives
 
 #: time constants [s] tried for the coloured part
@@ -77,8 +76,8 @@ def coloured(n: int, std: float, tau: float, ts: float, rng: np.random.Generator
     """First-order (AR(1)) noise of stationary standard deviation ``std`` and time constant ``tau``."""
     a = float(np.exp(-ts / tau))
     e = rng.standard_normal(n) * std * np.sqrt(1 - a * a)
-    e[0] = rng.standard_normal() * std
-    return sps.lfilter([1.0], [1.0, -a], e, zi=[a * e[0]])[0] if n > 1 else e
+    e[0] = rng.standard_normal() * std      # the first sample in the stationary distribution
+    return sps.lfilter([1.0], [1.0, -a], e)
 
 
 def unpredictable_part(force: np.ndarray, x: np.ndarray, v: np.ndarray, a: np.ndarray, ts: float) -> np.ndarray:
@@ -164,11 +163,12 @@ def estimate(force: np.ndarray, x: np.ndarray, v: np.ndarray, a: np.ndarray, inp
         design = np.column_stack([encoder, white, col]) * weight[:, None]
         coef, res = optimize.nnls(design, np.ones_like(target))
         if best is None or res < best[0]:
-            best = (res, ProcessNoise(float(np.sqrt(coef[1])), float(np.sqrt(coef[2])), tau if coef[2] > 0 else 0.0))
+            best = (res, ProcessNoise(float(np.sqrt(coef[1])), float(np.sqrt(coef[2])),
+                                      tau if coef[2] > 0 else 0.0))
     return best[1]
 
 
-def with_force_noise(rec: Recording, w: np.ndarray, disturbance: str = "u_ext") -> Recording:
+def with_force_noise(rec: Recording, w: np.ndarray, disturbance: str = Signals().disturbance) -> Recording:
     """``rec`` with the force ``w`` added to its disturbance column (created when absent)."""
     base = rec.columns.get(disturbance, np.zeros(rec.time.size))
     return Recording(rec.time, {**rec.columns, disturbance: np.asarray(base, float) + w}, rec.units, rec.meta)
@@ -210,8 +210,11 @@ def of_bundle(bundle: Bundle, values: dict[str, float], sigma_q: float) -> Proce
                                     bundle.controller.Ts, inputs.index(plant.input_name), held_input=True)
     if inv is None:
         return ProcessNoise()
-    input_gain = 1 / evidence.mass_equivalent(plant.model, values, plant.velocity_state, inputs.index(plant.input_name))
-    return estimate(held_force(inv, input_gain, bundle.controller.Ts), inv.x, inv.v, inv.a, input_gain, sigma_q / abs(gain), bundle.controller.Ts, inv.cutoff)
+    ts = bundle.controller.Ts
+    input_gain = 1 / evidence.mass_equivalent(plant.model, values, plant.velocity_state,
+                                              inputs.index(plant.input_name))
+    return estimate(held_force(inv, input_gain, ts), inv.x, inv.v, inv.a, input_gain, sigma_q / abs(gain), ts,
+                    inv.cutoff)
 
 
 def noisy_simulator(loop: Loop, rec: Recording, values: dict[str, float], process: ProcessNoise | None,
@@ -223,6 +226,6 @@ def noisy_simulator(loop: Loop, rec: Recording, values: dict[str, float], proces
         if process is None or not process.present or loop.axes:
             return outputerror.simulate(loop, rec, values, noise=noise)
         w = process.sample(rec.time.size, loop.ts, rng)
-        q, u = outputerror.simulate(loop, with_force_noise(rec, w), values, noise=noise)
+        q, u = outputerror.simulate(loop, with_force_noise(rec, w, loop.signals.disturbance), values, noise=noise)
         return q, u - w
     return simulate

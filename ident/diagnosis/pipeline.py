@@ -99,7 +99,7 @@ def above_floor(bundle: Bundle, remainder: dict, q_final: np.ndarray, floor: flo
     if remainder.get("status", "").startswith("unexplained") or not above:
         return remainder
     ts = bundle.controller.Ts
-    _, v, _ = startvalues.mirror_derivatives(rec["q"], 1 / ts, min(0.1 / ts, 150.0))
+    _, v, _ = startvalues.mirror_derivatives(rec["q"], 1 / ts, startvalues.derivative_cutoff(1 / ts))
     where = empirical.locate_remainder(residual, residual, rec.time, v, rec["q"], sigma_q, ts)
     reason = (f"the validation RMS {rms:.4g} is {rms / floor:.3g} times the floor a correct model reaches on this "
               f"data ({floor:.4g}: encoder and process noise estimated from the recording; the margin is "

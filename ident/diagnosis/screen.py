@@ -18,6 +18,7 @@ import numpy as np
 from motiontwin.ident import outputerror, startvalues
 from motiontwin.ident.diagnosis import effects as effect_models
 from motiontwin.ident.diagnosis.bundle import Bundle
+from motiontwin.ident.diagnosis.nominal import default_start
 from motiontwin.ident.plant_states import alias_state
 from motiontwin.ident.diagnosis.structure import ModelFit, _log, build_axes, build_structure, on_axis
 
@@ -49,8 +50,7 @@ def fit_structure(bundle: Bundle, current: ModelFit, candidate: effect_models.Ef
                                    min_substeps=current.loop.substeps)
     first = starts[1] if len(starts) > 1 else {}
     joint = _joint_start(bundle, loop, candidate, {**values, **first})
-    prior = {"plant." + k: v for k, v in ({p.name: float(p.start) for p in bundle.plant.model.parameters}
-                                          | bundle.plant.parameters).items() if "plant." + k in loop.free}
+    prior = {"plant." + k: v for k, v in default_start(bundle).items() if "plant." + k in loop.free}
     starts = starts + ([joint] if joint else []) + ([{**prior, **first}] if prior else [])
     best, start_cost = _best_fit(bundle, loop, bounds, weights, base, starts, max_nfev, candidate.name)
     return ModelFit(effects, loop.with_values(best.values), best, bounds, folder, start_cost=start_cost)
@@ -96,8 +96,9 @@ def _best_fit(bundle: Bundle, loop: outputerror.Loop, bounds: dict[str, tuple[fl
               max_nfev: int, name: str = "") -> tuple[outputerror.Fit, float]:
     """The lowest-cost fit of ``loop`` from ``base`` with the vanishing start (``starts[0]``) and the
     lowest-cost data-driven starts over it (each clipped into its bounds): ``SCREEN_STARTS`` of them in a
-    screening fit (every one for ``MULTI_START`` effects), ``FULL_STARTS`` in a full fit. Returns the fit and the cost at the vanishing start. The trust-region fit accepts only descent,
-    so no fit ends above the cost of its start."""
+    screening fit (every one for ``MULTI_START`` effects), ``FULL_STARTS`` in a full fit. Returns the fit
+    and the cost at the vanishing start. The trust-region fit accepts only descent, so no fit ends above the
+    cost of its start."""
     points = [{**base, **{k: float(np.clip(v, *bounds[k])) for k, v in start.items() if k in bounds}}
               for start in starts]
     costs = [_start_cost(bundle, loop, weights, point) for point in points]

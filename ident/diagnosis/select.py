@@ -141,9 +141,8 @@ def upgrade_nested(bundle: Bundle, final: ModelFit, weights: outputerror.Weights
         return final
     current = final
     for simple in [e for e in final.effects if e.name in effect_models.NESTED.values()]:
-        richer = [r for r, s in effect_models.NESTED.items() if s == simple.name]
-        richer = [effect_models.VOCABULARY[r](ctx) for r in richer]
-        richer = [r for r in richer if r.applicable]
+        richer = [e for e in (effect_models.VOCABULARY[r](ctx) for r, s in effect_models.NESTED.items()
+                              if s == simple.name) if e.applicable]
         if not richer:
             continue
         noisy = noise.noisy_simulator(current.loop, bundle.train, current.fit.values, bundle.process_noise)
@@ -162,7 +161,7 @@ def upgrade_nested(bundle: Bundle, final: ModelFit, weights: outputerror.Weights
             dof = sum(p.fitted for p in rich.params) - sum(p.fitted for p in simple.params)
             threshold = evidence.null_threshold(evidence.projected_gain(trial.fit.jacobian, null) - base_gain, dof)
             _log(progress, f"  {rich.name} in place of {simple.name}: extra {-extra:+.4g}, null {threshold:.4g}")
-            if extra > threshold and not _unphysical_effect(trial, rich, progress) and \
+            if extra > threshold and not _unphysical(trial, progress, rich) and \
                     (best is None or extra > best[1]):
                 best = (trial, extra, threshold, rich)
         if best is None:
@@ -186,22 +185,14 @@ def upgrade_nested(bundle: Bundle, final: ModelFit, weights: outputerror.Weights
     return current
 
 
-def _unphysical_effect(trial: ModelFit, effect: effect_models.Effect, progress) -> bool:
-    """True (and logged) when the fitted values of ``effect`` in ``trial`` are not the physics it names."""
+def _unphysical(trial: ModelFit, progress, effect: effect_models.Effect | None = None) -> bool:
+    """True (and logged) when the fitted values of ``effect`` (default: the trial's last, placed on its axis
+    when the trial has axes, :func:`structure.on_axis`) are not the physics it names."""
+    placed = effect is None and bool(trial.axes)
+    effect = effect or trial.effects[-1]
     if effect.unphysical is None:
         return False
-    reason = effect.unphysical({p.name: trial.fit.values[p.name] for p in effect.params})
-    if reason:
-        _log(progress, f"  {effect.name}: not reported as this physics, {reason}")
-    return bool(reason)
-
-
-def _unphysical(trial: ModelFit, progress) -> bool:
-    """True (and logged) when the fitted values of the trial's effect are not the physics it names."""
-    effect = trial.effects[-1]
-    if effect.unphysical is None:
-        return False
-    prefix = f"{trial.axes[-1]}_" if trial.axes else ""      # an effect placed on an axis (structure.on_axis)
+    prefix = f"{trial.axes[-1]}_" if placed else ""
     reason = effect.unphysical({p.name[len(prefix):]: trial.fit.values[p.name] for p in effect.params})
     if reason:
         _log(progress, f"  {effect.name}: not reported as this physics, {reason}")

@@ -18,7 +18,7 @@ from motiontwin.harness.recording import Recording
 from motiontwin.ident import outputerror
 from motiontwin.ident.diagnosis import effects as effect_models
 from motiontwin.ident.diagnosis.bundle import Bundle, PlantInfo
-from motiontwin.ident.diagnosis.noise import ProcessNoise, with_force_noise
+from motiontwin.ident.diagnosis.noise import ProcessNoise, noisy_simulator
 from motiontwin.ident.diagnosis.plant_roles import PlantRoles
 
 AUGMENTED_CLASS = effect_models.AUGMENTED_CLASS
@@ -183,6 +183,7 @@ def floor_rms(loop: outputerror.Loop, rec: Recording, values: dict[str, float], 
     free-run simulation can predict. A multi-axis loop takes one noise level per axis and returns one floor
     per axis."""
     q_free, _ = outputerror.simulate(loop, rec, values)
+    simulate = noisy_simulator(loop, rec, values, process)
     rng = np.random.default_rng(0)
     power = []
     per_axis = np.ndim(sigma_q) > 0
@@ -191,9 +192,7 @@ def floor_rms(loop: outputerror.Loop, rec: Recording, values: dict[str, float], 
             noise = rng.normal(0.0, 1.0, (np.size(sigma_q), rec.time.size)) * np.reshape(sigma_q, (-1, 1))
         else:
             noise = rng.normal(0.0, sigma_q, rec.time.size)
-        forced = rec if process is None or per_axis else with_force_noise(rec, process.sample(rec.time.size,
-                                                                                            loop.ts, rng))
-        q_noisy, _ = outputerror.simulate(loop, forced, values, noise=noise)
+        q_noisy, _ = simulate(noise, rng)
         power.append(np.mean((q_noisy + noise - q_free) ** 2, axis=-1))
     return np.sqrt(np.mean(power, axis=0)) if per_axis else float(np.sqrt(np.mean(power)))
 
