@@ -25,8 +25,10 @@ from motiontwin.fmus.limits import load_json
 from motiontwin.ident.plant_states import velocity_state
 from motiontwin.ident.signals import lowpass_differentiate
 
-#: samples of the quadratic fit that gives the initial position and velocity (at least 8)
-FIRST_SAMPLES_SECONDS = 0.01
+#: the longest window of the local cubic that gives the initial position and velocity [s] (at least 8 samples)
+FIRST_SAMPLES_SECONDS = 0.02
+#: two windows' estimates agree when they differ by at most this many of their standard deviations added
+FIRST_SAMPLES_AGREEMENT = 2.0
 
 
 class StartValueError(ValueError):
@@ -71,13 +73,33 @@ def check_parameters(model: symbolic.SymbolicModel, values: dict[str, float], wh
 
 
 def first_samples(q: np.ndarray, ts: float) -> tuple[float, float]:
-    """Position [m] and velocity [m/s] at t = 0 from a quadratic least-squares fit to the first
-    ``FIRST_SAMPLES_SECONDS`` of ``q`` (at least 8 samples): the noise of one sample and the motion at t = 0
-    are both accounted for."""
-    n = int(min(q.size, max(8, round(FIRST_SAMPLES_SECONDS / ts))))
-    t = np.arange(n) * ts
-    coef = np.polyfit(t, np.asarray(q[:n], float), 2 if n >= 4 else 1)
-    return float(np.polyval(coef, 0.0)), float(np.polyval(np.polyder(coef), 0.0))
+    """Position [m] and velocity [m/s] at t = 0 from a local cubic fitted to the first samples of ``q``, its
+    window chosen by Lepski's rule: windows grow from 8 samples to ``FIRST_SAMPLES_SECONDS`` while the
+    estimate stays within ``FIRST_SAMPLES_AGREEMENT`` standard deviations of every shorter window's (noise
+    level from the fourth differences). A fixed window biases the velocity of a move that starts at t = 0
+    (a jerk-limited onset is cubic): a quadratic over 10 ms gave 1.8 mm/s for a start at rest."""
+    q = np.asarray(q, float)
+    longest = int(min(q.size, max(8, round(FIRST_SAMPLES_SECONDS / ts))))
+    if longest < 8:                      # a very short record: one polynomial through all of it
+        if q.size < 2:
+            return float(q[0]), 0.0
+        coef = np.polyfit(np.arange(q.size) * ts, q, min(2, q.size - 1))
+        return float(np.polyval(coef, 0.0)), float(np.polyval(np.polyder(coef), 0.0))
+    fourth = np.diff(q[:max(longest, 16)], 4)
+    sigma = max(float(np.median(np.abs(fourth))) / 0.6745 / math.sqrt(70.0), 1e-12 * max(1.0, abs(float(q[0]))))
+    chosen = (float(q[0]), 0.0)
+    previous: list[tuple[np.ndarray, np.ndarray]] = []
+    for n in sorted({int(round(n)) for n in np.geomspace(8, longest, 6)}):
+        x = np.vander(np.arange(n) / n, 4, increasing=True)          # time scaled to the window: conditioned
+        coef = np.linalg.lstsq(x, q[:n], rcond=None)[0]
+        per_second = np.array([1.0, 1.0 / (n * ts)])
+        estimate = coef[:2] * per_second
+        sd = sigma * np.sqrt(np.diag(np.linalg.inv(x.T @ x))[:2]) * per_second
+        if any(np.any(np.abs(estimate - e) > FIRST_SAMPLES_AGREEMENT * (sd + s)) for e, s in previous):
+            break
+        previous.append((estimate, sd))
+        chosen = (float(estimate[0]), float(estimate[1]))
+    return chosen
 
 
 def derivative_cutoff(fs: float) -> float:
