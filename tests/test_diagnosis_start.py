@@ -138,3 +138,24 @@ def test_identify_oe_start_values(heavy_bundle, tmp_path, capsys):
     assert "diverges" in err and "--set" in err and "Traceback" not in err
     assert cli_main(args + ["--set", "mass=3"]) != 0
     assert "'mass'" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("onset", ["jerk_limited", "constant_velocity", "at_rest"])
+def test_first_samples_velocity_of_a_move_starting_at_t0(onset):
+    """The initial velocity against the analytic one: a minimum-jerk move of 2 mm in 60 ms starting at rest at
+    t = 0 (v0 = 0, q ~ t^3: a fixed 10 ms quadratic read 1.8 mm/s on such a start), a constant 5 mm/s, and rest;
+    10 nm encoder noise quantised to 5 nm, 2 kHz. Tolerance: 1 % of the move's peak speed, which keeps the
+    start-up transient below the noise floor."""
+    ts, rng = 5e-4, np.random.default_rng(11)
+    t = np.arange(400) * ts
+    if onset == "jerk_limited":
+        s = np.clip(t / 0.06, 0, 1)
+        q, v0 = 0.03 - 2e-3 * s ** 3 * (10 - 15 * s + 6 * s * s), 0.0
+    elif onset == "constant_velocity":
+        q, v0 = 0.03 + 5e-3 * t, 5e-3
+    else:
+        q, v0 = np.full_like(t, 0.03), 0.0
+    q = np.round((q + rng.normal(0, 1e-8, t.size)) / 5e-9) * 5e-9
+    q0_est, v0_est = startvalues.first_samples(q, ts)
+    assert v0_est == pytest.approx(v0, abs=0.01 * 2e-3 * 1.875 / 0.06)
+    assert q0_est == pytest.approx(0.03, abs=3e-8)
