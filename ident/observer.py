@@ -18,7 +18,7 @@ process force added to the disturbance column give the same residual statistics 
 
 The observer gain is fixed, not fitted: the mass [force unit per acceleration of the measured output] from the
 recording's inverse dynamics (least squares of u on acceleration, velocity, Coulomb level and offset,
-:func:`recording_mass`), a closed-loop bandwidth of ``DEFAULT_BANDWIDTH_HZ`` (at most ``fs / 200``), damping
+:func:`recording_mass`), a closed-loop bandwidth of ``DEFAULT_BANDWIDTH_HZ`` (at most ``fs / 100``), damping
 ``DAMPING`` and a derivative filter at ``FILTER_RATIO`` times the bandwidth, discretised by Tustin. Below the
 bandwidth a missing force shows in the force residual, above it in the output residual as in a free run; the
 error of a wrong mass integrates for at most about 1 / (2 pi bandwidth) before the observer pulls it back.
@@ -44,10 +44,10 @@ from motiontwin.ident.oeloop import Signals
 from motiontwin.ident.startvalues import derivative_cutoff, mirror_derivatives
 
 UNKNOWN_KIND = "unknown"       # the ``controller.kind`` (or the CLI's ``--controller unknown``) that selects it
-DEFAULT_BANDWIDTH_HZ = 5.0     # observer bandwidth [Hz]
-MAX_BANDWIDTH_FRACTION = 1 / 200   # of the sample rate
+DEFAULT_BANDWIDTH_HZ = 20.0    # observer bandwidth [Hz]
+MAX_BANDWIDTH_FRACTION = 1 / 100   # of the sample rate
 DAMPING = 0.7
-FILTER_RATIO = 10.0            # derivative filter pole over the bandwidth
+FILTER_RATIO = 5.0             # derivative filter pole over the bandwidth
 METHOD = ("prediction-error predictor: the model driven by the measured force plus a fixed PD observer on the "
           "measured position (no controller given)")
 
