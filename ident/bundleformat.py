@@ -20,13 +20,22 @@ experiment.json:
              "pole_pitch": 0.032},         optional: the motor's magnet pole pitch [m] (enables cogging)
    "controller": {"kind": "discrete_state_space", "Ts": 0.0005, "inputs": ["r", "q"], "outputs": ["u"],
                   "A": [[...]], "B": [[...]], "C": [[...]], "D": [[...]]}
-              or {"kind": "MotionTwin.Controllers.RobustJointController", "parameters": {"Kp": 2e5, ...}},
+              or {"kind": "MotionTwin.Controllers.RobustJointController", "parameters": {"Kp": 2e5, ...}}
+              or {"kind": "unknown"} (optional "Ts", "bandwidth_hz"), the same as no "controller" field,
    "recordings": {"train": "train.csv", "validation": "validation.csv"}}
 
 train.csv, validation.csv: columns time [s], r [m], u [N], q [m], optional u_ext [N], sampled at the
 controller's instants (step Ts); closed loop: u = controller output + u_ext is the force the plant got.
 Every file named in experiment.json must resolve (symbolic links followed) inside the bundle folder.
 The recordings may start while the loop is moving.
+
+Unknown controller (no "controller" field, or kind "unknown"; one axis): the recordings need only time, u, q
+(r and u_ext are not used: u already holds u_ext). Method: a prediction-error predictor, the closed loop the
+diagnosis runs with a fixed PD observer L (default 20 Hz, at most 1/(100 Ts), damping 0.7, gain from the
+recording's inverse-dynamics mass) in place of the controller, reference r = q and disturbance u_ext = u: the
+model gets u + L(q - q_model), so a double integrator does not drift. Its output residual is the prediction
+error, its force residual the observer's correction. Validation RMS: the predictor's free run (lower than a
+simulation error; not comparable with a known controller's). diagnosis.json "controller" states the observer.
 
 Several axes (a gantry, a coupled mechanism in actuator coordinates): plant.axes instead of input/output,
 one entry per axis, named by its output; "parameters" and "free" stay plant-wide:

@@ -87,8 +87,9 @@ def read_controller(doc: dict, where: str) -> Controller:
         return read_named_controller(doc, where)
     if kind not in CONTROLLER_KINDS:
         raise ControllerError(f"{where}: field 'kind' is {kind!r}; supported controller kinds: "
-                              f"{', '.join(CONTROLLER_KINDS)} or the name of a sampled controller of the "
-                              f"project's library, e.g. {LIBRARY_PACKAGE}RobustJointController")
+                              f"{', '.join(CONTROLLER_KINDS)}, the name of a sampled controller of the "
+                              f"project's library, e.g. {LIBRARY_PACKAGE}RobustJointController, or 'unknown' "
+                              f"(no controller: a prediction-error predictor stands in for it, ident.observer)")
     ts = field(doc, "Ts", where, (int, float))
     if not (math.isfinite(ts) and ts > 0):
         raise ControllerError(f"{where}: field 'Ts' must be a positive number of seconds, got {ts!r}")

@@ -26,6 +26,12 @@ Measures (e = measured - simulated output, N samples):
   the decision is simultaneous: max |r_ue| / sqrt(P/N) against the normal quantile of 1 - 0.01/(2M+1)
   (Bonferroni). Positive tau: the residual lags the input (input at t-tau vs residual at t).
 
+Unknown controller (``controller`` = the observer of :mod:`ident.observer`, ``signals`` =
+:func:`ident.observer.predictor_signals`): the free run is the prediction-error predictor's (the model driven by
+the measured force plus the observer's correction), so its RMS is a prediction error, not a simulation error;
+``horizon`` adds the k-step-ahead scores (:func:`ident.observer.k_step_ahead`: the model alone restarted every
+k samples from the predictor's state, RMS over the segments and at the k-th sample).
+
 Units: those of the recording and model (SI).
 """
 from __future__ import annotations
@@ -267,6 +273,7 @@ class Validation:
     output: str
     input: str
     unit: str = "m"                     # the output's unit as the recording declares it (m, rad, ...)
+    prediction: Any = None              # unknown controller: ident.observer.Prediction (k-step-ahead), or None
 
     @property
     def residual(self) -> np.ndarray:
@@ -313,7 +320,7 @@ def free_run(model: symbolic.SymbolicModel, values: dict[str, float], rec: Recor
 
 def validate(model: symbolic.SymbolicModel, spec: ModelSpec, rec: Recording, *, controller: Controller | None = None,
              signals: oe.Signals = oe.Signals(), lags: int = 25, estimate_initial: bool = True,
-             initial: str | None = None) -> Validation:
+             initial: str | None = None, horizon: int | None = None) -> Validation:
     """Re-simulate ``model`` at ``spec.values`` along ``rec`` and compute the compare/resid measures.
 
     Parameters
@@ -327,6 +334,7 @@ def validate(model: symbolic.SymbolicModel, spec: ModelSpec, rec: Recording, *, 
     lags : correlation lags M.
     estimate_initial : estimate the initial position and velocity (else start at the first sample).
     initial : start of that estimate, "samples" or "rest" (default: ``spec.initial``), see :func:`free_run`.
+    horizon : with the unknown controller's observer: the k-step-ahead horizon [samples] (None: not scored).
 
     Returns
     -------
@@ -354,12 +362,18 @@ def validate(model: symbolic.SymbolicModel, spec: ModelSpec, rec: Recording, *, 
                       where=f"{spec.class_name} at {spec.source}")
     measured = rec[signals.output]
     residual = measured - result.q_sim
-    u = rec[signals.input] if controller is None else rec[signals.reference]
+    predictor = signals.reference == signals.output
+    u = rec[signals.input] if controller is None or predictor else rec[signals.reference]
+    prediction = None
+    if horizon is not None and controller is not None:
+        from motiontwin.ident.observer import k_step_ahead
+
+        prediction = k_step_ahead(model, spec.values, rec, controller, signals, horizon, result.initial)
     return Validation(spec, rec.time, measured, result.q_sim, u, fit_percent(measured, result.q_sim),
                       result.rms_q, autocorrelation_test(residual, lags),
                       cross_correlation_test(u, residual, lags), result.initial, controller is not None,
-                      signals.output, signals.input if controller is None else signals.reference,
-                      rec.units.get(signals.output) or "m")
+                      signals.output, signals.input if controller is None or predictor else signals.reference,
+                      rec.units.get(signals.output) or "m", prediction)
 
 
 def validation_document(result: Validation, recording_path: str) -> dict[str, Any]:
@@ -370,6 +384,7 @@ def validation_document(result: Validation, recording_path: str) -> dict[str, An
             "output": result.output, "input": result.input, "samples": int(result.time.size),
             "fit_percent": result.fit_percent, "rms": result.rms, "rms_definition": RMS_DEFINITION,
             "initial_states": result.initial,
+            "k_step_ahead": result.prediction.as_dict() if result.prediction is not None else None,
             "confidence": CONFIDENCE, "residual_autocorrelation": result.autocorrelation.as_dict(),
             "input_residual_cross_correlation": result.cross_correlation.as_dict()}
 

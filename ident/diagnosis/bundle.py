@@ -20,6 +20,11 @@ A multi-axis bundle's plant has ``"axes": [{"input": "u1", "output": "q1"}, ...]
 columns ``time`` and, per axis, ``r_<output>``, ``<input>``, ``<output>`` and optionally ``u_ext_<input>``.
 A motor's magnet pole pitch is given per axis (``plant.axes[k].pole_pitch``; a plant-wide one is refused).
 
+An unknown controller (``controller`` absent or ``{"kind": "unknown"}``, optional ``"Ts"`` and
+``"bandwidth_hz"``; single axis only): the recordings need only time, u and q; the bundle's controller is then the
+fixed observer of :mod:`ident.observer` and its recordings get r = q and u_ext = u (the prediction-error
+predictor's signal roles; a recorded r or u_ext is not used, u already holds u_ext), ``Bundle.observer`` says so.
+
 Every problem raises :class:`BundleError` whose message names the file and the field or column at fault.
 Units: time [s], positions [m], forces [N].
 """
@@ -38,9 +43,11 @@ from motiontwin.fmus import frontend, symbolic
 from motiontwin.harness.recording import Recording, RecordingError, read_recording
 from motiontwin.ident import controller, startvalues, units
 from motiontwin.ident.controller import Controller, field
+from motiontwin.ident.observer import UNKNOWN_KIND, Observer, ObserverError, observer_from_document
 from motiontwin.ident.diagnosis.plant_roles import PlantFormError, PlantRoles, find_roles
 
 REQUIRED_COLUMNS = ("time", "r", "u", "q")
+PREDICTOR_COLUMNS = ("time", "u", "q")      # an unknown controller's recordings
 #: JSON Schema of experiment.json, shipped with the package (``motiontwin diagnose --help`` shows the format)
 SCHEMA_PATH = Path(__file__).with_name("bundle.schema.json")
 _TYPE_WORDS = {"number": "a finite number", "string": "a string", "object": "an object {...}", "array": "a list [...]"}
@@ -107,6 +114,7 @@ class Bundle:
     cache: Any = None            # the compiled loops of the diagnosis running on this bundle (set by the pipeline)
     nominal_free: tuple = ()     # multi-axis: (free nominal parameters, their bounds) (set by the diagnosis)
     process_noise: Any = None    # noise.ProcessNoise of the training recording (set by the pipeline; None: none)
+    observer: Observer | None = None   # unknown controller: the observer standing in for it (ident.observer)
 
     def recording_path(self, part: str) -> Path:
         """Path of the ``train`` or ``validation`` recording."""
@@ -363,7 +371,9 @@ def _to_si(rec: Recording, source: str, axes: list[PlantRoles] | None = None) ->
     quantities: dict[str, str] = {}
     for force, position in pairs:
         reference, disturbance = ("r", "u_ext") if not axes else (f"r_{position}", f"u_ext_{force}")
-        quantities.update({reference: "position", position: "position", force: "force"})
+        quantities.update({position: "position", force: "force"})
+        if reference in rec.columns:
+            quantities[reference] = "position"
         if disturbance in rec.columns:
             quantities[disturbance] = "force"
     columns = units.checked_columns(rec, quantities, source=source)
@@ -376,18 +386,34 @@ def _to_si(rec: Recording, source: str, axes: list[PlantRoles] | None = None) ->
         rec.meta.setdefault("metadata", {})["unit_notes"] = columns.notes
 
 
-def _recording(doc: dict, key: str, bundle_dir: Path, where: str, ts: float,
+def _recording(doc: dict, key: str, bundle_dir: Path, where: str, ts: float | None,
                axes: list[PlantRoles] | None = None) -> Recording:
+    """The recording ``recordings.<key>`` in SI and checked; ``ts`` None: an unknown controller's recording
+    (columns time, u, q), in SI but not checked yet (:func:`predictor_recording` does)."""
     name = _field(doc, key, where, str)
     path = bundle_dir / name
     if not path.is_file():
         raise BundleError(f"{where}: field 'recordings.{key}' names {name!r}, but {path} does not exist")
     try:
-        rec = read_recording(path, ("time", *axis_columns(axes)) if axes else REQUIRED_COLUMNS)
+        rec = read_recording(path, ("time", *axis_columns(axes)) if axes else
+                             REQUIRED_COLUMNS if ts is not None else PREDICTOR_COLUMNS)
         _to_si(rec, str(path), axes)
     except RecordingError as exc:
         raise BundleError(str(exc)) from None
-    return check_recording(rec, path, ts, axes)
+    return rec if ts is None else check_recording(rec, path, ts, axes)
+
+
+def predictor_recording(rec: Recording, path: Path | str, ts: float) -> Recording:
+    """An unknown controller's recording checked (time, u, q at steps ``ts``) with the predictor's signal
+    roles: r = q (the observer's reference is the measured position), u_ext = u (the measured force drives
+    the model)."""
+    missing = [c for c in PREDICTOR_COLUMNS[1:] if c not in rec.columns]
+    if missing:
+        raise BundleError(f"{path}: required column {missing[0]!r} missing (columns: {', '.join(rec.columns)})")
+    rec.columns["r"] = np.array(rec["q"], float)
+    checked = check_recording(rec, path, ts)
+    checked.columns["u_ext"] = np.array(checked["u"], float)
+    return checked
 
 
 def check_recording(rec: Recording, path: Path | str, ts: float, axes: list[PlantRoles] | None = None) -> Recording:
@@ -410,7 +436,8 @@ def check_recording(rec: Recording, path: Path | str, ts: float, axes: list[Plan
     if bad.size:
         i = int(bad[0])
         raise BundleError(f"{path}, row {i + 3}, column 'time': step {steps[i]!r} s differs from the controller "
-                          f"sample time Ts = {ts} s (samples must be taken at the controller's sample instants)")
+                          f"sample time Ts = {ts} s (samples must be taken at the controller's sample instants; "
+                          f"an unknown controller's recording at its median step)")
     for disturbance in ([f"u_ext_{a.input}" for a in axes] if axes else ["u_ext"]):
         if disturbance not in rec.columns:
             rec.columns[disturbance] = np.zeros_like(rec.time)
@@ -447,7 +474,9 @@ def read_bundle(bundle_dir: str | Path, allow_outside_paths: bool = False) -> Bu
     if not allow_outside_paths:
         check_paths_inside(experiment, bundle_dir, exp_path)
     plant_doc = _field(experiment, "plant", str(exp_path), dict)
-    controller_doc = _field(experiment, "controller", str(exp_path), dict)
+    controller_doc = experiment.get("controller")
+    if controller_doc is None or controller_doc.get("kind") == UNKNOWN_KIND:
+        return _unknown_controller_bundle(bundle_dir, experiment, exp_path, controller_doc or {})
     if "axes" in plant_doc:
         plant = read_axes_plant(plant_doc, bundle_dir, f"{exp_path}: plant")
         controller = read_axes_controller(controller_doc, f"{exp_path}: controller", plant.axes)
@@ -460,6 +489,31 @@ def read_bundle(bundle_dir: str | Path, allow_outside_paths: bool = False) -> Bu
     train = _recording(recs, "train", bundle_dir, where, controller.Ts, plant.axes)
     validation = _recording(recs, "validation", bundle_dir, where, controller.Ts, plant.axes)
     return Bundle(bundle_dir, experiment, plant, controller, train, validation)
+
+
+def _observer(doc: dict, train: Recording, where: str, source: str) -> Observer:
+    """The observer of an unknown controller (:func:`ident.observer.observer_from_document`)."""
+    try:
+        return observer_from_document(doc, train, where, source)
+    except ObserverError as exc:
+        raise BundleError(str(exc)) from None
+
+
+def _unknown_controller_bundle(bundle_dir: Path, experiment: dict, exp_path: Path, controller_doc: dict) -> Bundle:
+    """A bundle whose controller is unknown: plant, recordings with the predictor's roles, the observer."""
+    plant_doc = experiment["plant"]
+    if "axes" in plant_doc:
+        raise BundleError(f"{exp_path}: field 'controller' is absent or of kind 'unknown', which a multi-axis "
+                          f"plant (field 'plant.axes') does not support yet; give the controller")
+    plant = read_plant(plant_doc, bundle_dir, f"{exp_path}: plant")
+    plant.free = check_free(plant_doc.get("free"), plant.model, f"{exp_path}: plant")
+    recs = _field(experiment, "recordings", str(exp_path), dict)
+    where = f"{exp_path}: recordings"
+    raw = {key: _recording(recs, key, bundle_dir, where, None) for key in ("train", "validation")}
+    ts = controller_doc.get("Ts") or float(np.median(np.diff(raw["train"].time)))
+    train, validation = (predictor_recording(raw[key], bundle_dir / recs[key], ts) for key in ("train", "validation"))
+    observer = _observer({**controller_doc, "Ts": ts}, train, str(exp_path), str(bundle_dir / recs["train"]))
+    return Bundle(bundle_dir, experiment, plant, observer.controller(), train, validation, observer=observer)
 
 
 IN_MEMORY = Path("(in memory)")
@@ -523,10 +577,19 @@ def make_bundle(plant: str | Path, controller: Controller | dict, train: Recordi
     if axes and pole_pitch is not None:
         raise BundleError("plant: pole_pitch cannot be combined with axes (give it per axis, e.g. "
                           "axes=[{'input': 'u1', 'output': 'q1', 'pole_pitch': 0.032}, ...])")
+    experiment = {"recordings": {"train": "train", "validation": "validation"}}
+    if controller is None or (isinstance(controller, dict) and controller.get("kind") == UNKNOWN_KIND):
+        if axes:
+            raise BundleError("controller: an unknown controller (None or kind 'unknown') supports one axis only")
+        doc = dict(controller or {})
+        ts = doc.get("Ts") or float(np.median(np.diff(train.time)))
+        checked = [predictor_recording(Recording(rec.time, dict(rec.columns), rec.units, rec.meta), name, ts)
+                   for rec, name in ((train, "train"), (validation, "validation"))]
+        observer = _observer({**doc, "Ts": ts}, checked[0], "controller", "train")
+        return Bundle(IN_MEMORY, experiment, info, observer.controller(), *checked, observer=observer)
     if not isinstance(controller, Controller):
         controller = (read_axes_controller(dict(controller), "controller", info.axes) if axes
                       else read_controller(dict(controller), "controller"))
     checked = [check_recording(rec, name, controller.Ts, info.axes)
                for rec, name in ((train, "train"), (validation, "validation"))]
-    experiment = {"recordings": {"train": "train", "validation": "validation"}}
     return Bundle(IN_MEMORY, experiment, info, controller, *checked)

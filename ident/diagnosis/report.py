@@ -172,6 +172,8 @@ def diagnosis_document(result: dict, out: Path, fmu_path: Path | None) -> dict:
         "at_bound": structure_at_bound(final),
         "plant_physics": result.get("plant_physics", {}),
         "units": units.as_dict(),
+        "controller": (result["bundle"].observer.as_dict() if result["bundle"].observer is not None
+                       else {"kind": "given"}),
     }
 
 
@@ -293,6 +295,9 @@ def _markdown(doc: dict, plots: list[str], result: dict, clipped: dict[str, int]
     units = plant_units(result)
     axis = bundle_units(result["bundle"])
     lines = ["# Mismatch diagnosis", "", f"Bundle: `{result['bundle'].directory}`", ""]
+    if result["bundle"].observer is not None:
+        lines += [f"Controller unknown: {result['bundle'].observer.describe()}. Validation RMS values are the "
+                  "predictor's free run (a prediction error, not a simulation error).", ""]
     if doc["effects"]:
         lines += ["## Missing physics found", ""]
         for e in doc["effects"]:

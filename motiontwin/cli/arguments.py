@@ -22,3 +22,25 @@ def name_values(text: str, where: str) -> dict[str, float]:
             raise ValueError(f"{where} {text!r}: field {name!r} = {value!r} is not a finite number")
         values[name] = number
     return values
+
+
+def loop_controller(value: str | None, rec: object, output: str, input_name: str, reference: str = "r") -> tuple:
+    """``--controller`` of ``identify oe`` and ``validate``: None (open loop), ``unknown`` or a JSON whose kind is
+    ``unknown`` (the prediction-error predictor of :mod:`ident.observer`: the observer, reference = the output
+    column, disturbance = the input column), else a controller JSON. Returns (controller or None, signals,
+    observer or None); ``rec`` needs the columns the choice uses (a known controller: ``reference`` too)."""
+    from pathlib import Path
+
+    from motiontwin.fmus.limits import load_json
+    from motiontwin.ident import observer
+    from motiontwin.ident.controller import ControllerError, load_controller
+    from motiontwin.ident.oeloop import Signals
+
+    if value is None:
+        return None, Signals(output=output, input=input_name, reference=reference), None
+    doc = None if value == observer.UNKNOWN_KIND else load_json(Path(value), ControllerError)
+    inner = doc.get("controller", doc) if isinstance(doc, dict) and "kind" not in doc else doc
+    if value == observer.UNKNOWN_KIND or (isinstance(inner, dict) and inner.get("kind") == observer.UNKNOWN_KIND):
+        found = observer.observer_from_document(inner or {}, rec, f"--controller {value}", str(value))
+        return found.controller(), observer.predictor_signals(output, input_name), found
+    return load_controller(Path(value)), Signals(output=output, input=input_name, reference=reference), None

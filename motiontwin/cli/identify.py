@@ -160,14 +160,15 @@ def _identify_oe(args: argparse.Namespace) -> int:
 
     from motiontwin.fmus import build
     from motiontwin.harness.recording import atomic_write_texts, read_recording
+    from motiontwin.cli.arguments import loop_controller
     from motiontwin.ident import startvalues, validation
-    from motiontwin.ident.controller import load_controller
-    from motiontwin.ident.outputerror import Signals, identify
+    from motiontwin.ident.outputerror import identify
 
-    controller = load_controller(args.controller) if args.controller else None
-    signals = Signals(output=args.output, input=args.input)
-    required = [signals.output, signals.input] + ([signals.reference] if controller else [])
-    rec = read_recording(args.recording, required)
+    known = args.controller is not None and args.controller != "unknown"
+    rec = read_recording(args.recording, [args.output, args.input] + (["r"] if known else []))
+    controller, signals, observer = loop_controller(args.controller, rec, args.output, args.input)
+    if observer is not None:
+        print(observer.describe())
     model = build.load_model(args.class_name, args.modelica)
     free = [n.strip() for n in args.free.split(",") if n.strip()]
     start = {**(startvalues.read_values_file(args.values) if args.values else {}),
@@ -183,11 +184,12 @@ def _identify_oe(args: argparse.Namespace) -> int:
                                  initial=args.initial)
     print(f"RMS output error {scored.rms_q:.4g} {rec.units.get(signals.output, '')} "
           f"({validation.RMS_DEFINITION}; validate of --out on this recording prints the same); "
-          f"{'closed' if controller else 'open'} loop, {result.loop.substeps} RK4 substeps per sample, {how}")
+          f"{'predictor' if observer else 'closed' if controller else 'open'} loop, {result.loop.substeps} RK4 "
+          f"substeps per sample, {how}")
     if args.out:
         solver = f"multiple shooting ({args.segments} segments, IPOPT, " if multiple else "single shooting ("
         method = (f"output-error refit, CasADi {solver}RK4, AD Jacobian), "
-                  f"{'closed loop' if controller else 'open loop'}")
+                  f"{'prediction-error predictor' if observer else 'closed loop' if controller else 'open loop'}")
 
         def number(v: float) -> float | None:
             return float(v) if np.isfinite(v) else None
@@ -201,7 +203,7 @@ def _identify_oe(args: argparse.Namespace) -> int:
                "hac_lags": stats.robust_lags,
                "covariance": stats.covariance.tolist(), "correlation_condition": stats.correlation_condition,
                "rms_output_error": scored.rms_q, "rms_definition": validation.RMS_DEFINITION,
-               "converged": result.fit.success}
+               "converged": result.fit.success, "controller": observer.as_dict() if observer else None}
         atomic_write_texts({args.out: json.dumps(doc, indent=2) + "\n"})
         print(args.out)
     return 0
@@ -406,8 +408,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     q.add_argument("--free", required=True, help="comma-separated parameters to fit, e.g. m,d")
     q.add_argument("--input", default="u", help="plant input = recording column (default u)")
     q.add_argument("--output", default="q", help="plant output/state = recording column (default q)")
-    q.add_argument("--controller", type=Path, default=None,
-                   help="controller JSON (discrete_state_space, or an experiment.json); the recording then needs r")
+    q.add_argument("--controller", default=None,
+                   help="controller JSON (discrete_state_space, or an experiment.json); the recording then needs r. "
+                        "'unknown' (or a JSON {\"kind\": \"unknown\"}): no controller known, the model runs as a "
+                        "prediction-error predictor (measured force plus a fixed PD observer on the measured "
+                        "position, ident.observer) so a double integrator does not drift; needs only u and q")
     q.add_argument("--max-nfev", type=int, default=50, help="residual evaluations per fit (single shooting)")
     q.add_argument("--shooting", choices=("single", "multiple"), default="single",
                    help="single shooting (Gauss-Newton, default) or multiple shooting (IPOPT, continuity constraints)")

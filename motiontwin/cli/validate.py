@@ -8,32 +8,38 @@ from pathlib import Path
 def _validate(args: argparse.Namespace) -> int:
     import json
 
-    from motiontwin.cli.arguments import name_values
+    from motiontwin.cli.arguments import loop_controller, name_values
     from motiontwin.harness.recording import atomic_write_texts, read_recording
     from motiontwin.ident import channels, validation
-    from motiontwin.ident.controller import load_controller
-    from motiontwin.ident.outputerror import Signals
 
     values: dict[str, float] = {}
     for item in args.set:
         values |= name_values(item, "--set")
     model_path = None if args.model == "-" else Path(args.model)
     spec = validation.load_model_spec(model_path, class_name=args.class_name, modelica=args.modelica, values=values)
-    controller = load_controller(args.controller) if args.controller else None
-    signals = Signals(output=args.output, input=args.input, reference=args.reference)
-    required = [signals.output, signals.input] + ([signals.reference] if controller else [])
-    rec = read_recording(args.recording, required)
+    known = args.controller is not None and args.controller != "unknown"
+    rec = read_recording(args.recording, [args.output, args.input] + ([args.reference] if known else []))
+    controller, signals, observer = loop_controller(args.controller, rec, args.output, args.input, args.reference)
     model = validation.load_model(spec)
+    horizon = None
+    if observer is not None:
+        horizon = max(1, round(args.horizon / observer.ts))
     result = validation.validate(model, spec, rec, controller=controller, signals=signals, lags=args.lags,
-                                 estimate_initial=not args.initial_from_data, initial=args.initial)
+                                 estimate_initial=not args.initial_from_data, initial=args.initial, horizon=horizon)
     auto, cross = result.autocorrelation, result.cross_correlation
     ext = f" + {signals.disturbance}" if signals.disturbance in rec.columns else ""
-    print(f"{spec.class_name} ({spec.source}) on {args.recording}, {'closed' if controller else 'open'} loop, "
-          f"{result.time.size} samples")
+    loop = "prediction-error predictor" if observer else "closed loop" if controller else "open loop"
+    print(f"{spec.class_name} ({spec.source}) on {args.recording}, {loop}, {result.time.size} samples")
     print(f"fit {result.fit_percent:.3f} % (NRMSE), RMS output error {result.rms:.4g} "
           f"{rec.units.get(signals.output, '')} ({validation.RMS_DEFINITION})"
           + "".join(f", {k}(t0) = {v:.6g}" for k, v in result.initial.items()))
-    if controller:
+    if observer:
+        print(f"{observer.describe()}; columns {signals.input}, {signals.output} -> {signals.output}")
+        k = result.prediction
+        print(f"k-step-ahead, the model alone restarted every {k.horizon} samples ({k.horizon * observer.ts:.4g} s) "
+              f"from the predictor's state: RMS over the segments {k.segment_rms:.4g}, at {k.horizon} samples "
+              f"ahead {k.horizon_rms:.4g} {rec.units.get(signals.output, '')}")
+    elif controller:
         problem = channels.channel_problem(rec, controller, signals)
         fed = f"{signals.reference}{', ' + signals.disturbance if ext else ''}"
         print(f"columns {fed} -> {signals.output}, {signals.input} only checked; channel check: "
@@ -83,8 +89,13 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="Modelica library folder or .mo file of the class (a file is read with the .mo files "
                         "beside it; default: the JSON's, the FMU's neighbour, else the library)")
     p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE", help="override a parameter value")
-    p.add_argument("--controller", type=Path, default=None,
-                   help="closed loop: controller JSON (discrete_state_space, or a library controller by name)")
+    p.add_argument("--controller", default=None,
+                   help="closed loop: controller JSON (discrete_state_space, or a library controller by name); "
+                        "'unknown' (or a JSON {\"kind\": \"unknown\"}): the prediction-error predictor "
+                        "(measured force u plus a fixed PD observer on the measured q, ident.observer; columns u, "
+                        "q only): the RMS is then the predictor's and the k-step-ahead scores are printed")
+    p.add_argument("--horizon", type=float, default=0.05,
+                   help="with --controller unknown: the k-step-ahead horizon [s] (default 0.05)")
     p.add_argument("--input", default="u", help="plant input column (default u; closed loop: checked only)")
     p.add_argument("--output", default="q", help="plant output column (default q)")
     p.add_argument("--reference", default="r", help="reference column in closed loop (default r)")

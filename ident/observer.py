@@ -1,0 +1,180 @@
+"""Unknown controller: the prediction-error predictor that replaces it (issue 23, item 2).
+
+Most lab recordings come from a drive whose controller is proprietary. Without it a double integrator driven
+open loop by the measured force drifts (any force error integrates twice). The predictor closes the loop on
+the measurements instead: the model is driven by the measured force ``u_meas`` plus the output of a fixed
+observer ``L``, a discrete PD on the prediction error ``q_meas - q_model``:
+
+    plant input = u_meas + L(q_meas - q_model)
+
+This is the closed loop the output-error engine already runs (:mod:`ident.oeloop`) with the controller ``L``,
+the reference column = the measured position and the disturbance column = the measured force
+(:func:`predictor_signals`). Its output residual ``q_meas - q_model`` is the prediction error; its force
+residual ``u_meas - u_model = -L(q_meas - q_model)`` is the innovation correction, penalised by the same
+weighted cost. With a known linear controller ``K`` the recorded loop satisfies u_meas = K(r - q_meas) + u_ext,
+so the engine's known-controller loop is this predictor with ``L = K``: the two differ only in the observer's
+bandwidth. The noise machinery stays exact for a linear plant: the encoder noise fed back through ``L`` and a
+process force added to the disturbance column give the same residual statistics as the predictor's on data.
+
+The observer gain is fixed, not fitted: the mass [force unit per acceleration of the measured output] from the
+recording's inverse dynamics (least squares of u on acceleration, velocity, Coulomb level and offset,
+:func:`recording_mass`), a closed-loop bandwidth of ``DEFAULT_BANDWIDTH_HZ`` (at most ``fs / 100``), damping
+``DAMPING`` and a derivative filter at ``FILTER_RATIO`` times the bandwidth, discretised by Tustin. Below the
+bandwidth a missing force shows in the force residual, above it in the output residual as in a free run; the
+error of a wrong mass integrates for at most about 1 / (2 pi bandwidth) before the observer pulls it back.
+
+Scoring on a recording (:func:`k_step_ahead`): the predictor's free run (the RMS ``validate`` prints), and the
+k-step-ahead prediction: from the predictor's state at the start of each segment of ``k`` samples, the model
+alone (measured force, no observer) runs over the segment; reported are the RMS over every segment sample and
+the RMS at the k-th sample. Units: those of the recording (s, and the plant's force and position units).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import signal as sps
+
+from motiontwin.fmus import symbolic
+from motiontwin.harness.recording import Recording
+from motiontwin.ident import oefit, oeloop, plant_states
+from motiontwin.ident.controller import Controller
+from motiontwin.ident.oeloop import Signals
+from motiontwin.ident.startvalues import derivative_cutoff, mirror_derivatives
+
+UNKNOWN_KIND = "unknown"       # the ``controller.kind`` (or the CLI's ``--controller unknown``) that selects it
+DEFAULT_BANDWIDTH_HZ = 20.0    # observer bandwidth [Hz]
+MAX_BANDWIDTH_FRACTION = 1 / 100   # of the sample rate
+DAMPING = 0.7
+FILTER_RATIO = 5.0             # derivative filter pole over the bandwidth
+METHOD = ("prediction-error predictor: the model driven by the measured force plus a fixed PD observer on the "
+          "measured position (no controller given)")
+
+
+class ObserverError(ValueError):
+    """The recording cannot give an observer (no motion, a non-positive mass); the message names the source."""
+
+
+@dataclass(frozen=True)
+class Observer:
+    """The fixed PD observer: mass [force / (output unit / s^2)], bandwidth [Hz], sample period ts [s]."""
+
+    mass: float
+    bandwidth_hz: float
+    ts: float
+
+    @property
+    def kp(self) -> float:
+        return self.mass * (2 * math.pi * self.bandwidth_hz) ** 2
+
+    @property
+    def kd(self) -> float:
+        return 2 * DAMPING * self.mass * 2 * math.pi * self.bandwidth_hz
+
+    def controller(self) -> Controller:
+        """L as a sampled controller on y = [r; q] (r = the measured position): PD with a first-order filtered
+        derivative, Kp + Kd s / (tau s + 1), Tustin at ``ts``."""
+        tau = 1 / (2 * math.pi * self.bandwidth_hz * FILTER_RATIO)
+        a, b, c, d, _ = sps.cont2discrete((np.array([[-1 / tau]]), np.array([[1.0]]), np.array([[-self.kd / tau ** 2]]),
+                                           np.array([[self.kp + self.kd / tau]])), self.ts, method="bilinear")
+        b, d = float(np.ravel(b)[0]), float(np.ravel(d)[0])
+        return Controller(self.ts, np.atleast_2d(a), np.array([[b, -b]]), np.atleast_2d(c), np.array([[d, -d]]))
+
+    def as_dict(self) -> dict[str, object]:
+        return {"kind": UNKNOWN_KIND, "method": METHOD, "mass": self.mass, "bandwidth_hz": self.bandwidth_hz,
+                "damping": DAMPING, "Kp": self.kp, "Kd": self.kd, "Ts": self.ts}
+
+    def describe(self) -> str:
+        return (f"{METHOD}; observer Kp {self.kp:.4g}, Kd {self.kd:.4g} (bandwidth {self.bandwidth_hz:g} Hz, "
+                f"damping {DAMPING}, mass {self.mass:.4g} from the recording's inverse dynamics)")
+
+
+def predictor_signals(output: str = "q", input_name: str = "u") -> Signals:
+    """The predictor's column roles: reference = the measured position, disturbance = the measured force."""
+    return Signals(output=output, input=input_name, reference=output, disturbance=input_name)
+
+
+def recording_mass(q: np.ndarray, u: np.ndarray, ts: float, source: str = "recording") -> float:
+    """Force per acceleration of ``q``: least squares of the force held over each sample on the filtered
+    acceleration, velocity, a Coulomb level and an offset. Raises :class:`ObserverError` when not positive."""
+    fs = 1 / ts
+    _, v, a = mirror_derivatives(np.asarray(q, float), fs, derivative_cutoff(fs))
+    u = np.asarray(u, float)
+    held = 0.5 * (np.concatenate([u[:1], u[:-1]]) + u)
+    held = mirror_derivatives(held, fs, derivative_cutoff(fs))[0]
+    scale = max(1e-3 * float(np.ptp(v)), 1e-300)
+    design = np.column_stack([a, v, np.tanh(v / scale), np.ones_like(v)])
+    coef = np.linalg.lstsq(design, held, rcond=None)[0]
+    if not (math.isfinite(coef[0]) and coef[0] > 0):
+        raise ObserverError(f"{source}: the force does not accelerate the position (inverse-dynamics mass "
+                            f"{coef[0]:.4g}); without a controller the predictor needs motion driven by the "
+                            f"recorded force (check the force and position columns, their units and sign)")
+    return float(coef[0])
+
+
+def observer_for(rec: Recording, output: str = "q", input_name: str = "u", ts: float | None = None,
+                 bandwidth_hz: float | None = None, source: str = "recording") -> Observer:
+    """The observer for ``rec`` (sample period ``ts``: the median step when None)."""
+    ts = float(np.median(np.diff(rec.time))) if ts is None else float(ts)
+    bandwidth = min(DEFAULT_BANDWIDTH_HZ if bandwidth_hz is None else float(bandwidth_hz),
+                    MAX_BANDWIDTH_FRACTION / ts)
+    return Observer(recording_mass(rec[output], rec[input_name], ts, source), bandwidth, ts)
+
+
+def observer_from_document(doc: dict, rec: Recording, where: str, source: str) -> Observer:
+    """The observer of a ``{"kind": "unknown"}`` controller object: its optional ``Ts`` (default: the median
+    step of ``rec``) and ``bandwidth_hz``, the mass from ``rec``; errors name ``where`` and the field."""
+    for key in ("Ts", "bandwidth_hz"):
+        value = doc.get(key)
+        if value is not None and (isinstance(value, bool) or not isinstance(value, (int, float))
+                                  or not math.isfinite(value) or value <= 0):
+            raise ObserverError(f"{where}: field 'controller.{key}' must be a positive number, got {value!r}")
+    extra = sorted(set(doc) - {"kind", "Ts", "bandwidth_hz"})
+    if extra:
+        raise ObserverError(f"{where}: field 'controller.{extra[0]}' is not used by kind {UNKNOWN_KIND!r} (it "
+                            f"takes only 'Ts' and 'bandwidth_hz')")
+    return observer_for(rec, ts=doc.get("Ts"), bandwidth_hz=doc.get("bandwidth_hz"), source=source)
+
+
+@dataclass(frozen=True)
+class Prediction:
+    """k-step-ahead scores: the horizon [samples], RMS over every segment sample and at the horizon."""
+
+    horizon: int
+    segment_rms: float
+    horizon_rms: float
+
+    def as_dict(self) -> dict[str, float]:
+        return {"horizon_samples": self.horizon, "segment_rms": self.segment_rms, "horizon_rms": self.horizon_rms}
+
+
+def k_step_ahead(model: symbolic.SymbolicModel, values: dict[str, float], rec: Recording, controller: Controller,
+                 signals: Signals, horizon: int, initial: dict[str, float] | None = None) -> Prediction:
+    """The model alone (measured force, no observer) restarted every ``horizon`` samples from the state of the
+    predictor's free run (``controller`` = the observer, ``signals`` = :func:`predictor_signals`; plant states
+    ``initial`` at t = 0, the velocity otherwise from the first samples), compared with the measured output
+    1..``horizon`` samples after each restart (the last incomplete segment dropped)."""
+    n = rec.time.size
+    if not 1 <= horizon <= n // 2:
+        raise ValueError(f"horizon {horizon} samples: must be from 1 to {n // 2} (half the recording)")
+    driven = signals.input if signals.input in [v.name for v in model.inputs] else None
+    i_pos = oeloop.output_state(model, signals.output)
+    i_vel = None if i_pos is None else plant_states.velocity_state(model, i_pos)
+    tracking = {} if i_vel is None else {model.states[i_vel].name: "dq"}
+    predictor = oeloop.build_loop(model, controller, signals.output, [], dict(values), n, signals=signals,
+                                  input_name=driven, tracking=tracking, with_jacobian=False, native=False)
+    states = oefit.simulate_states(predictor, rec, values, initial)
+    span = horizon + 1          # the restart sample, then 1..horizon samples ahead
+    starts = np.arange(0, n - span + 1, horizon)
+    plant = oeloop.build_loop(model, None, signals.output, [], predictor.values, span, ts=predictor.ts,
+                              input_name=driven, with_jacobian=False, native=False, substeps=predictor.substeps)
+    chain = plant.step.mapaccum("segment", span, [0], [0]).map(starts.size)
+    u = np.asarray(rec[signals.input], float)
+    w = np.zeros((3, span * starts.size))
+    w[1] = np.concatenate([u[j:j + span] for j in starts])
+    pf = np.array([plant.values[name] for name in plant.fixed])
+    q = np.array(chain(states[:, starts], w, np.zeros((0, starts.size)), np.tile(pf[:, None], starts.size))[1])
+    measured = np.concatenate([rec[signals.output][j:j + span] for j in starts])
+    err = (measured - q.ravel()).reshape(starts.size, span)[:, 1:]
+    return Prediction(horizon, float(np.sqrt(np.mean(err ** 2))), float(np.sqrt(np.mean(err[:, -1] ** 2))))

@@ -1,0 +1,207 @@
+"""Unknown controller (issue 23, item 2): ``identify oe``, ``validate`` and the diagnosis from the measured force
+and position alone, through the prediction-error predictor of :mod:`ident.observer`.
+
+* A recording of the library joint (m, d) in a sampled PD loop run by hand around its FMU (fmpy; the truth is
+  the simulator's parameters), with an unmeasured coloured force acting on the plant: from u and q alone the
+  predictor refits m and d near the truth, the open-loop fit of the same columns drifts to a wrong model, and
+  the predictor's validation RMS stays within a few times the known-controller run's.
+* A decision: a concealed Coulomb friction (the small bundle of tests/test_diagnosis_decisions.py, whose known-
+  controller diagnosis names exactly it) is named exactly with the controller removed.
+* Bad input: a bundle without controller is accepted with only time, u, q; a misspelled kind names the field.
+Units: s, m, N.
+"""
+from __future__ import annotations
+
+import json
+import shutil
+import tempfile
+from pathlib import Path
+
+import fmpy
+import numpy as np
+import pytest
+from fmpy.fmi2 import FMU2Slave
+
+from motiontwin.cli import main
+from motiontwin.fmus import build
+from motiontwin.harness.recording import Recording, make_recording, read_recording, write_recording
+from motiontwin.ident import observer
+from motiontwin.ident import outputerror as oe
+from motiontwin.ident import validation
+from motiontwin.ident.benchmarks import single_axis as bench
+from motiontwin.ident.diagnosis import effects as effect_models
+from motiontwin.ident.diagnosis import noise, pipeline
+from motiontwin.ident.diagnosis.bundle import BundleError, read_bundle
+from tests.test_ident_outputerror import CLASS, NOISE, TRUTH, TS, multisine, pd_controller
+
+PROCESS_STD, PROCESS_TAU = 0.5, 0.05     # unmeasured force on the plant [N], its time constant [s]
+
+
+def _loop_with_process_force(fmu: Path, seed: int, n: int = 4000) -> tuple:
+    """(known controller, recording with r, u, q, u_ext): the PD loop around the FMU at TRUTH, the encoder
+    noise fed back, a coloured force the recording does not hold added to the plant's input."""
+    ctrl, rng = pd_controller(), np.random.default_rng(seed)
+    r = 1e-3 * multisine(n, 1.0, 10, seed=seed + 1)
+    u_ext = multisine(n, 5.0, 80, seed=seed + 2)
+    w = noise.coloured(n, PROCESS_STD, PROCESS_TAU, TS, rng)
+    encoder = NOISE * rng.standard_normal(n)
+    md = fmpy.read_model_description(str(fmu))
+    vr = {v.name: v.valueReference for v in md.modelVariables}
+    slave = FMU2Slave(guid=md.guid, unzipDirectory=fmpy.extract(str(fmu)),
+                      modelIdentifier=md.coSimulation.modelIdentifier, instanceName="plant")
+    slave.instantiate()
+    slave.setupExperiment(startTime=0.0)
+    slave.enterInitializationMode()
+    slave.setReal([vr[k] for k in TRUTH], list(TRUTH.values()))
+    slave.exitInitializationMode()
+    z, q, u = np.zeros(ctrl.n_states), np.zeros(n), np.zeros(n)
+    for k in range(n):
+        y = np.array([r[k], slave.getReal([vr["q"]])[0] + encoder[k]])
+        u[k] = (ctrl.C @ z + ctrl.D @ y).item() + u_ext[k]
+        z = ctrl.A @ z + ctrl.B @ y
+        q[k] = y[1]
+        slave.setReal([vr["u"]], [u[k] + w[k]])
+        slave.doStep(currentCommunicationPoint=k * TS, communicationStepSize=TS)
+    slave.terminate()
+    slave.freeInstance()
+    return ctrl, make_recording(np.arange(n) * TS, {"r": r, "u": u, "q": q, "u_ext": u_ext})
+
+
+@pytest.fixture(scope="module")
+def model():
+    return build.load_model(CLASS)
+
+
+@pytest.fixture(scope="module")
+def recordings(model, tmp_path_factory) -> dict:
+    """Known controller, training and validation recordings, and both reduced to the columns time, u, q."""
+    fmu = build.build_fmu(model, tmp_path_factory.mktemp("unknown_fmu"), "2.0").path
+    ctrl, train = _loop_with_process_force(fmu, 10)
+    _, val = _loop_with_process_force(fmu, 20)
+    plain = {name: make_recording(rec.time, {"u": rec["u"], "q": rec["q"]}) for name, rec in
+             (("train", train), ("validation", val))}
+    return {"controller": ctrl, "train": train, "validation": val, "plain": plain}
+
+
+def test_predictor_refits_double_integrator_without_drift(model, recordings):
+    """From u and q alone the predictor refits m within 3 % and d within 20 % of the simulator's truth, each within
+    3 HAC standard deviations (the unmeasured force makes d uncertain; the open-loop fit of
+    the same columns, drifting under the unmeasured force, is off by more than 50 %), and its validation RMS is
+    within 10 x the known-controller loop's (the observer, 20 Hz, differs from the drive's PD)."""
+    plain = recordings["plain"]
+    found = observer.observer_for(plain["train"])
+    assert found.mass == pytest.approx(TRUTH["m"], rel=0.25)    # the gain needs only its order of magnitude
+    pred = oe.identify(model, plain["train"], ["m", "d"], controller=found.controller(),
+                       signals=observer.predictor_signals())
+    hac = dict(zip(pred.statistics.names, pred.statistics.robust_std))
+    for name, true, tolerance in (("m", TRUTH["m"], 0.03), ("d", TRUTH["d"], 0.2)):
+        assert pred.fit.values[name] == pytest.approx(true, rel=tolerance), name
+        assert abs(pred.fit.values[name] - true) < 3 * hac[name], (name, hac[name])
+    open_loop = oe.identify(model, plain["train"], ["m", "d"])
+    assert abs(open_loop.fit.values["m"] / TRUTH["m"] - 1) > 0.5, open_loop.fit.values
+    known = oe.identify(model, recordings["train"], ["m", "d"], controller=recordings["controller"])
+    rms_pred = validation.free_run(model, pred.fit.values, plain["validation"], controller=found.controller(),
+                                   signals=observer.predictor_signals()).rms_q
+    rms_known = validation.free_run(model, known.fit.values, recordings["validation"],
+                                    controller=recordings["controller"]).rms_q
+    assert rms_pred < 10 * rms_known, (rms_pred, rms_known)
+
+
+def test_k_step_ahead_against_direct_simulation(model, recordings):
+    """The k-step-ahead RMS at the horizon equals a plain open-loop run restarted from the predictor's states
+    (built here from ``simulate_states`` and a loop of horizon + 1 samples per segment), and grows with k."""
+    rec = recordings["plain"]["validation"]
+    found = observer.observer_for(rec)
+    ctrl, signals = found.controller(), observer.predictor_signals()
+    k = 50
+    score = observer.k_step_ahead(model, TRUTH, rec, ctrl, signals, k)
+    predictor = oe.build_loop(model, ctrl, "q", [], TRUTH, rec.time.size, signals=signals,
+                              tracking={"v": "dq"}, with_jacobian=False)
+    states = oe.simulate_states(predictor, rec, TRUTH)
+    errors = []
+    for j in range(0, rec.time.size - k, k):
+        seg = make_recording(rec.time[j:j + k + 1] - rec.time[j], {"u": rec["u"][j:j + k + 1],
+                                                                   "q": rec["q"][j:j + k + 1]})
+        plant = oe.build_loop(model, None, "q", [], TRUTH, k + 1, ts=TS, with_jacobian=False)
+        q, _ = oe.simulate(plant, seg, TRUTH, initial=dict(zip(["x", "v"], states[:, j])))
+        errors.append(seg["q"][-1] - q[-1])
+    assert score.horizon_rms == pytest.approx(float(np.sqrt(np.mean(np.square(errors)))), rel=1e-6)
+    assert observer.k_step_ahead(model, TRUTH, rec, ctrl, signals, 5).horizon_rms < score.horizon_rms
+
+
+def test_cli_identify_and_validate_without_controller(recordings, tmp_path, capsys):
+    """identify oe --controller unknown on a CSV of time, u, q only; validate --controller unknown of its --out
+    prints the predictor, the observer and the k-step-ahead scores."""
+    paths = {}
+    for name, rec in recordings["plain"].items():
+        paths[name] = tmp_path / f"{name}.csv"
+        write_recording(paths[name], rec)
+    out = tmp_path / "fit.json"
+    assert main(["identify", "oe", str(paths["train"]), "--class", CLASS, "--free", "m,d", "--controller",
+                 "unknown", "--out", str(out)]) == 0
+    doc = json.loads(out.read_text())
+    assert doc["parameters"]["m"] == pytest.approx(TRUTH["m"], rel=0.03)
+    assert doc["controller"]["kind"] == "unknown" and "prediction-error predictor" in doc["method"]
+    capsys.readouterr()
+    assert main(["validate", str(out), str(paths["validation"]), "--controller", "unknown"]) == 0
+    text = capsys.readouterr().out
+    assert "prediction-error predictor" in text and "k-step-ahead" in text
+
+
+@pytest.fixture(scope="module")
+def coulomb_bundle(tmp_path_factory) -> Path:
+    """The Coulomb-friction bundle of test_diagnosis_decisions (same seed and durations)."""
+    folder = tmp_path_factory.mktemp("unknown_decision") / "coulomb_friction"
+    bench.write_bundle(folder, "coulomb_friction", seed=21, durations=(3.0, 1.5), engine="casadi")
+    return folder
+
+
+def _without_controller(bundle: Path, target: Path, controller: dict | None = None,
+                        keep: tuple[str, ...] = ("u", "q")) -> Path:
+    """A copy of ``bundle`` with ``controller`` (None: the field removed) and recordings of the columns ``keep``."""
+    shutil.copytree(bundle, target)
+    exp = json.loads((target / "experiment.json").read_text())
+    exp.pop("controller")
+    if controller is not None:
+        exp["controller"] = controller
+    (target / "experiment.json").write_text(json.dumps(exp))
+    for part in exp["recordings"].values():
+        rec = read_recording(target / part)
+        write_recording(target / part, Recording(rec.time, {c: rec[c] for c in keep},
+                                                 {c: rec.units[c] for c in ("time", *keep) if c in rec.units}))
+    return target
+
+
+#: the vocabulary of the decision test, cut (as bench_independent --smoke does) to keep it fast: the concealed
+#: effect and two rivals that a drifting or wrong predictor would pick (a constant force, a lag)
+DECISION_VOCABULARY = ("coulomb_friction", "gravity_offset", "time_delay")
+
+
+def test_concealed_effect_named_without_controller(coulomb_bundle, tmp_path, monkeypatch):
+    """The known-controller diagnosis names exactly coulomb_friction (test_diagnosis_decisions); with the
+    controller and the r, u_ext columns removed, the predictor's diagnosis names exactly the same."""
+    for table in (effect_models.VOCABULARY, effect_models.NESTED):
+        for name in [n for n in table if n not in DECISION_VOCABULARY]:
+            monkeypatch.delitem(table, name)
+    bundle = read_bundle(_without_controller(coulomb_bundle, tmp_path / "bundle"))
+    assert bundle.observer is not None
+    with tempfile.TemporaryDirectory(dir=tmp_path) as work:
+        result = pipeline.run(bundle, Path(work))
+    assert [e.name for e in result["final"].effects] == ["coulomb_friction"]
+
+
+def test_bundle_without_controller_accepted_and_misspelled_kind_named(coulomb_bundle, tmp_path):
+    """No controller field, or kind "unknown": read with the columns time, u, q only, r = q and u_ext = u (the
+    predictor's roles); a misspelled kind or an unknown field of kind unknown is refused naming the field."""
+    for name, ctrl in (("absent", None), ("unknown", {"kind": "unknown", "bandwidth_hz": 3.0})):
+        bundle = read_bundle(_without_controller(coulomb_bundle, tmp_path / name, ctrl))
+        assert np.array_equal(bundle.train["r"], bundle.train["q"])
+        assert np.array_equal(bundle.train["u_ext"], bundle.train["u"])
+        assert bundle.observer.bandwidth_hz == pytest.approx(3.0 if ctrl else observer.DEFAULT_BANDWIDTH_HZ)
+    with pytest.raises(BundleError, match=r"field 'kind' is 'unknwon'; .*or 'unknown'"):
+        read_bundle(_without_controller(coulomb_bundle, tmp_path / "typo", {"kind": "unknwon"}))
+    with pytest.raises(BundleError, match=r"field 'controller.gain' is not used by kind 'unknown'"):
+        read_bundle(_without_controller(coulomb_bundle, tmp_path / "extra", {"kind": "unknown", "gain": 1}))
+    known = json.loads((coulomb_bundle / "experiment.json").read_text())["controller"]
+    with pytest.raises(BundleError, match=r"required column 'r' missing"):
+        read_bundle(_without_controller(coulomb_bundle, tmp_path / "known", known))
