@@ -5,6 +5,7 @@ of an independently simulated bundle (its recording against its truth re-simulat
 from __future__ import annotations
 
 import json
+from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
@@ -14,7 +15,11 @@ from scipy import signal
 from motiontwin.harness.recording import Recording
 from motiontwin.ident.benchmarks import independent
 from motiontwin.ident.benchmarks.independent_laws import coloured_noise
-from motiontwin.ident.diagnosis import diagnose_bundle, empirical, noise, pipeline
+from motiontwin.ident import outputerror
+from motiontwin.ident.diagnosis import diagnose_bundle, empirical, noise, pipeline, structure
+from motiontwin.ident.diagnosis.bundle import read_bundle
+from motiontwin.ident.diagnosis.nominal import fit_nominal, nominal_start
+from motiontwin.ident.diagnosis.structure import LoopCache, build_structure
 from motiontwin.ident.startvalues import mirror_derivatives
 
 TS = 5e-4
@@ -96,16 +101,59 @@ def test_verdict_above_the_floor_is_unexplained_never_none() -> None:
     assert pipeline.above_floor(bundle, kept, q_final, floor, 1e-7) is kept
 
 
+def test_verdict_counts_the_parameters_estimation_error() -> None:
+    """3x the noise floor, but a correct model fitted on this training recording would leave 2.5x the floor
+    from its parameters' estimation error alone: within the margin of their sum, so no "unexplained"."""
+    bundle, q_final, floor = _stub(3.0)
+    kept = {"status": empirical.NONE, "reason": "x"}
+    assert pipeline.above_floor(bundle, kept, q_final, floor, 1e-7, spread=2.5 * floor) is kept
+    assert pipeline.above_floor(bundle, kept, q_final, floor, 1e-7, spread=0.5 * floor) is not kept
+
+
 
 @pytest.fixture(scope="module")
-def coloured_control(tmp_path_factory) -> tuple[dict, dict]:
+def control_bundle(tmp_path_factory) -> Path:
     """The independent simulator's held-out parameters-only control with coloured process noise (a rotary
-    axis, mass and damping 20-50 % off), diagnosed."""
+    axis, mass and damping 20-50 % off)."""
     root = tmp_path_factory.mktemp("independent")
     independent.generate(root, "heldout", only=["params_coloured_a"])
-    bundle = root / "heldout" / "params_coloured_a"
-    truth = json.loads((root / "heldout" / "params_coloured_a.truth.json").read_text())
-    return diagnose_bundle(bundle, root / "out"), truth
+    return root / "heldout" / "params_coloured_a"
+
+
+@pytest.fixture(scope="module")
+def coloured_control(control_bundle, tmp_path_factory) -> tuple[dict, dict]:
+    """The control, diagnosed, and its truth."""
+    truth = json.loads((control_bundle.parent / "params_coloured_a.truth.json").read_text())
+    return diagnose_bundle(control_bundle, tmp_path_factory.mktemp("out") / "out"), truth
+
+
+def test_estimation_error_matches_full_refits(control_bundle, tmp_path) -> None:
+    """The parameters' estimation error on the validation run (a Gauss-Newton step per noise replicate)
+    against full nonlinear refits of the same noisy training replicates (the same draws), each moved onto the
+    validation run: within 25 %."""
+    b = read_bundle(control_bundle)
+    b.cache = LoopCache()
+    b.start = nominal_start(b)
+    nominal, weights = fit_nominal(b)
+    b.process_noise = noise.of_bundle(b, nominal.fit.values, weights.sigma_q)
+    values = {"plant." + k: v for k, v in nominal.fit.values.items()}
+    val_loop, _ = build_structure(b, [], values, tmp_path / "v", b.validation.time.size, with_jacobian=False)
+    count = 4
+    spread = structure.estimation_rms(nominal.loop, b.train, nominal.fit, val_loop, b.validation, values,
+                                      weights, b.process_noise, count)
+    simulate = noise.noisy_simulator(nominal.loop, b.train, nominal.fit.values, b.process_noise)
+    rng = np.random.default_rng(1)        # the draws of structure.estimation_rms, in its order
+    q_val, _ = outputerror.simulate(val_loop, b.validation, values)
+    _, bounds = structure._nominal_bounds(b)
+    shifts = []
+    for _ in range(count):
+        encoder = rng.normal(0.0, weights.sigma_q, b.train.time.size)
+        q, u = simulate(encoder, rng)
+        replicate = Recording(b.train.time, {**{c: b.train[c] for c in b.train.columns}, "q": q + encoder, "u": u})
+        refit = outputerror.fit(nominal.loop, replicate, weights, bounds, start=nominal.fit.values, max_nfev=20)
+        moved, _ = outputerror.simulate(val_loop, b.validation, {"plant." + k: v for k, v in refit.values.items()})
+        shifts.append(np.mean((moved - q_val) ** 2))
+    assert spread == pytest.approx(float(np.sqrt(np.mean(shifts))), rel=0.25)
 
 
 def test_coloured_noise_control_gives_no_effect_and_no_false_unexplained(coloured_control) -> None:

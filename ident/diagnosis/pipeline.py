@@ -26,7 +26,8 @@ from motiontwin.ident.diagnosis.nominal import (_divergence_hint, check_plant_fo
 from motiontwin.ident.diagnosis.remainder import EMPIRICAL_EFFECT, explain_remainder, explain_remainder_axes
 from motiontwin.ident.diagnosis.select import VALIDATION_GAIN, select, upgrade_nested
 from motiontwin.ident.diagnosis.structure import (AUGMENTED_CLASS, LoopCache, _log, _nominal_bounds, build_axes,
-                                                  build_structure, floor_rms, validate, validate_axes,
+                                                  build_structure, estimation_rms, floor_rms, validate,
+                                                  validate_axes,
                                                   validation_floor,
                                                   write_structure)
 
@@ -77,36 +78,42 @@ def run(bundle: Bundle, work: Path, progress=None) -> dict:
     _log(progress, f"process force noise within the final model's training residual: "
                    f"{bundle.process_noise.describe()}")
     floor = validation_floor(loop, bundle, values, weights.sigma_q, process=bundle.process_noise)
-    remainder = above_floor(bundle, remainder, q_aug, floor, weights.sigma_q, progress)
+    spread = estimation_rms(final.loop, bundle.train, final.fit, loop, bundle.validation, values, weights,
+                            bundle.process_noise)
+    _log(progress, f"validation floor {floor:.4g} from the noise, {spread:.4g} from the parameters' estimation error")
+    remainder = above_floor(bundle, remainder, q_aug, floor, weights.sigma_q, progress, spread)
     _log(progress, f"diagnosis done in {time.perf_counter() - t0:.1f} s")
     return {"bundle": bundle, "nominal": nominal, "final": final, "weights": weights, "context": ctx,
             "log": log, "augmented_values": values, "q_augmented": q_aug, "u_augmented": u_aug,
             "remainder": remainder,
-            "augmented_model": written, "validation_floor": floor, "seconds": time.perf_counter() - t0,
+            "augmented_model": written, "validation_floor": floor, "estimation_rms": spread, "seconds": time.perf_counter() - t0,
             "plant_physics": owned, "process_noise": bundle.process_noise}
 
 
 def above_floor(bundle: Bundle, remainder: dict, q_final: np.ndarray, floor: float, sigma_q: float,
-                progress=None) -> dict:
+                progress=None, spread: float = 0.0) -> dict:
     """The last word of a single-axis diagnosis: when neither a catalogue effect nor the empirical stage
-    left the final model's validation RMS within ``FLOOR_MARGIN`` times the floor a correct model reaches
-    (encoder and process noise, :mod:`noise`), the answer is "unexplained, no term validated" with where the
-    validation residual sits, never "only parameters were off"."""
+    left the final model's validation RMS within ``FLOOR_MARGIN`` times the floor a correct model fitted on
+    this training recording reaches (encoder and process noise, :mod:`noise`, and ``spread``, the validation
+    RMS of its parameters' estimation error, :func:`structure.estimation_rms`), the answer is "unexplained, no
+    term validated" with where the validation residual sits, never "only parameters were off"."""
     rec = bundle.validation
     residual = rec["q"] - q_final
     rms = float(np.sqrt(np.mean(residual ** 2)))
-    above = rms > FLOOR_MARGIN * floor
+    reach = float(np.hypot(floor, spread))
+    above = rms > FLOOR_MARGIN * reach
     if remainder.get("status", "").startswith("unexplained") or not above:
         return remainder
     ts = bundle.controller.Ts
     _, v, _ = startvalues.mirror_derivatives(rec["q"], 1 / ts, startvalues.derivative_cutoff(1 / ts))
     where = empirical.locate_remainder(residual, residual, rec.time, v, rec["q"], sigma_q, ts)
-    reason = (f"the validation RMS {rms:.4g} is {rms / floor:.3g} times the floor a correct model reaches on this "
-              f"data ({floor:.4g}: encoder and process noise estimated from the recording; the margin is "
-              f"{FLOOR_MARGIN}); {remainder.get('reason', 'no catalogue effect or empirical term took it up')}")
+    reason = (f"the validation RMS {rms:.4g} is {rms / reach:.3g} times what a correct model fitted on this training "
+              f"recording reaches ({reach:.4g}: {floor:.4g} from the encoder and process noise estimated from the "
+              f"recording, {spread:.4g} from its parameters' estimation error; the margin is {FLOOR_MARGIN}); "
+              f"{remainder.get('reason', 'no catalogue effect or empirical term took it up')}")
     _log(progress, f"unexplained, no term validated: {reason}")
     return {"status": empirical.NOT_VALIDATED, "axis": bundle.plant.output_name, **where,
-            "reason": reason, "validation_rms": rms, "floor_rms": floor}
+            "reason": reason, "validation_rms": rms, "floor_rms": floor, "estimation_rms": spread}
 
 
 @dataclass

@@ -158,7 +158,8 @@ def diagnosis_document(result: dict, out: Path, fmu_path: Path | None) -> dict:
         "unexplained": unexplained_entry(remainder),
         "residual_check": {k: remainder[k] for k in ("status", "reason") if k in remainder},
         "validation": {"nominal_rms": float(nominal.val_rms), "augmented_rms": aug_rms,
-                       **_above_floor(float(nominal.val_rms), aug_rms, result["validation_floor"])},
+                       **_above_floor(float(nominal.val_rms), aug_rms, result["validation_floor"]),
+                       **({"estimation_rms": float(result["estimation_rms"])} if "estimation_rms" in result else {})},
         "nominal_parameters": _strip(nominal.fit.values),
         "augmented_parameters": _strip({k: v for k, v in result["augmented_values"].items()}),
         "augmented_model": str(out / "augmented_model" / f"{AUGMENTED_CLASS}.mo"),
@@ -191,7 +192,8 @@ def unexplained_text(entry: dict) -> str:
     term = entry.get("empirical_term") or entry.get("rejected_term")
     if term is None:
         return (f"{entry['status']} (on axis {entry['axis']}: validation RMS {entry['validation_rms']:.3g}, "
-                f"{entry['validation_rms'] / entry['floor_rms']:.3g} times the floor from the data)")
+                f"{entry['validation_rms'] / math.hypot(entry['floor_rms'], entry.get('estimation_rms', 0.0)):.3g} "
+                f"times what a correct model reaches on this data)")
     law = " + ".join(f"{c:.4g}*{name}" for name, c in term.get("coefficients", {}).items())
     label = "empirical term" if "empirical_term" in entry else "rejected term"
     return (f"{entry['status']} ({label} F = {law} on axis {entry['axis']}, validation RMS x"
