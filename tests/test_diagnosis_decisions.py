@@ -325,3 +325,15 @@ def test_every_contract_parameter_has_a_unit():
                             ("tau", "drift_tau"), ("Fc0", "load_Fc0")):
             if source in declared:
                 assert CONTRACT_UNITS[key] == declared[source], (name, key)
+
+
+def test_lugre_with_its_bristle_stretched_to_the_bound_is_not_friction():
+    """A LuGre fit whose pre-sliding displacement reaches its largest value holds a force over the stroke like a
+    spring (on the independent tuning-set offset case it took a constant 0.72 N force that way, 1e4 below
+    gravity_offset's cost): it is not reported as LuGre friction. The generator's bristle deflections, 40-100 um
+    (Canudas de Wit et al. 1995: micrometres), stay physical."""
+    ctx = effect_models.Context(5e-4, 0.0, 0.1, 0.2, 2.0)
+    effect = effect_models.VOCABULARY["lugre_friction"](ctx)
+    z0_max = dict((p.name, p.bounds) for p in effect.params)["lugre_z0"][1]
+    assert effect.unphysical({"lugre_Fc": 1.0, "lugre_z0": z0_max})
+    assert not effect.unphysical({"lugre_Fc": 1.0, "lugre_z0": 60e-6})

@@ -297,9 +297,10 @@ def lugre_friction(ctx: Context) -> Effect:
     def init(c: Context) -> list[dict[str, float]]:
         fc = abs(float(_ls([_sign(c), np.ones_like(c.v)], c.force)[0])) if c.force is not None else 0.1
         return [{"lugre_Fc": max(fc, 1e-3), "lugre_z0": k * z0_min} for k in (4, 1.5, 16)]
+    z0_max = max(1e-3 / _scale(ctx), 10 * z0_min)
     params = [_p("lugre_Fc", "N", "Coulomb (sliding) friction level", 1e-6, 1e4, zero=1e-6),
               _p("lugre_z0", "m", "Pre-sliding displacement Fc/sigma0 (bristle deflection in sliding)", z0_min,
-                 max(1e-3 / _scale(ctx), 10 * z0_min))]
+                 z0_max)]
     decl = ('  Real lugre_Fz(unit = "N", start = 0, fixed = true) "Bristle force sigma0*z";\n'
             '  Real lugre_F(unit = "N") "LuGre friction force";\n'
             '  Real lugre_dz(unit = "m/s") "Rate of the bristle deflection";\n')
@@ -314,7 +315,9 @@ def lugre_friction(ctx: Context) -> Effect:
                   "the friction force builds up over a displacement of about z0 instead of switching with the "
                   "velocity, so the residual is a hysteresis loop in position around every reversal and the "
                   "axis behaves like a spring of stiffness sigma0 = Fc/z0 at rest.",
-                  tracks_force=["lugre_Fz"], min_substeps=math.ceil(ctx.v_max * ctx.ts / z0_min))
+                  tracks_force=["lugre_Fz"], min_substeps=math.ceil(ctx.v_max * ctx.ts / z0_min),
+                  unphysical=lambda v: "" if v["lugre_z0"] < 0.99 * z0_max else "its pre-sliding displacement "
+                  "reaches the largest one allowed (a spring holding a force over the stroke, not friction)")
 
 
 def _u_max(ctx: Context) -> float:
