@@ -15,7 +15,6 @@ from scipy import signal
 from motiontwin.harness.recording import Recording
 from motiontwin.ident.benchmarks import independent
 from motiontwin.ident.benchmarks.independent_laws import coloured_noise
-from motiontwin.ident import outputerror
 from motiontwin.ident.diagnosis import diagnose_bundle, empirical, noise, pipeline, structure
 from motiontwin.ident.diagnosis.bundle import read_bundle
 from motiontwin.ident.diagnosis.nominal import fit_nominal, nominal_start
@@ -127,10 +126,10 @@ def coloured_control(control_bundle, tmp_path_factory) -> tuple[dict, dict]:
     return diagnose_bundle(control_bundle, tmp_path_factory.mktemp("out") / "out"), truth
 
 
-def test_estimation_error_matches_full_refits(control_bundle, tmp_path) -> None:
-    """The parameters' estimation error on the validation run (a Gauss-Newton step per noise replicate)
-    against full nonlinear refits of the same noisy training replicates (the same draws), each moved onto the
-    validation run: within 25 %."""
+def test_estimation_error_matches_converged_refits(control_bundle, tmp_path) -> None:
+    """The parameters' estimation error on the validation run (each noise replicate of the training run refitted
+    for a few free runs) against refits of the same replicates run to convergence, each moved onto the
+    validation run: within 25 %, and not negligible beside the floor."""
     b = read_bundle(control_bundle)
     b.cache = LoopCache()
     b.start = nominal_start(b)
@@ -139,21 +138,12 @@ def test_estimation_error_matches_full_refits(control_bundle, tmp_path) -> None:
     values = {"plant." + k: v for k, v in nominal.fit.values.items()}
     val_loop, _ = build_structure(b, [], values, tmp_path / "v", b.validation.time.size, with_jacobian=False)
     count = 4
-    spread = structure.estimation_rms(nominal.loop, b.train, nominal.fit, val_loop, b.validation, values,
-                                      weights, b.process_noise, count)
-    simulate = noise.noisy_simulator(nominal.loop, b.train, nominal.fit.values, b.process_noise)
-    rng = np.random.default_rng(1)        # the draws of structure.estimation_rms, in its order
-    q_val, _ = outputerror.simulate(val_loop, b.validation, values)
-    _, bounds = structure._nominal_bounds(b)
-    shifts = []
-    for _ in range(count):
-        encoder = rng.normal(0.0, weights.sigma_q, b.train.time.size)
-        q, u = simulate(encoder, rng)
-        replicate = Recording(b.train.time, {**{c: b.train[c] for c in b.train.columns}, "q": q + encoder, "u": u})
-        refit = outputerror.fit(nominal.loop, replicate, weights, bounds, start=nominal.fit.values, max_nfev=20)
-        moved, _ = outputerror.simulate(val_loop, b.validation, {"plant." + k: v for k, v in refit.values.items()})
-        shifts.append(np.mean((moved - q_val) ** 2))
-    assert spread == pytest.approx(float(np.sqrt(np.mean(shifts))), rel=0.25)
+    spread = structure.estimation_rms(nominal.loop, b.train, nominal.fit, nominal.bounds, val_loop, b.validation,
+                                      values, weights, b.process_noise, count)
+    converged = structure.estimation_rms(nominal.loop, b.train, nominal.fit, nominal.bounds, val_loop,
+                                         b.validation, values, weights, b.process_noise, count, max_nfev=60)
+    assert spread == pytest.approx(converged, rel=0.25)
+    assert spread > 0.01 * structure.validation_floor(val_loop, b, values, weights.sigma_q, process=b.process_noise)
 
 
 def test_coloured_noise_control_gives_no_effect_and_no_false_unexplained(coloured_control) -> None:

@@ -78,8 +78,8 @@ def run(bundle: Bundle, work: Path, progress=None) -> dict:
     _log(progress, f"process force noise within the final model's training residual: "
                    f"{bundle.process_noise.describe()}")
     floor = validation_floor(loop, bundle, values, weights.sigma_q, process=bundle.process_noise)
-    spread = estimation_rms(final.loop, bundle.train, final.fit, loop, bundle.validation, values, weights,
-                            bundle.process_noise)
+    spread = estimation_rms(final.loop, bundle.train, final.fit, final.bounds, loop, bundle.validation, values,
+                            weights, bundle.process_noise)
     _log(progress, f"validation floor {floor:.4g} from the noise, {spread:.4g} from the parameters' estimation error")
     remainder = above_floor(bundle, remainder, q_aug, floor, weights.sigma_q, progress, spread)
     _log(progress, f"diagnosis done in {time.perf_counter() - t0:.1f} s")
