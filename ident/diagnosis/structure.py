@@ -207,8 +207,8 @@ def estimation_rms(train_loop: outputerror.Loop, train: Recording, fit: outputer
     training excitation, refitted from its values on each replicate (the same trust-region fit within the same
     bounds, ``max_nfev`` free runs), and the validation free run of each refit against the fitted model's. A
     parameter the training barely excites (a mass under little acceleration) is fitted to its noise; that
-    error is no missing physics, and the floor verdict counts it. (A linearised step instead of the refit
-    overstated it 8x where the friction's velocity scales are poorly conditioned.)"""
+    error is no missing physics, and the floor verdict counts it. A refit, not a linearised step: it keeps
+    the bounds and follows the nonlinear cost (stiff friction laws)."""
     if not train_loop.free:
         return 0.0
     simulate = noisy_simulator(train_loop, train, fit.values, process)
