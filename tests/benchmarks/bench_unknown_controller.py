@@ -9,6 +9,9 @@ lower than a free run; the two are not the same measure).
 Run: .venv/bin/python tests/benchmarks/bench_unknown_controller.py [BENCH_DIR] [--set heldout|tuning]
 [--case NAME ...] (bundles are generated into BENCH_DIR/SET by ``python -m motiontwin.ident.benchmarks.independent
 generate BENCH_DIR --set SET --case A,B`` when missing).
+--smoke: one Coulomb bundle of 0.5 s + 0.25 s in a temporary folder, the vocabulary cut to coulomb_friction and
+time_delay (bench_independent's smoke size): the with/without path only.
+Ratio: the fraction of cases whose named effects agree with and without the controller (baseline: all of them).
 """
 from __future__ import annotations
 
@@ -19,9 +22,11 @@ import tempfile
 import time
 from pathlib import Path
 
-from bench_independent import answers
+from bench_independent import SMOKE_CASES, SMOKE_EFFECTS, answers
 from motiontwin.ident.benchmarks import independent
 from motiontwin.ident.diagnosis import diagnose_bundle
+from motiontwin.ident.diagnosis import effects as effect_models
+from ratios import ratio
 
 DEFAULT_CASES = ("params_quiet", "offset", "coulomb", "cogging")
 
@@ -52,9 +57,20 @@ def main() -> int:
     parser.add_argument("bench", nargs="?", type=Path, default=Path(tempfile.gettempdir()) / "mt-independent-bench")
     parser.add_argument("--set", default="heldout", choices=sorted(independent.SET_SEEDS))
     parser.add_argument("--case", action="append", default=None)
+    parser.add_argument("--smoke", action="store_true", help="one short bundle: only proves the path runs")
     args = parser.parse_args()
     cases = args.case or list(DEFAULT_CASES)
     folder = args.bench / args.set
+    smoke_dir = tempfile.TemporaryDirectory(prefix="bench-unknown-smoke-") if args.smoke else None
+    if smoke_dir:
+        for table in (effect_models.VOCABULARY, effect_models.NESTED):
+            for name in [n for n in table if n not in SMOKE_EFFECTS]:
+                del table[name]
+        folder = Path(smoke_dir.name)
+        independent.DURATIONS = (0.5, 0.25)
+        name, seed = SMOKE_CASES[-1]
+        independent.write_bundle(folder / name, independent.draw_case(name, seed))
+        cases = [name]
     missing = [c for c in cases if not (folder / c / "experiment.json").is_file()]
     if missing:
         independent.generate(args.bench, args.set, missing)
@@ -72,6 +88,10 @@ def main() -> int:
                   f"{','.join(unknown) or '(none)':28s} {'yes' if same else 'NO ':5s} "
                   f"{rms_known:11.3g} / {rms_unknown:<11.3g} {wall_known:5.0f}/{wall_unknown:<5.0f}", flush=True)
     print(f"same effects named with and without the controller: {agree} of {len(cases)}")
+    ratio("unknown_controller.fraction_agreeing", agree / max(len(cases), 1),
+          "the same effects named with the controller for every case")
+    if smoke_dir:
+        smoke_dir.cleanup()
     return 0
 
 
