@@ -117,7 +117,7 @@ def at_bound_markdown(entries: dict[str, dict], widened: dict[str, dict] | None 
     left = {n: w for n, w in (widened or {}).items() if n not in entries}
     if not entries and not left:
         return []
-    lines = ["## Parameters at a bound", ""]
+    lines = ["## Parameters at a bound" if entries else "## Widened search limits", ""]
     if entries:
         lines += [f"These fitted parameters ended on a bound of their fit, so their values are limits, not "
                   f"estimates: {at_bound_text(entries)}.", ""]
