@@ -202,7 +202,7 @@ def widen_search_bounds(bundle: Bundle, final: ModelFit, weights: outputerror.We
         refit = refine(bundle, trial, weights, 2 * MAX_NFEV)
         what = ", ".join(f"{n} {current.bounds[n]} -> {b}" for n, b in changed.items())
         if refit is trial:
-            _log(progress, f"search limits widened ({what}): the refit did not lower the training cost, kept")
+            _log(progress, f"search limits widened ({what}): the refit did not lower the training cost; the fit stays as it was")
             break
         _log(progress, f"search limits widened ({what}): training cost {current.fit.cost:.6g} -> "
                        f"{refit.fit.cost:.6g}")
