@@ -38,6 +38,10 @@ class Param:
     bounds: tuple[float, float]
     fitted: bool = True
     zero: float | None = None   # value at which the effect vanishes (None: the effect vanishes at any value)
+    #: (lower, upper): True where the side is a physical limit besides those at 0, +-inf or ``zero``, which
+    #: are always physical (:func:`bounds.physical_sides`); other sides are search ranges, widened when hit
+    physical: tuple[bool, bool] = (False, False)
+    searched: tuple[float, float] | None = None   # the default search range, once a hit widened ``bounds``
 
 
 @dataclass
@@ -68,9 +72,9 @@ class Effect:
     sensor: str = ""
 
 
-def _p(name: str, unit: str, text: str, lo: float, hi: float, fitted: bool = True, zero: float | None = None
-       ) -> Param:
-    return Param(name, unit, text, (lo, hi), fitted, zero)
+def _p(name: str, unit: str, text: str, lo: float, hi: float, fitted: bool = True, zero: float | None = None,
+       physical: tuple[bool, bool] = (False, False)) -> Param:
+    return Param(name, unit, text, (lo, hi), fitted, zero, physical)
 
 
 def vanishing_start(effect: Effect, starts: list[dict[str, float]]) -> dict[str, float]:

@@ -153,7 +153,7 @@ def position_dependent_inertia(ctx: Context) -> Effect:
         return [{"inertia_slope": k}, {"inertia_slope": -k}]
     bound = 0.9 * ctx.mass / half
     params = [_p("inertia_slope", "kg/m", "Change of the moving mass per metre", -bound, bound,
-                 zero=0.0),
+                 zero=0.0, physical=(True, True)),   # the mass stays positive over the stroke
               _p("inertia_centre", "m", "Position where the mass equals plant.m", centre, centre, False)]
     return Effect("position_dependent_inertia", "position_dependent_inertia", params, "",
                   "inertia_slope*($x - inertia_centre)*der($v) + 0.5*inertia_slope*$v^2", [],
@@ -262,7 +262,7 @@ def backlash(ctx: Context) -> Effect:
         return [{"backlash_m2": 0.3 * c.mass, "backlash_fa": f_res / math.sqrt(1.5), "backlash_zeta": 0.05,
                  "backlash_b": gap / _scale(c)} for f_res in guesses[:3] for gap in (2e-6, 1e-5, 4e-5)]
     params = [_p("backlash_m2", "kg", "Load mass behind the gap (the motor mass is plant.m - m2)", 1e-6 * ctx.mass,
-                 0.9 * ctx.mass, zero=1e-6 * ctx.mass)] + _two_mass_params(ctx, "backlash")[1:] + [
+                 0.9 * ctx.mass, zero=1e-6 * ctx.mass, physical=(True, True))] + _two_mass_params(ctx, "backlash")[1:] + [
         _p("backlash_b", "m", "Half-width of the gap (total backlash 2*b)", 0.0, 1e-4 / _scale(ctx), zero=0.0),
         _p("backlash_eps", "m", "Rounding of the gap corners", BACKLASH_EPS / _scale(ctx),
            BACKLASH_EPS / _scale(ctx), False)]
@@ -300,7 +300,7 @@ def lugre_friction(ctx: Context) -> Effect:
     z0_max = max(1e-3 / _scale(ctx), 10 * z0_min)
     params = [_p("lugre_Fc", "N", "Coulomb (sliding) friction level", 1e-6, 1e4, zero=1e-6),
               _p("lugre_z0", "m", "Pre-sliding displacement Fc/sigma0 (bristle deflection in sliding)", z0_min,
-                 z0_max)]
+                 z0_max, physical=(True, True))]   # z0_min: the RK4 substeps; z0_max: a spring, not friction
     decl = ('  Real lugre_Fz(unit = "N", start = 0, fixed = true) "Bristle force sigma0*z";\n'
             '  Real lugre_F(unit = "N") "LuGre friction force";\n'
             '  Real lugre_dz(unit = "m/s") "Rate of the bristle deflection";\n')

@@ -17,14 +17,14 @@ import numpy as np
 from motiontwin.fmus.files import move_file
 from motiontwin.ident import outputerror, startvalues
 from motiontwin.ident.diagnosis import empirical, noise, report
-from motiontwin.ident.diagnosis.bounds import structure_at_bound
+from motiontwin.ident.diagnosis.bounds import bounds_widened, structure_at_bound
 from motiontwin.ident.diagnosis.axis_units import bundle_units
 from motiontwin.ident.diagnosis.bundle import Bundle
 from motiontwin.ident.diagnosis.locate import context
 from motiontwin.ident.diagnosis.nominal import (_divergence_hint, check_plant_form, fit_nominal, fit_nominal_axes,
                                                 nominal_free, nominal_start, plant_physics)
 from motiontwin.ident.diagnosis.remainder import EMPIRICAL_EFFECT, explain_remainder, explain_remainder_axes
-from motiontwin.ident.diagnosis.select import VALIDATION_GAIN, select, upgrade_nested
+from motiontwin.ident.diagnosis.select import VALIDATION_GAIN, select, upgrade_nested, widen_search_bounds
 from motiontwin.ident.diagnosis.structure import (AUGMENTED_CLASS, LoopCache, _log, _nominal_bounds, build_axes,
                                                   build_structure, estimation_rms, floor_rms, validate,
                                                   validate_axes,
@@ -60,6 +60,7 @@ def run(bundle: Bundle, work: Path, progress=None) -> dict:
         _log(progress, f"{effect}: not offered, the plant's own {name} carries this force and is refitted")
     final, log, _ = select(bundle, nominal, weights, ctx, work / "trials", progress, owned)
     final = upgrade_nested(bundle, final, weights, ctx, work / "upgrade", progress)
+    final = widen_search_bounds(bundle, final, weights, work / "widen", progress)
     final, remainder = explain_remainder(bundle, final, weights, ctx, work / "remainder", progress)
     model_dir = work / "final_model"
     values = dict(final.fit.values)
@@ -193,6 +194,7 @@ def run_axes(bundle: Bundle, work: Path, progress=None) -> dict:
                                    f"axis {a.output}", {n: nominal.fit.values[n] for n in nominal.loop.free},
                                    _divergence_hint(bundle))
     final, log, located = select(bundle, nominal, weights, None, work / "trials", progress)
+    final = widen_search_bounds(bundle, final, weights, work / "widen", progress)
     final, remainder = explain_remainder_axes(bundle, final, weights, work / "remainder", progress)
     if not final.val_axes:
         validate_axes(bundle, final, work / "v_final")
@@ -255,7 +257,7 @@ class MultiAxisDiagnosis:
                                           np.atleast_1d(result["weights"].sigma_u).tolist()))},
             "location": result["located"], "candidates": result["log"],
             "nominal_free": list(bundle.nominal_free[0]), "runtime_s": round(result["seconds"], 2),
-            "at_bound": structure_at_bound(final),
+            "at_bound": structure_at_bound(final), "bounds_widened": bounds_widened(final),
             "plant_roles": {a.output: a.as_dict() for a in bundle.plant.axes},
             "units": {a.output: bundle_units(bundle, a.output).as_dict() for a in bundle.plant.axes}})
 

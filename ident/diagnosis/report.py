@@ -16,7 +16,7 @@ import numpy as np  # noqa: E402
 from motiontwin.fmus import frontend, symbolic  # noqa: E402
 from motiontwin.fmus.build import MODELICA_DIR, build_fmu  # noqa: E402
 from motiontwin.ident.diagnosis.axis_units import AxisUnits, bundle_units  # noqa: E402
-from motiontwin.ident.diagnosis.bounds import at_bound_markdown, structure_at_bound  # noqa: E402
+from motiontwin.ident.diagnosis.bounds import at_bound_markdown, bounds_widened, structure_at_bound  # noqa: E402
 from motiontwin.ident.diagnosis import evidence  # noqa: E402
 from motiontwin.ident.diagnosis.bundle import Bundle, PlantInfo  # noqa: E402
 from motiontwin.ident.diagnosis.empirical import POWER_SHARE  # noqa: E402
@@ -170,7 +170,7 @@ def diagnosis_document(result: dict, out: Path, fmu_path: Path | None) -> dict:
         "candidates": [{k: v for k, v in entry.items()} for entry in result["log"]],
         "runtime_s": round(result["seconds"], 2),
         "plant_roles": result["bundle"].plant.roles.as_dict(),
-        "at_bound": structure_at_bound(final),
+        "at_bound": structure_at_bound(final), "bounds_widened": bounds_widened(final),
         "plant_physics": result.get("plant_physics", {}),
         "units": units.as_dict(),
         "controller": (result["bundle"].observer.as_dict() if result["bundle"].observer is not None
@@ -329,7 +329,7 @@ def _markdown(doc: dict, plots: list[str], result: dict, clipped: dict[str, int]
         lines += ["## No missing physics", "", "After refitting the nominal parameters, no candidate effect "
                   "improved the fit beyond what a correct model leaves on the same excitation, or none improved "
                   "the validation fit: the nominal structure is kept, only its parameters were off.", ""]
-    lines += _unexplained_markdown(doc, axis) + at_bound_markdown(doc["at_bound"])
+    lines += _unexplained_markdown(doc, axis) + at_bound_markdown(doc["at_bound"], doc.get("bounds_widened"))
     m = axis.position
     lines += ["## Fit", "", f"| model | validation RMS [{m}] |", "|---|---|",
               f"| nominal, refitted | {val['nominal_rms']:.4g} |", f"| augmented | {val['augmented_rms']:.4g} |", "",
@@ -565,7 +565,7 @@ def report_markdown(doc: dict, bundle: Bundle, plots: list[str] = ()) -> str:
     else:
         lines += ["## No effect found", "", "Only the nominal parameters were off: no candidate effect on the "
                   "located axes beat the bootstrap null reference and improved validation."]
-    lines += [""] + _unexplained_markdown(doc) + at_bound_markdown(doc["at_bound"])
+    lines += [""] + _unexplained_markdown(doc) + at_bound_markdown(doc["at_bound"], doc.get("bounds_widened"))
     lines += ["## Validation RMS per axis", "", "| axis | nominal | augmented | noise floor | unit |",
               "|---|---|---|---|---|"]
     for axis, v in doc["validation"]["per_axis"].items():

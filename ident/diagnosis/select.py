@@ -13,6 +13,7 @@ from scipy import stats
 from motiontwin.ident import outputerror
 from motiontwin.ident.diagnosis import effects as effect_models
 from motiontwin.ident.diagnosis import evidence, noise
+from motiontwin.ident.diagnosis.bounds import WIDEN_ROUNDS, widened_effects
 from motiontwin.ident.diagnosis.bundle import Bundle
 from motiontwin.ident.diagnosis.locate import AxisEvidence, locate
 from motiontwin.ident.diagnosis.screen import (MAX_NFEV, fit_structure, SCREEN_NFEV, _close_richer, candidates,
@@ -182,6 +183,31 @@ def upgrade_nested(bundle: Bundle, final: ModelFit, weights: outputerror.Weights
                               f"threshold ({extra:.4g} > {threshold:.4g}) once the other effects were in"})
         trial.evidence = {**{k: v for k, v in current.evidence.items() if k != simple.name}, rich.name: found}
         current = trial
+    return current
+
+
+def widen_search_bounds(bundle: Bundle, final: ModelFit, weights: outputerror.Weights, work: Path,
+                        progress=None, rounds: int = WIDEN_ROUNDS) -> ModelFit:
+    """The chosen structure refitted with every effect parameter that ended on a search limit of its effect
+    (not a physical one, :func:`bounds.physical_sides`) given that limit widened (:func:`bounds.widened_effects`),
+    up to ``rounds`` times, from the fitted values on the same compiled loop: only descent is accepted, so the
+    result never has a higher training cost than ``final``. One axis or several."""
+    current = final
+    for k in range(rounds):
+        effects, changed = widened_effects(current)
+        if not changed:
+            break
+        trial = ModelFit(effects, current.loop, current.fit, {**current.bounds, **changed}, current.folder,
+                         evidence=current.evidence, axes=current.axes)
+        refit = refine(bundle, trial, weights, 2 * MAX_NFEV)
+        what = ", ".join(f"{n} {current.bounds[n]} -> {b}" for n, b in changed.items())
+        if refit is trial:
+            _log(progress, f"search limits widened ({what}): the refit did not lower the training cost; the fit stays as it was")
+            break
+        _log(progress, f"search limits widened ({what}): training cost {current.fit.cost:.6g} -> "
+                       f"{refit.fit.cost:.6g}")
+        validate_any(bundle, refit, work / f"v_widened{k + 1}")
+        current = refit
     return current
 
 
