@@ -151,8 +151,9 @@ def test_velocity_scale_beyond_its_search_range_is_refitted_to_the_truth(tmp_pat
 def test_level_on_its_vanishing_point_is_reported_at_bound_not_widened(tmp_path):
     """LuGre friction on a frictionless axis whose fixed damping (25 N.s/m) exceeds the truth's (15): a
     friction force would have to push along the motion, so the level ends on its vanishing point (1e-6 N, a
-    physical side): reported at bound, its limit untouched. Its bristle displacement z0 ends on the top of its
-    search range, is widened twice (10x, then 100x) and, still on it, is reported at bound with both limits."""
+    physical side): reported at bound, its limit untouched. Its bristle displacement z0 ends on its largest
+    value, which is physical too (a longer one is a spring holding a force, not friction): reported at bound,
+    not widened."""
     folder = tmp_path / "rigid"
     bench.write_bundle(folder, "params_only_a", seed=5, durations=(1.5, 0.75), engine="casadi", nominal=(2.0, 25.0))
     _edit(folder, free=["m"], parameters={"d": 25.0})
@@ -169,5 +170,5 @@ def test_level_on_its_vanishing_point_is_reported_at_bound_not_widened(tmp_path)
     assert found["lugre_Fc"] == {"value": pytest.approx(1e-6), "bound": "lower", "limit": 1e-6}
     assert final.bounds["lugre_Fc"] == effect.params[0].bounds and "lugre_Fc" not in bounds_widened(final)
     top = effect.params[1].bounds[1]
-    assert found["lugre_z0"]["limit"] == pytest.approx(100 * top) and found["lugre_z0"]["widened_from"] == top
-    assert f"widened from {top:.4g}" in at_bound_text(found)
+    assert found["lugre_z0"]["limit"] == top and "widened_from" not in found["lugre_z0"]
+    assert "lugre_z0" not in bounds_widened(final) and "widened from" not in at_bound_text(found)
