@@ -126,7 +126,7 @@ def write_bundle(folder: Path, plant_doc: dict, controller_doc: dict, effects: l
     for true in effects:
         roles = next(a for a in plant.axes if a.output == true.axis)
         factory = effect_models.VOCABULARY.get(true.name) or OUTSIDE[true.name]
-        effect = structure.on_axis(factory(ctx), roles)
+        effect = structure.on_axis(factory(ctx), roles, plant.model)
         placed.append((true.axis, effect))
         values.update({p.name: float(np.mean(p.bounds)) for p in effect.params})
         values.update({structure._prefix(true.axis) + k: float(v) for k, v in true.parameters.items()})
