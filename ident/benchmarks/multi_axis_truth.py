@@ -22,6 +22,7 @@ from motiontwin.ident.diagnosis import effects as effect_models
 from motiontwin.ident.diagnosis import empirical
 from motiontwin.ident.diagnosis import structure
 from motiontwin.ident.diagnosis.bundle import read_axes_controller, read_axes_plant
+from motiontwin.ident.diagnosis.plant_roles import output_rate
 
 #: a small coupled plant for tests and examples: two carriages with inertial (mc) and elastic (kc) coupling
 COUPLED2_TEXT = '''model Coupled2 "Two carriages with inertial and elastic coupling"
@@ -49,6 +50,11 @@ end Coupled2;
 '''
 COUPLED2_AXES = [{"input": "u1", "output": "q1"}, {"input": "u2", "output": "q2"}]
 CHEUNG_AXES = [{"input": f"u{k}", "output": f"q{k}"} for k in (1, 3, 5, 7)]
+#: the Hexapod in leg coordinates: leg forces in, leg lengths (inverse kinematics of the pose states) out
+HEXAPOD_AXES = [{"input": f"tau{j}", "output": f"L{j}"} for j in range(1, 7)]
+#: the Hexapod's refitted parameters in the examples: the platform mass and the legs' viscous friction (its
+#: Coulomb friction, gravity and geometry are known), so that a concealed leg friction stays concealed
+HEXAPOD_FREE = ["mE"] + [f"cv{j}" for j in range(1, 7)]
 PREROLL = 0.5            # s at the first reference before the recording starts (integrators settle)
 SUBSTEPS = 8
 
@@ -120,13 +126,17 @@ def write_bundle(folder: Path, plant_doc: dict, controller_doc: dict, effects: l
     p = np.array([values["plant." + v.name] for v in plant.model.parameters])
     x0 = np.array(ca.Function("x0", [plant.model.p], [plant.model.x0()])(p)).ravel()
     names = [s.name for s in plant.model.states]
-    centres = {a.output: float(x0[names.index(a.position)]) for a in plant.axes}
+    out = ca.Function("y", [plant.model.x, plant.model.p], [ca.vertcat(*[output_rate(plant.model, a.output)[0]
+                                                                           for a in plant.axes])])
+    at_start = np.array(out(x0, p)).ravel()
+    centres = {a.output: float(at_start[k] if a.expression else x0[names.index(a.position)])
+               for k, a in enumerate(plant.axes)}
     placed = []
     ctx = effect_models.Context(ts, -1.0, 1.0, 0.2, 1.0)
     for true in effects:
         roles = next(a for a in plant.axes if a.output == true.axis)
         factory = effect_models.VOCABULARY.get(true.name) or OUTSIDE[true.name]
-        effect = structure.on_axis(factory(ctx), roles)
+        effect = structure.on_axis(factory(ctx), roles, plant.model)
         placed.append((true.axis, effect))
         values.update({p.name: float(np.mean(p.bounds)) for p in effect.params})
         values.update({structure._prefix(true.axis) + k: float(v) for k, v in true.parameters.items()})
@@ -153,8 +163,8 @@ def write_bundle(folder: Path, plant_doc: dict, controller_doc: dict, effects: l
         data = {}
         for k, sig in enumerate(signals):
             data.update({sig.reference: r[k, pre:], sig.input: u[k, pre:], sig.output: q[k, pre:] + noise[k, pre:]})
-        parts[part] = make_recording(np.arange(n - pre) * ts, data, {c: ("N" if c.startswith("u") else "m")
-                                                                     for c in data})
+        forces = {sig.input for sig in signals}
+        parts[part] = make_recording(np.arange(n - pre) * ts, data, {c: ("N" if c in forces else "m") for c in data})
     for part, rec in parts.items():
         write_recording(folder / f"{part}.csv", rec)
     experiment = {"plant": plant_doc, "controller": controller_doc,
@@ -171,7 +181,11 @@ def example(folder: Path, case: str, train_s: float, validation_s: float, ts: fl
     """Write one of the example bundles: ``coupled2_coulomb_q2`` (Coulomb friction 0.3 N on q2 of the coupled
     two-carriage plant, start values m1 = 2.3 kg and d = 8 N.s/m against the true 2 and 10),
     ``coupled2_params_only`` (the same without the friction) or ``cheung_coulomb_q5`` (Coulomb friction 0.5 N
-    on q5 of the CheungManipulator library class, c_v starting at 4 against the true 5)."""
+    on q5 of the CheungManipulator library class, c_v starting at 4 against the true 5),
+    ``hexapod_coulomb_L3`` (the library Hexapod in leg coordinates whose leg 3 has 15 N more Coulomb friction
+    than the nominal model's Table II value: the plant's own friction law, not the diagnosis' effect code;
+    mE starting at 11.5 kg against the true 10.2) or ``hexapod_params_only`` (the same without the extra
+    friction). Hexapod cases take ``ts`` = 1e-3 (1 kHz)."""
     if case.startswith("coupled2"):
         controller = {"kind": "per_axis", "axes": [pid_document(ts, 2.0, 60.0), pid_document(ts, 3.0, 60.0)]}
         plant = {"class": "Coupled2", "axes": COUPLED2_AXES, "parameters": {"m1": 2.3, "d": 8.0}}
@@ -184,5 +198,13 @@ def example(folder: Path, case: str, train_s: float, validation_s: float, ts: fl
         plant = {"class": "MotionTwin.Plants.CheungManipulator", "axes": CHEUNG_AXES, "parameters": {"c_v": 4.0}}
         effect = TrueEffect("coulomb_friction", "q5", {"coulomb_Fc": 0.5, "coulomb_v_eps": 1e-4})
         return write_bundle(folder, plant, controller, [effect], train_s, validation_s, seed=16)
-    raise ValueError(f"unknown example {case!r}; known: coupled2_coulomb_q2, coupled2_params_only, cheung_coulomb_q5")
+    if case.startswith("hexapod"):
+        controller = {"kind": "per_axis", "axes": [pid_document(ts, 33.0, 10.0) for _ in HEXAPOD_AXES]}
+        plant = {"class": "MotionTwin.Plants.Hexapod", "axes": HEXAPOD_AXES, "parameters": {"mE": 11.5},
+                 "free": HEXAPOD_FREE}
+        extra = {"rc3": 20.1528 + 15.0} if case == "hexapod_coulomb_L3" else {}
+        return write_bundle(folder, plant, controller, [], train_s, validation_s, seed=24, stroke=0.006,
+                            true_parameters=extra)
+    raise ValueError(f"unknown example {case!r}; known: coupled2_coulomb_q2, coupled2_params_only, "
+                     f"cheung_coulomb_q5, hexapod_coulomb_L3, hexapod_params_only")
 

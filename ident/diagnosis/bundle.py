@@ -44,6 +44,7 @@ from motiontwin.harness.recording import Recording, RecordingError, read_recordi
 from motiontwin.ident import controller, startvalues, units
 from motiontwin.ident.controller import Controller, field
 from motiontwin.ident.observer import UNKNOWN_KIND, Observer, ObserverError, observer_from_document
+from motiontwin.ident.diagnosis import axis_kinematics
 from motiontwin.ident.diagnosis.plant_roles import PlantFormError, PlantRoles, find_roles
 
 REQUIRED_COLUMNS = ("time", "r", "u", "q")
@@ -267,9 +268,8 @@ def _start_parameters(model: symbolic.SymbolicModel, path: Path, class_name: str
 
 
 def read_axes_plant(doc: dict, bundle_dir: Path, where: str) -> PlantInfo:
-    """A multi-axis plant (``plant.axes``): a Modelica file or a library class (which may use other library
-    classes: the MotionTwin library is on the front end's path), every axis's input an input of the class,
-    its output an output, and its position/velocity states found as for one axis."""
+    """A multi-axis plant (``plant.axes``): a Modelica file or a library class (the MotionTwin library on the path),
+    each axis's input and output of the class, position/velocity states as for one axis or an output expression."""
     from motiontwin.fmus.build import MODELICA_DIR
 
     for key in ("input", "output", "position", "velocity", "pole_pitch"):
@@ -310,16 +310,16 @@ def read_axes_plant(doc: dict, bundle_dir: Path, where: str) -> PlantInfo:
                                   f"{class_name} ({what}: {', '.join(names)})")
         try:
             found = find_roles(model, text, path, axis["input"], axis["output"], axis.get("position"),
-                               axis.get("velocity"))
+                               axis.get("velocity"), expression=True)
+            axis_kinematics.function_files(model, [found])
         except PlantFormError as exc:
             raise BundleError(f"{where}: {at}': {exc}") from None
         roles.append(found)
         pitch = check_pole_pitch(axis.get("pole_pitch"), f"{where}: {at}'")
-        if pitch is not None:
-            pitches[found.output] = pitch
+        pitches.update({} if pitch is None else {found.output: pitch})
     for key in ("input", "output", "position"):
         names = [getattr(r, key) for r in roles]
-        twice = sorted({n for n in names if names.count(n) > 1})
+        twice = sorted({n for n in names if names.count(n) > 1 and n})
         if twice:
             raise BundleError(f"{where}: field 'plant.axes': {key} {twice[0]!r} belongs to two axes")
     driven = {r.input for r in roles}

@@ -13,7 +13,7 @@ from motiontwin.fmus import symbolic
 from motiontwin.harness.recording import Recording
 from motiontwin.ident import outputerror, startvalues
 from motiontwin.ident.diagnosis import effects as effect_models
-from motiontwin.ident.diagnosis import evidence
+from motiontwin.ident.diagnosis import axis_kinematics, evidence
 from motiontwin.ident.diagnosis.bundle import Bundle
 from motiontwin.ident.diagnosis.plant_roles import output_map
 from motiontwin.ident.diagnosis.structure import ModelFit
@@ -62,37 +62,50 @@ LOCATE_REPLICATES = 2       # noise re-simulations for each axis's reference for
 
 
 def _acceleration_map(model: symbolic.SymbolicModel, bundle: Bundle) -> ca.Function:
-    """(x, u, p) -> (velocity-state derivatives, their Jacobian w.r.t. the axes' inputs)."""
-    names = [s.name for s in model.states]
+    """(x, u, p) -> (the axes' accelerations: velocity-state derivatives, or the second time derivative of an
+    expression axis's output; their Jacobian w.r.t. the axes' inputs)."""
     inputs = [v.name for v in model.inputs]
-    i_v = [names.index(a.velocity) for a in bundle.plant.axes]
     k_u = [inputs.index(a.input) for a in bundle.plant.axes]
-    acc = ca.vertcat(*[model.dx[i] for i in i_v])
+    acc = ca.vertcat(*[axis_kinematics.axis_acceleration(model, a) for a in bundle.plant.axes])
     u_axes = ca.vertcat(*[model.u[k] for k in k_u])
     return ca.Function("acc", [model.x, model.u, model.p], [acc, ca.jacobian(acc, model.u)[:, k_u]
                                                                if u_axes.numel() else acc])
 
 
+def _axis_motion(bundle: Bundle, rec: Recording, values: dict[str, float],
+                 fc: float | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Filtered position, velocity, acceleration (in axis coordinates: the state's, or an expression axis's
+    output) and force of every axis (each axes x samples)."""
+    fs = 1 / bundle.controller.Ts
+    fc = fc or startvalues.derivative_cutoff(fs)
+    motion, forces = [], []
+    for a in bundle.plant.axes:
+        gain, offset = output_map(bundle.plant.model, a, values)
+        motion.append(startvalues.mirror_derivatives((rec[a.output] - offset) / gain, fs, fc))
+        forces.append(startvalues.mirror_derivatives(rec[a.input], fs, fc)[0])
+    pos, vel, acc = (np.array([m[i] for m in motion]) for i in range(3))
+    return pos, vel, acc, np.array(forces)
+
+
 def _states_from(bundle: Bundle, rec: Recording, values: dict[str, float],
                  fc: float | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Plant state trajectory (positions and velocities from the filtered outputs, other states at their
-    start), accelerations and filtered forces of every axis, in state coordinates."""
+    start; with expression axes the states whose outputs and rates those are, :mod:`axis_kinematics`),
+    accelerations and filtered forces of every axis, in axis coordinates."""
     model = bundle.plant.model
-    ts = bundle.controller.Ts
-    fs = 1 / ts
-    fc = fc or startvalues.derivative_cutoff(fs)
     names = [s.name for s in model.states]
     p = np.array([values[v.name] for v in model.parameters])
+    pos, vel, acc, forces = _axis_motion(bundle, rec, values, fc)
+    axes = bundle.plant.axes
+    if any(a.expression for a in axes):
+        maps = np.array([output_map(model, a, values) for a in axes])
+        x = axis_kinematics.states_from_outputs(model, axes, p, pos * maps[:, :1] + maps[:, 1:], vel * maps[:, :1])
+        return x, acc, forces
     x0 = np.array(ca.Function("x0", [model.p], [model.x0()])(p)).ravel()
     x = np.tile(x0[:, None], (1, rec.time.size))
-    acc, forces = [], []
-    for a in bundle.plant.axes:
-        gain, offset = output_map(model, a, values)
-        pos, vel, accel = startvalues.mirror_derivatives((rec[a.output] - offset) / gain, fs, fc)
-        x[names.index(a.position)], x[names.index(a.velocity)] = pos, vel
-        acc.append(accel)
-        forces.append(startvalues.mirror_derivatives(rec[a.input], fs, fc)[0])
-    return x, np.array(acc), np.array(forces)
+    for k, a in enumerate(axes):
+        x[names.index(a.position)], x[names.index(a.velocity)] = pos[k], vel[k]
+    return x, acc, forces
 
 
 def _needed_force(model: symbolic.SymbolicModel, bundle: Bundle, values: dict[str, float], x: np.ndarray,
@@ -164,8 +177,7 @@ def axis_context(bundle: Bundle, current: ModelFit, k: int, force: np.ndarray) -
     plain = {v.name: current.fit.values.get("plant." + v.name, float(v.start)) for v in model.parameters}
     gain, offset = output_map(model, roles, plain)
     x, acc, forces = _states_from(bundle, bundle.train, plain)
-    names = [s.name for s in model.states]
-    pos, vel = x[names.index(roles.position)], x[names.index(roles.velocity)]
+    pos, vel = (m[k] for m in _axis_motion(bundle, bundle.train, plain)[:2])
     q_all = (np.concatenate([bundle.train[roles.output], bundle.validation[roles.output]]) - offset) / gain
     fn = _acceleration_map(model, bundle)
     p = np.array([plain[v.name] for v in model.parameters])

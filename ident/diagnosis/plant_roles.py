@@ -7,7 +7,10 @@ a state itself (``der(q) = v``), an algebraic alias of one (``q = x``) or an aff
 found from the equations (the *derivative chain* of the output: the single state the output is affine in
 is the position, the state equal to its derivative is the velocity) or named in the bundle
 (``plant.position`` / ``plant.velocity``). Positions and velocities are in the plant's own state
-coordinates; :func:`output_map` converts the measured output into them. Units: those of the plant.
+coordinates; :func:`output_map` converts the measured output into them. An axis of a multi-axis plant may
+instead have an output that is any differentiable expression of the states (a leg length L(pose)): its
+position is that expression and its velocity the expression's time derivative (:func:`output_rate`,
+:mod:`ident.diagnosis.axis_kinematics`). Units: those of the plant.
 """
 from __future__ import annotations
 
@@ -22,6 +25,7 @@ from motiontwin.ident.plant_states import output_expression, output_state, veloc
 
 CHAIN = "derivative chain of the output"
 NAMED = "bundle fields plant.position/plant.velocity"
+EXPRESSION = "output expression of the states and its time derivative"
 
 
 class PlantFormError(ValueError):
@@ -40,8 +44,17 @@ class PlantRoles:
     source: str = CHAIN
     held_inputs: dict[str, float] = field(default_factory=dict)
 
+    @property
+    def expression(self) -> bool:
+        """The axis's position is its output expression (no single state), its velocity that expression's
+        time derivative (:func:`output_rate`); axis coordinates are the output's own."""
+        return self.source == EXPRESSION
+
     def describe(self) -> str:
         """One line for the progress output and the report."""
+        if self.expression:
+            return (f"plant input {self.input}, output {self.output}; position {self.output}(states), velocity "
+                    f"its time derivative (from the {self.source})")
         return (f"plant input {self.input}, output {self.output}; position plant.{self.position}, "
                 f"velocity plant.{self.velocity} (from the {self.source})")
 
@@ -79,8 +92,15 @@ def _where(path: Path, line: int | None) -> str:
     return f"{path}, line {line}" if line else str(path)
 
 
+def output_rate(model: symbolic.SymbolicModel, output_name: str) -> tuple[ca.SX, ca.SX]:
+    """The output ``h(x, p)`` and its time derivative ``dh/dx * der(x)`` (for a leg length by inverse
+    kinematics: J(pose) times the pose rates), both free of inputs and time (position-level outputs)."""
+    expr = output_expression(model, output_name)
+    return expr, ca.jtimes(expr, model.x, model.dx)
+
+
 def find_roles(model: symbolic.SymbolicModel, text: str, path: Path, input_name: str, output_name: str,
-               position: str | None = None, velocity: str | None = None) -> PlantRoles:
+               position: str | None = None, velocity: str | None = None, expression: bool = False) -> PlantRoles:
     """The roles of a plant (see the module docstring); raises :class:`PlantFormError` naming the construct
     and the line of ``path`` (whose source is ``text``) when the form is not supported.
 
@@ -90,6 +110,8 @@ def find_roles(model: symbolic.SymbolicModel, text: str, path: Path, input_name:
     text, path : the plant file's source and path (for the line numbers of errors).
     input_name, output_name : the driven input and the measured output.
     position, velocity : state names from the bundle, or None to find them from the derivative chain.
+    expression : accept an output that is a nonlinear expression of several states (an axis of a multi-axis
+        plant: a leg length of a pose), whose time derivative is then its velocity.
 
     Returns
     -------
@@ -114,6 +136,14 @@ def find_roles(model: symbolic.SymbolicModel, text: str, path: Path, input_name:
         raise PlantFormError(f"{where}: output {output_name} = {expr} depends on an input directly; the "
                              f"measured output must be a position (an expression of one state)")
     pos = names.index(position) if position is not None else output_state(model, output_name)
+    if pos is None and expression and velocity is None:
+        rate = output_rate(model, output_name)[1]
+        if not ca.depends_on(expr, model.x) or ca.depends_on(rate, ca.vertcat(model.u, model.t)):
+            raise PlantFormError(f"{where}: output {output_name} = {expr} is not a position-level expression of "
+                                 f"the states (it depends on no state, or its time derivative depends on an "
+                                 f"input); an axis output must be a function of the positions, such as a leg "
+                                 f"length by inverse kinematics")
+        return PlantRoles(input_name, output_name, "", "", EXPRESSION, held)
     if pos is None:
         raise PlantFormError(f"{where}: output {output_name} = {expr} is not affine in exactly one state, so "
                              f"its position state is not defined; write it as a state, an alias or an affine "
@@ -138,7 +168,10 @@ def find_roles(model: symbolic.SymbolicModel, text: str, path: Path, input_name:
 
 def output_map(model: symbolic.SymbolicModel, roles: PlantRoles, values: dict[str, float]) -> tuple[float, float]:
     """(gain, offset) of the output as ``gain*position + offset`` at the parameter ``values`` and the other
-    states at their start values; the measured output q corresponds to the position (q - offset)/gain."""
+    states at their start values; the measured output q corresponds to the position (q - offset)/gain.
+    An expression axis is in its output's coordinates: (1, 0)."""
+    if roles.expression:
+        return 1.0, 0.0
     expr = output_expression(model, roles.output)
     i_pos = [v.name for v in model.states].index(roles.position)
     fn = ca.Function("h", [model.x, model.u, model.p], [expr, ca.jacobian(expr, model.x[i_pos])])

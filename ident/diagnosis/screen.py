@@ -227,7 +227,7 @@ def fit_candidate(bundle: Bundle, current: ModelFit, effect: effect_models.Effec
                   max_nfev: int) -> ModelFit:
     """The current structure plus ``effect`` on ``axis``, fitted from each of its starting points."""
     roles = next(a for a in bundle.plant.axes if a.output == axis)
-    placed = on_axis(effect, roles)
+    placed = on_axis(effect, roles, bundle.plant.model)
     effects = current.placed + [(axis, placed)]
     starts = _starts(placed, ctx)
     base = dict(current.fit.values)
@@ -244,7 +244,7 @@ def placed_structure(bundle: Bundle, current: ModelFit, name: str, axis: str, ct
                      fit: outputerror.Fit, substeps: int, folder: Path) -> ModelFit:
     """The structure of a screened candidate (its loop rebuilt here: the compiled library is on disk)."""
     roles = next(a for a in bundle.plant.axes if a.output == axis)
-    placed = on_axis(effect_models.VOCABULARY[name](ctx), roles)
+    placed = on_axis(effect_models.VOCABULARY[name](ctx), roles, bundle.plant.model)
     loop, bounds = build_axes(bundle, current.placed + [(axis, placed)], fit.values, folder, bundle.train.time.size,
                               min_substeps=substeps)
     return ModelFit(current.effects + [placed], loop.with_values(fit.values), fit, bounds, folder,

@@ -17,6 +17,7 @@ from motiontwin.fmus.build import MODELICA_DIR
 from motiontwin.harness.recording import Recording
 from motiontwin.ident import outputerror
 from motiontwin.ident.diagnosis import effects as effect_models
+from motiontwin.ident.diagnosis import axis_kinematics
 from motiontwin.ident.diagnosis.bundle import Bundle, PlantInfo
 from motiontwin.ident.diagnosis.noise import ProcessNoise, noisy_simulator
 from motiontwin.ident.diagnosis.plant_roles import PlantRoles
@@ -232,18 +233,23 @@ def _prefix(axis: str) -> str:
     return f"{axis}_"
 
 
-def on_axis(effect: effect_models.Effect, roles: PlantRoles) -> effect_models.Effect:
+def on_axis(effect: effect_models.Effect, roles: PlantRoles,
+            model: symbolic.SymbolicModel | None = None) -> effect_models.Effect:
     """``effect`` acting on the axis ``roles``: its parameters and variables prefixed by the axis output
-    (``q3_coulomb_Fc``), ``$x``/``$v`` the axis's position and velocity states, ``u`` (the commanded force
+    (``q3_coulomb_Fc``), ``$x``/``$v`` the axis's position and velocity states (an expression axis: the
+    generated functions of the plant ``model``'s states, :mod:`axis_kinematics`), ``u`` (the commanded force
     in an equation) the axis's input; the initialiser and the contract keep the effect's own names."""
     prefix = _prefix(roles.output)
     names = [p.name for p in effect.params] + re.findall(r"\bReal\s+(\w+)", effect.declarations)
     pattern = re.compile(r"(?<![\w.])(" + "|".join(map(re.escape, names)) + r"|u)\b") if names else None
+    if roles.expression and model is None:
+        raise ValueError(f"axis {roles.output} is an output expression: on_axis needs the plant model")
+    kinematics = axis_kinematics.substitutions(model, roles)
 
     def rename(text: str) -> str:
         if pattern is not None:
             text = pattern.sub(lambda m: roles.input if m.group(1) == "u" else prefix + m.group(1), text)
-        return string.Template(text).safe_substitute(x=f"plant.{roles.position}", v=f"plant.{roles.velocity}")
+        return string.Template(text).safe_substitute(kinematics)
 
     def initial(ctx: effect_models.Context) -> list[dict[str, float]]:
         return [{prefix + k: v for k, v in start.items()} for start in effect.initial(ctx)]
@@ -292,10 +298,13 @@ def modelica_text(plant: PlantInfo, effects: list[tuple[str, effect_models.Effec
 
 def write_axes_structure(plant: PlantInfo, effects: list[tuple[str, effect_models.Effect]],
                          values: dict[str, float], folder: Path) -> Path:
-    """Write the plant file and the augmented class into ``folder`` (the MotionTwin library is loaded from
-    the project's Modelica folder, so a library plant may use other library classes)."""
+    """Write the plant file, the augmented class and the position/velocity functions of expression axes into
+    ``folder`` (the MotionTwin library is loaded from the project's Modelica folder, so a library plant may
+    use other library classes)."""
     folder.mkdir(parents=True, exist_ok=True)
     (folder / "plant.mo").write_text(plant.text, encoding="utf-8")
+    for name, text in axis_kinematics.function_files(plant.model, plant.axes).items():
+        (folder / name).write_text(text, encoding="utf-8")
     plant_values = {k[len("plant."):]: v for k, v in values.items() if k.startswith("plant.")}
     path = folder / f"{AUGMENTED_CLASS}.mo"
     path.write_text(modelica_text(plant, effects, values, plant_values), encoding="utf-8")
@@ -313,8 +322,9 @@ def axes_signals(plant: PlantInfo) -> list[outputerror.Signals]:
 
 
 def _tracking(bundle: Bundle, effects: list[tuple[str, effect_models.Effect]]) -> dict[str, str]:
-    """Velocity states start at the slope of the first samples; effect states at the axis's position/force."""
-    tracking = {f"plant.{a.velocity}": f"dq:{a.output}" for a in bundle.plant.axes}
+    """Velocity states start at the slope of the first samples (expression axes: the plant's start state);
+    effect states at the axis's position/force."""
+    tracking = {f"plant.{a.velocity}": f"dq:{a.output}" for a in bundle.plant.axes if not a.expression}
     for axis, e in effects:
         tracking.update({s: f"q:{axis}" for s in e.tracks_position})
         tracking.update({s: f"u:{axis}" for s in e.tracks_force})

@@ -7,8 +7,12 @@ with a folder (e.g. one of the FMU-truth generator's bundles) it diagnoses that.
 against ``truth.json`` (or ``<case>.truth.json``) when present, the per-axis validation RMS, the wall and CPU
 time, the ratio to the target and the 1-minute load average.
 
+The Hexapod in leg coordinates (issue 24 item 2: six legs whose lengths are inverse kinematics of the pose
+states): ``--case hexapod_coulomb_L3 --train 1.5`` (15 N more Coulomb friction on leg 3 than the nominal model
+has, at 1 kHz) and its parameters-only control ``--case hexapod_params_only --train 1.5``.
+
 Run: .venv/bin/python tests/benchmarks/bench_diagnosis_multiaxis.py [BUNDLE_DIR] [--out OUT] [--train 10]
-[--case cheung_coulomb_q5|coupled2_coulomb_q2] [--smoke]
+[--case cheung_coulomb_q5|coupled2_coulomb_q2|hexapod_coulomb_L3|hexapod_params_only] [--smoke]
 (--smoke: the two-carriage case, 0.5 s + 0.25 s, the vocabulary cut to coulomb_friction and time_delay: the
 generate-diagnose-report path only). Ratios: wall and CPU time over the 300 s target (the baseline).
 """
@@ -39,7 +43,8 @@ def main() -> None:
     parser.add_argument("bundle", nargs="?", help="bundle folder (default: generate the Cheung case)")
     parser.add_argument("--out", help="diagnosis output folder (default: a temporary one)")
     parser.add_argument("--train", type=float, default=10.0, help="generated training length [s]")
-    parser.add_argument("--case", default="cheung_coulomb_q5", choices=["cheung_coulomb_q5", "coupled2_coulomb_q2"],
+    parser.add_argument("--case", default="cheung_coulomb_q5", choices=["cheung_coulomb_q5", "coupled2_coulomb_q2",
+                                                                   "hexapod_coulomb_L3", "hexapod_params_only"],
                         help="generated example bundle")
     parser.add_argument("--smoke", action="store_true", help="a small two-axis bundle: only proves the path runs")
     args = parser.parse_args()
@@ -52,7 +57,8 @@ def main() -> None:
         folder = Path(args.bundle) if args.bundle else Path(tmp) / args.case
         if not args.bundle:
             t0 = time.perf_counter()
-            truth.example(folder, args.case, args.train, args.train / 2)
+            rate = {"ts": 1e-3} if args.case.startswith("hexapod") else {}
+            truth.example(folder, args.case, args.train, args.train / 2, **rate)
             print(f"generated {folder} in {time.perf_counter() - t0:.1f} s")
         out = Path(args.out) if args.out else Path(tmp) / "out"
         wall, cpu = time.perf_counter(), cpu_seconds()
