@@ -79,15 +79,19 @@ def run(bundle: Bundle, work: Path, progress=None) -> dict:
     _log(progress, f"process force noise within the final model's training residual: "
                    f"{bundle.process_noise.describe()}")
     floor = validation_floor(loop, bundle, values, weights.sigma_q, process=bundle.process_noise)
-    spread = estimation_rms(final.loop, bundle.train, final.fit, final.bounds, loop, bundle.validation, values,
-                            weights, bundle.process_noise)
-    _log(progress, f"validation floor {floor:.4g} from the noise, {spread:.4g} from the parameters' estimation error")
-    remainder = above_floor(bundle, remainder, q_aug, floor, weights.sigma_q, progress, spread)
+    spread = None      # the parameters' estimation error matters only above the noise floor's margin
+    if np.sqrt(np.mean((bundle.validation["q"] - q_aug) ** 2)) > FLOOR_MARGIN * floor:
+        spread = estimation_rms(final.loop, bundle.train, final.fit, final.bounds, loop, bundle.validation, values,
+                                weights, bundle.process_noise)
+        _log(progress, f"validation floor {floor:.4g} from the noise, {spread:.4g} from the parameters' "
+                       f"estimation error")
+    remainder = above_floor(bundle, remainder, q_aug, floor, weights.sigma_q, progress, spread or 0.0)
     _log(progress, f"diagnosis done in {time.perf_counter() - t0:.1f} s")
     return {"bundle": bundle, "nominal": nominal, "final": final, "weights": weights, "context": ctx,
             "log": log, "augmented_values": values, "q_augmented": q_aug, "u_augmented": u_aug,
             "remainder": remainder,
-            "augmented_model": written, "validation_floor": floor, "estimation_rms": spread, "seconds": time.perf_counter() - t0,
+            "augmented_model": written, "validation_floor": floor, "estimation_rms": spread,
+            "seconds": time.perf_counter() - t0,
             "plant_physics": owned, "process_noise": bundle.process_noise}
 
 
