@@ -28,7 +28,7 @@ demo: setup
 	$(BIN)/motiontwin demo --out build/demo
 
 test: setup
-	$(BIN)/python -m pytest -q -n auto --dist loadfile
+	$(BIN)/python -m pytest -q -n auto --dist loadfile --durations=15
 
 docs: setup
 	$(BIN)/python -m sphinx -b html -W --keep-going -q docs build/docs
