@@ -36,6 +36,19 @@ UNEXPLAINED = "unexplained"
 FAILED = "(stopped)"       # the diagnosis raised instead of answering
 
 
+def smoke_bundles(cases: tuple[tuple[str, int], ...]) -> tempfile.TemporaryDirectory:
+    """The smoke size: the vocabulary cut to SMOKE_EFFECTS and ``cases`` (name, seed) written as bundles of
+    0.5 s + 0.25 s into a temporary folder (the caller cleans it up)."""
+    for table in (effect_models.VOCABULARY, effect_models.NESTED):
+        for name in [n for n in table if n not in SMOKE_EFFECTS]:
+            del table[name]
+    smoke_dir = tempfile.TemporaryDirectory(prefix="bench-independent-smoke-")
+    independent.DURATIONS = (0.5, 0.25)
+    for name, seed in cases:
+        independent.write_bundle(Path(smoke_dir.name) / name, independent.draw_case(name, seed))
+    return smoke_dir
+
+
 def answers(doc: dict) -> list[str]:
     """The diagnosis' answers: the catalogue effects named, and "unexplained" when it says so."""
     return [e["name"] for e in doc["effects"]] + ([UNEXPLAINED] if doc.get("unexplained") else [])
@@ -79,15 +92,9 @@ def main() -> int:
     parser.add_argument("--smoke", action="store_true", help="two short bundles: only proves the path runs")
     args = parser.parse_args()
     folder = args.bench / args.set
-    smoke_dir = tempfile.TemporaryDirectory(prefix="bench-independent-smoke-") if args.smoke else None
+    smoke_dir = smoke_bundles(SMOKE_CASES) if args.smoke else None
     if smoke_dir:
-        for table in (effect_models.VOCABULARY, effect_models.NESTED):
-            for name in [n for n in table if n not in SMOKE_EFFECTS]:
-                del table[name]
         folder = Path(smoke_dir.name)
-        independent.DURATIONS = (0.5, 0.25)
-        for name, seed in SMOKE_CASES:
-            independent.write_bundle(folder / name, independent.draw_case(name, seed))
     elif not folder.is_dir():
         independent.generate(args.bench, args.set)
     cases = args.case or [n for n, _ in independent.case_list(args.set)]    # --case: in the order given

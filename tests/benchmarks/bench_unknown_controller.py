@@ -22,10 +22,9 @@ import tempfile
 import time
 from pathlib import Path
 
-from bench_independent import SMOKE_CASES, SMOKE_EFFECTS, answers
+from bench_independent import SMOKE_CASES, answers, smoke_bundles
 from motiontwin.ident.benchmarks import independent
 from motiontwin.ident.diagnosis import diagnose_bundle
-from motiontwin.ident.diagnosis import effects as effect_models
 from ratios import ratio
 
 DEFAULT_CASES = ("params_quiet", "offset", "coulomb", "cogging")
@@ -61,16 +60,10 @@ def main() -> int:
     args = parser.parse_args()
     cases = args.case or list(DEFAULT_CASES)
     folder = args.bench / args.set
-    smoke_dir = tempfile.TemporaryDirectory(prefix="bench-unknown-smoke-") if args.smoke else None
+    smoke_dir = smoke_bundles(SMOKE_CASES[-1:]) if args.smoke else None
     if smoke_dir:
-        for table in (effect_models.VOCABULARY, effect_models.NESTED):
-            for name in [n for n in table if n not in SMOKE_EFFECTS]:
-                del table[name]
         folder = Path(smoke_dir.name)
-        independent.DURATIONS = (0.5, 0.25)
-        name, seed = SMOKE_CASES[-1]
-        independent.write_bundle(folder / name, independent.draw_case(name, seed))
-        cases = [name]
+        cases = [SMOKE_CASES[-1][0]]
     missing = [c for c in cases if not (folder / c / "experiment.json").is_file()]
     if missing:
         independent.generate(args.bench, args.set, missing)
