@@ -107,3 +107,32 @@ def free(ld: Loaded) -> None:
         ld.fmu.terminate()
     finally:
         ld.fmu.freeInstance()
+
+
+def fmpy_closed_loop(fmu: Path, ctrl, r: np.ndarray, u_ext: np.ndarray, noise: np.ndarray,
+                     values: dict[str, float], ts: float,
+                     process: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """A sampled loop run by hand around the FMU (fmpy FMU2Slave) with the discrete controller ``ctrl`` on
+    [r, q]: the controller reads the noisy encoder, ``process`` (a force the recording does not hold) is added
+    to the plant's input; returns the recorded (q + noise, u)."""
+    md = fmpy.read_model_description(str(fmu))
+    vr = {v.name: v.valueReference for v in md.modelVariables}
+    slave = FMU2Slave(guid=md.guid, unzipDirectory=fmpy.extract(str(fmu)),
+                      modelIdentifier=md.coSimulation.modelIdentifier, instanceName="plant")
+    slave.instantiate()
+    slave.setupExperiment(startTime=0.0)
+    slave.enterInitializationMode()
+    slave.setReal([vr[k] for k in values], list(values.values()))
+    slave.exitInitializationMode()
+    z = np.zeros(ctrl.n_states)
+    q_rec, u_rec = np.zeros(r.size), np.zeros(r.size)
+    for k in range(r.size):
+        y = np.array([r[k], slave.getReal([vr["q"]])[0] + noise[k]])
+        u = (ctrl.C @ z + ctrl.D @ y).item() + u_ext[k]
+        z = ctrl.A @ z + ctrl.B @ y
+        q_rec[k], u_rec[k] = y[1], u
+        slave.setReal([vr["u"]], [u + (0.0 if process is None else process[k])])
+        slave.doStep(currentCommunicationPoint=k * ts, communicationStepSize=ts)
+    slave.terminate()
+    slave.freeInstance()
+    return q_rec, u_rec

@@ -11,7 +11,6 @@ import fmpy
 import numpy as np
 import pytest
 import scipy.signal as sps
-from fmpy.fmi2 import FMU2Slave
 
 from motiontwin.cli import main
 from motiontwin.fmus import build, writeback
@@ -19,6 +18,7 @@ from motiontwin.harness.recording import make_recording, write_recording
 from motiontwin.ident import multipleshooting as ms
 from motiontwin.ident import outputerror as oe
 from motiontwin.ident.controller import Controller, controller_document
+from tests.fmi_util import fmpy_closed_loop
 
 CLASS = "MotionTwin.Plants.LinearMotorJoint"
 TS = 5e-4                      # 2 kHz
@@ -61,33 +61,6 @@ def pd_controller() -> Controller:
     return Controller(TS, np.atleast_2d(a), np.hstack([b, -b]), np.atleast_2d(c), np.hstack([d, -d]))
 
 
-def fmpy_closed_loop(fmu: Path, ctrl: Controller, r: np.ndarray, u_ext: np.ndarray, noise: np.ndarray,
-                     values: dict[str, float]) -> tuple[np.ndarray, np.ndarray]:
-    """The sampled loop run by hand around the FMU (fmpy FMU2Slave): the controller reads the noisy
-    encoder; returns the recorded (q + noise, u)."""
-    md = fmpy.read_model_description(str(fmu))
-    vr = {v.name: v.valueReference for v in md.modelVariables}
-    slave = FMU2Slave(guid=md.guid, unzipDirectory=fmpy.extract(str(fmu)),
-                      modelIdentifier=md.coSimulation.modelIdentifier, instanceName="plant")
-    slave.instantiate()
-    slave.setupExperiment(startTime=0.0)
-    slave.enterInitializationMode()
-    slave.setReal([vr[k] for k in values], list(values.values()))
-    slave.exitInitializationMode()
-    z = np.zeros(ctrl.n_states)
-    q_rec, u_rec = np.zeros(r.size), np.zeros(r.size)
-    for k in range(r.size):
-        y = np.array([r[k], slave.getReal([vr["q"]])[0] + noise[k]])
-        u = (ctrl.C @ z + ctrl.D @ y).item() + u_ext[k]
-        z = ctrl.A @ z + ctrl.B @ y
-        q_rec[k], u_rec[k] = y[1], u
-        slave.setReal([vr["u"]], [u])
-        slave.doStep(currentCommunicationPoint=k * TS, communicationStepSize=TS)
-    slave.terminate()
-    slave.freeInstance()
-    return q_rec, u_rec
-
-
 @pytest.fixture(scope="module")
 def open_loop_data(fmu):
     n = 4000
@@ -114,7 +87,7 @@ def _closed_loop_recording(fmu, n: int = 4000):
     rng = np.random.default_rng(2)
     r = 1e-3 * multisine(n, 1.0, 10, seed=3)
     u_ext = multisine(n, 5.0, 80, seed=4)
-    q, u = fmpy_closed_loop(fmu, ctrl, r, u_ext, NOISE * rng.standard_normal(n), TRUTH)
+    q, u = fmpy_closed_loop(fmu, ctrl, r, u_ext, NOISE * rng.standard_normal(n), TRUTH, TS)
     return ctrl, make_recording(np.arange(n) * TS, {"r": r, "u": u, "q": q, "u_ext": u_ext})
 
 
@@ -206,7 +179,7 @@ def test_cli_closed_loop_controller_file(tmp_path, model, fmu):
     n = 1500
     r = 1e-3 * multisine(n, 1.0, 10, seed=6)
     u_ext = multisine(n, 5.0, 80, seed=7)
-    q, u = fmpy_closed_loop(fmu, ctrl, r, u_ext, np.zeros(n), TRUTH)
+    q, u = fmpy_closed_loop(fmu, ctrl, r, u_ext, np.zeros(n), TRUTH, TS)
     csv = tmp_path / "loop.csv"
     write_recording(csv, make_recording(np.arange(n) * TS, {"r": r, "u": u, "q": q, "u_ext": u_ext}))
     out = tmp_path / "fit.json"

@@ -17,10 +17,8 @@ import shutil
 import tempfile
 from pathlib import Path
 
-import fmpy
 import numpy as np
 import pytest
-from fmpy.fmi2 import FMU2Slave
 
 from motiontwin.cli import main
 from motiontwin.fmus import build
@@ -32,6 +30,7 @@ from motiontwin.ident.benchmarks import single_axis as bench
 from motiontwin.ident.diagnosis import effects as effect_models
 from motiontwin.ident.diagnosis import noise, pipeline
 from motiontwin.ident.diagnosis.bundle import BundleError, read_bundle
+from tests.fmi_util import fmpy_closed_loop
 from tests.test_ident_outputerror import CLASS, NOISE, TRUTH, TS, multisine, pd_controller
 
 PROCESS_STD, PROCESS_TAU = 0.5, 0.05     # unmeasured force on the plant [N], its time constant [s]
@@ -45,25 +44,7 @@ def _loop_with_process_force(fmu: Path, seed: int, n: int = 4000) -> tuple:
     u_ext = multisine(n, 5.0, 80, seed=seed + 2)
     w = noise.coloured(n, PROCESS_STD, PROCESS_TAU, TS, rng)
     encoder = NOISE * rng.standard_normal(n)
-    md = fmpy.read_model_description(str(fmu))
-    vr = {v.name: v.valueReference for v in md.modelVariables}
-    slave = FMU2Slave(guid=md.guid, unzipDirectory=fmpy.extract(str(fmu)),
-                      modelIdentifier=md.coSimulation.modelIdentifier, instanceName="plant")
-    slave.instantiate()
-    slave.setupExperiment(startTime=0.0)
-    slave.enterInitializationMode()
-    slave.setReal([vr[k] for k in TRUTH], list(TRUTH.values()))
-    slave.exitInitializationMode()
-    z, q, u = np.zeros(ctrl.n_states), np.zeros(n), np.zeros(n)
-    for k in range(n):
-        y = np.array([r[k], slave.getReal([vr["q"]])[0] + encoder[k]])
-        u[k] = (ctrl.C @ z + ctrl.D @ y).item() + u_ext[k]
-        z = ctrl.A @ z + ctrl.B @ y
-        q[k] = y[1]
-        slave.setReal([vr["u"]], [u[k] + w[k]])
-        slave.doStep(currentCommunicationPoint=k * TS, communicationStepSize=TS)
-    slave.terminate()
-    slave.freeInstance()
+    q, u = fmpy_closed_loop(fmu, ctrl, r, u_ext, encoder, TRUTH, TS, process=w)
     return ctrl, make_recording(np.arange(n) * TS, {"r": r, "u": u, "q": q, "u_ext": u_ext})
 
 
