@@ -8,6 +8,7 @@ from dataclasses import dataclass, field
 
 import casadi as ca
 import numpy as np
+import scipy.signal as sps
 from scipy.optimize import least_squares
 
 from motiontwin.harness.recording import Recording
@@ -23,13 +24,23 @@ def _column(rec: Recording, name: str, optional: bool = False) -> np.ndarray:
 
 
 def initial_state(loop: Loop, rec: Recording, values: dict[str, float] | None = None,
-                  initial: dict[str, float] | None = None) -> np.ndarray:
+                  initial: dict[str, float] | None = None, shift: np.ndarray | None = None) -> np.ndarray:
     """Start from the first recorded sample at rest: the output state (when the output is a state) = q_0, or
     the state an output expression is affine in (an alias, gear ratio or offset) such that the output = q_0,
     other plant states at their start values, tracked states at that position or u_0, states in ``initial`` at those
     values, and in closed loop the controller state giving the recorded force u_0 (least-norm solution of
-    C z = u_0 - u_ext_0 - D y_0). Multi-axis: the same for every axis; a tracking signal may name its axis
+    C z = u_0 - u_ext_0 - D y_0), plus ``shift`` (the correction a joint fit estimates,
+    :func:`controller_shift`). Multi-axis: the same for every axis; a tracking signal may name its axis
     by output (``"dq:q3"``, ``"q:q3"``, ``"u:q3"``; without it, the first axis)."""
+    s0 = _start_state(loop, rec, values, initial)
+    if shift is not None and len(shift):
+        s0[s0.size - len(shift):] += shift
+    return s0
+
+
+def _start_state(loop: Loop, rec: Recording, values: dict[str, float] | None,
+                 initial: dict[str, float] | None) -> np.ndarray:
+    """:func:`initial_state` without the controller shift."""
     values = values or loop.values
     model, ctrl = loop.model, loop.controller
     p = np.array([values[v.name] for v in model.parameters])
@@ -103,16 +114,17 @@ def measured(loop: Loop, rec: Recording, kind: str) -> np.ndarray:
 
 
 def simulate(loop: Loop, rec: Recording, values: dict[str, float] | None = None,
-             noise: np.ndarray | None = None,
-             initial: dict[str, float] | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Free-run simulation along ``rec`` (plant states in ``initial`` start there); returns simulated
+             noise: np.ndarray | None = None, initial: dict[str, float] | None = None,
+             shift: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Free-run simulation along ``rec`` (plant states in ``initial`` start there, the controller state
+    shifted by ``shift`` from its first-samples estimate); returns simulated
     (output, input) at the sample instants: 1-D arrays, or (axes x samples) for a multi-axis loop (whose
     ``noise`` is axes x samples too)."""
     values = {**loop.values, **(values or {})}
     if rec.time.size != loop.n_samples:
         raise ValueError(f"loop compiled for {loop.n_samples} samples, recording has {rec.time.size}")
     pf = np.array([values[n] for n in loop.fixed])
-    q, u = loop.sim(initial_state(loop, rec, values, initial), drive(rec, noise, loop.channels, loop.closed),
+    q, u = loop.sim(initial_state(loop, rec, values, initial, shift), drive(rec, noise, loop.channels, loop.closed),
                     loop.theta(values), pf)
     return _shaped(loop, np.array(q)), _shaped(loop, np.array(u))
 
@@ -149,6 +161,7 @@ class Fit:
     nfev: int = 0                # residual evaluations (free runs) of the optimiser
     initial: dict[str, float] = field(default_factory=dict)   # estimated initial plant states
     residual: np.ndarray | None = None   # weighted residual at the optimum, rows as ``jacobian`` (for the HAC std)
+    shift: np.ndarray | None = None      # estimated correction of the controller's start state (estimate_controller)
 
 
 @dataclass
@@ -183,11 +196,11 @@ def _channel_major(sens: np.ndarray, n_axes: int) -> np.ndarray:
 
 def residuals(loop: Loop, rec: Recording, values: dict[str, float], weights: Weights,
               noise: np.ndarray | None = None, q_meas: np.ndarray | None = None,
-              u_meas: np.ndarray | None = None,
-              initial: dict[str, float] | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+              u_meas: np.ndarray | None = None, initial: dict[str, float] | None = None,
+              shift: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Weighted residual vector [(q_meas - q_sim)/sigma_q; (u_meas - u_sim)/sigma_u (closed loop only)] and
     the simulation."""
-    q, u = simulate(loop, rec, values, noise, initial)
+    q, u = simulate(loop, rec, values, noise, initial, shift)
     qm = measured(loop, rec, "output") if q_meas is None else q_meas
     if not loop.closed:
         return _weighted(qm, q, weights.sigma_q), q, u
@@ -225,6 +238,86 @@ def state_indices(loop: Loop, names: list[str] | tuple[str, ...]) -> list[int]:
     return [state_names.index(n) for n in names]
 
 
+def controller_states(loop: Loop) -> list[int]:
+    """Indices of the controller states in the loop state (empty in open loop, for a controller without
+    states and for a multi-axis loop, whose start states stay the first-samples estimate)."""
+    if not loop.closed or not loop.controller.n_states or loop.axes:
+        return []
+    nx = loop.model.x.numel()
+    return list(range(nx, nx + loop.controller.n_states))
+
+
+def controller_relation(loop: Loop, rec: Recording, z0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The controller's own relation over the whole recording, without the plant: the recorded force minus
+    u_ext minus the controller's output on the recorded r and q from ``z0`` (its residual), and the free
+    response rows C A^k (samples x states) that a start-state change adds to that output (single axis)."""
+    ctrl, sig = loop.controller, loop.signals
+    y = np.column_stack([_column(rec, sig.reference), _column(rec, sig.output)])
+    force = _column(rec, sig.input) - _column(rec, sig.disturbance, True)
+    out, rows = np.empty(y.shape[0]), np.empty((y.shape[0], ctrl.n_states))
+    z, power = np.array(z0, float), np.eye(ctrl.n_states)
+    for k in range(y.shape[0]):
+        out[k] = (ctrl.C @ z + ctrl.D @ y[k])[0]
+        rows[k] = (ctrl.C @ power)[0]
+        z = ctrl.A @ z + ctrl.B @ y[k]
+        power = ctrl.A @ power
+    return force - out, rows
+
+
+def controller_shift(loop: Loop, rec: Recording, values: dict[str, float], weights: Weights,
+                     iterations: int = 3) -> np.ndarray | None:
+    """The correction of the controller's start state on a recording with the parameters held at ``values``
+    (the validation run; a loop compiled without its Jacobian): weighted least squares of the free run's
+    output and force channels over the whole run and of the controller's own relation on the recorded
+    signals (:func:`controller_relation`, weighted by its residual's noise level, the recording's evidence
+    of the start state that no plant model can reinterpret). A start state that only a few noisy first
+    samples fixed moves to where the whole run puts it; one that the recorded force fixes exactly (a load
+    the model lacks, held at t = 0) stays, so that the model's error shows. Gauss-Newton with the free
+    run's sensitivity to each controller state by a finite difference (the controller is linear, so it is
+    nearly exact). None when there is nothing to estimate or the free run is not finite."""
+    idx = controller_states(loop)
+    if not idx:
+        return None
+    values = {**loop.values, **values}
+    qm, um = measured(loop, rec, "output"), measured(loop, rec, "input")
+    relation, rows = controller_relation(loop, rec, initial_state(loop, rec, values)[idx])
+    sigma_c = max(noise_level(relation - rows @ np.linalg.lstsq(rows, relation, rcond=1e-10)[0], loop.controller.Ts),
+                  1e-9 * float(np.max(weights.sigma_u)))
+
+    def res(shift: np.ndarray) -> np.ndarray:
+        q, u = simulate(loop, rec, values, shift=shift)
+        return np.concatenate([_weighted(qm, q, weights.sigma_q), _weighted(um, u, weights.sigma_u),
+                               (relation - rows @ shift) / sigma_c])
+
+    ctrl = loop.controller
+    # a step that moves the controller's output by about its noise level within its first samples
+    gain = np.max([np.max(np.abs(ctrl.C @ np.linalg.matrix_power(ctrl.A, j)), axis=0) for j in range(4)], axis=0)
+    step = float(np.max(weights.sigma_u)) / np.maximum(gain, 1e-300)
+    shift = np.zeros(len(idx))
+    r = res(shift)
+    if not np.all(np.isfinite(r)):
+        return None
+    for _ in range(iterations):
+        jac = np.column_stack([(res(shift + step[k] * np.eye(len(idx))[k]) - r) / step[k] for k in range(len(idx))])
+        delta = np.linalg.lstsq(jac, -r, rcond=1e-12)[0]
+        trial = shift + delta
+        r_trial = res(trial)
+        if not np.all(np.isfinite(r_trial)) or r_trial @ r_trial >= r @ r:
+            break
+        shift, r = trial, r_trial
+    return shift
+
+
+def noise_level(residual: np.ndarray, ts: float) -> float:
+    """Standard deviation of the white part of ``residual``: median PSD over the upper half band (as the
+    diagnosis' :func:`ident.diagnosis.evidence.noise_level`)."""
+    x = np.asarray(residual, float) - np.mean(residual)
+    f, pxx = sps.welch(x, fs=1 / ts, nperseg=min(1024, x.size))
+    band = pxx[f >= 0.25 / ts]
+    level = float(np.median(band)) if band.size else float(np.var(x)) * 2 * ts
+    return float(np.sqrt(max(level, 1e-300) / (2 * ts)))
+
+
 def weighted_jacobian(loop: Loop, s0: np.ndarray, W: np.ndarray, theta: np.ndarray, pf: np.ndarray,
                       idx: list[int], weights: Weights) -> np.ndarray:
     """Jacobian of the weighted residual of the free run from ``s0`` w.r.t. [theta, s0[idx]]."""
@@ -244,24 +337,29 @@ def weighted_jacobian(loop: Loop, s0: np.ndarray, W: np.ndarray, theta: np.ndarr
 def fit(loop: Loop, rec: Recording, weights: Weights, bounds: dict[str, tuple[float, float]] | None = None,
         start: dict[str, float] | None = None, max_nfev: int = 40,
         q_meas: np.ndarray | None = None, u_meas: np.ndarray | None = None,
-        estimate_initial: list[str] | tuple[str, ...] = (), initial: dict[str, float] | None = None) -> Fit:
+        estimate_initial: list[str] | tuple[str, ...] = (), initial: dict[str, float] | None = None,
+        estimate_controller: bool = False) -> Fit:
     """Output-error least squares of ``loop.free`` within ``bounds`` (default: the Modelica min/max), by
     scipy's trust-region reflective method with the CasADi Jacobian. The initial values of the plant states
     ``estimate_initial`` are estimated too (unbounded), e.g. the position, which the first noisy sample
     would otherwise fix with an error that the integrator carries through the whole run. ``initial``: known
-    initial values of plant states (e.g. a run that starts at rest at a known position)."""
+    initial values of plant states (e.g. a run that starts at rest at a known position).
+    ``estimate_controller``: the controller's start state is estimated with them (a shift from its
+    first-samples estimate, unbounded, :func:`controller_states`), so that a start state fixed by a few noisy
+    samples is not carried through the whole run by an integrator."""
     known = dict(initial or {})
     values = {**loop.values, **(start or {})}
     names = loop.free
     lo, hi = bound_arrays(loop, bounds)
     idx = state_indices(loop, estimate_initial)
-    n_th = len(names)
+    ctrl_idx = controller_states(loop) if estimate_controller else []
+    n_th, n_x = len(names), len(idx)
     theta0 = _interior(loop.theta(values), lo, hi)
     base = initial_state(loop, rec, values, known)
-    x_init0 = base[idx]
-    scale = np.concatenate([np.maximum(np.abs(theta0), 1e-12), np.ones(len(idx))])
-    lo_all = np.concatenate([lo, np.full(len(idx), -np.inf)])
-    hi_all = np.concatenate([hi, np.full(len(idx), np.inf)])
+    x_init0 = np.concatenate([base[idx], np.zeros(len(ctrl_idx))])
+    scale = np.concatenate([np.maximum(np.abs(theta0), 1e-12), np.ones(x_init0.size)])
+    lo_all = np.concatenate([lo, np.full(x_init0.size, -np.inf)])
+    hi_all = np.concatenate([hi, np.full(x_init0.size, np.inf)])
     s0_cache: dict[bytes, np.ndarray] = {}
     qm = measured(loop, rec, "output") if q_meas is None else q_meas
     um = (measured(loop, rec, "input") if u_meas is None else u_meas) if loop.closed else None
@@ -277,7 +375,7 @@ def fit(loop: Loop, rec: Recording, weights: Weights, bounds: dict[str, tuple[fl
         if key not in s0_cache:
             s0_cache.clear()
             s0_cache[key] = initial_state(loop, rec, {**values, **dict(zip(names, theta))},
-                                          {**known, **dict(zip(estimate_initial, x_init))})
+                                          {**known, **dict(zip(estimate_initial, x_init[:n_x]))}, x_init[n_x:])
         return s0_cache[key]
 
     def res(xs: np.ndarray) -> np.ndarray:
@@ -290,7 +388,7 @@ def fit(loop: Loop, rec: Recording, weights: Weights, bounds: dict[str, tuple[fl
 
     def jac(xs: np.ndarray) -> np.ndarray:
         theta, x_init = split(xs)
-        j = weighted_jacobian(loop, state(theta, x_init), W, theta, pf, idx, weights) * scale
+        j = weighted_jacobian(loop, state(theta, x_init), W, theta, pf, idx + ctrl_idx, weights) * scale
         return np.where(np.isfinite(j), j, 0.0)
 
     nfev = 0
@@ -308,9 +406,10 @@ def fit(loop: Loop, rec: Recording, weights: Weights, bounds: dict[str, tuple[fl
         success = True
     theta, x_init = split(xs)
     final = {**values, **dict(zip(names, map(float, theta)))}
-    initial = dict(zip(estimate_initial, map(float, x_init)))
-    r, q, u = residuals(loop, rec, final, weights, q_meas=qm, u_meas=um, initial={**known, **initial})
+    initial = dict(zip(estimate_initial, map(float, x_init[:n_x])))
+    shift = x_init[n_x:] if ctrl_idx else None
+    r, q, u = residuals(loop, rec, final, weights, q_meas=qm, u_meas=um, initial={**known, **initial}, shift=shift)
     j = jac(xs) / scale if xs.size else np.zeros((r.size, 0))
     cost = float(r @ r) if np.all(np.isfinite(r)) else math.inf
     rms = float(np.sqrt(np.mean((qm - q) ** 2))) if np.all(np.isfinite(q)) else math.inf
-    return Fit(final, cost, rms, q, u, j, success, nfev, initial, r)
+    return Fit(final, cost, rms, q, u, j, success, nfev, initial, r, shift)

@@ -45,7 +45,8 @@ from motiontwin.ident import multipleshooting, plant_states, startvalues
 from motiontwin.ident.controller import Controller
 from motiontwin.ident.leastsquares import (LeastSquaresResult, UnidentifiableError, check_identifiability,
                                           hac_covariance)
-from motiontwin.ident.oefit import (Fit, Weights, _column, _interior, bound_arrays, drive, fit, initial_state,
+from motiontwin.ident.oefit import (Fit, Weights, _column, _interior, bound_arrays, controller_shift,
+                                    controller_states, drive, fit, initial_state,
                                     measured, residuals, simulate, simulate_states, state_indices,
                                     weighted_jacobian)
 from motiontwin.ident.oeloop import (Loop, Signals, _check_names, axis_signals, build_loop, default_bounds,
@@ -54,7 +55,8 @@ from motiontwin.ident.oeloop import (Loop, Signals, _check_names, axis_signals, 
 __all__ = ["Signals", "Loop", "Weights", "Fit", "OutputErrorResult", "build_loop", "default_bounds",
            "simulate", "simulate_states", "residuals", "fit", "statistics", "identify", "bound_arrays",
            "axis_signals", "drive", "initial_state", "measured", "stable_substeps", "_column", "_interior",
-           "state_indices", "weighted_jacobian", "output_state", "initial_motion_states"]
+           "state_indices", "weighted_jacobian", "output_state", "initial_motion_states", "controller_shift",
+           "controller_states"]
 
 
 def _covariances(loop: Loop, result: Fit, keep: np.ndarray) -> tuple[np.ndarray, np.ndarray | None, int | None]:

@@ -115,6 +115,8 @@ class Bundle:
     cache: Any = None            # the compiled loops of the diagnosis running on this bundle (set by the pipeline)
     nominal_free: tuple = ()     # multi-axis: (free nominal parameters, their bounds) (set by the diagnosis)
     process_noise: Any = None    # noise.ProcessNoise of the training recording (set by the pipeline; None: none)
+    weights: Any = None          # outputerror.Weights of the refits (set by the pipeline; the validation runs'
+                                 # controller start state is estimated with them)
     observer: Observer | None = None   # unknown controller: the observer standing in for it (ident.observer)
 
     def recording_path(self, part: str) -> Path:

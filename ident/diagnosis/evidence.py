@@ -19,19 +19,13 @@ from scipy import stats
 
 from motiontwin.fmus import symbolic
 from motiontwin.harness.recording import Recording
+from motiontwin.ident import oefit
 from motiontwin.ident.startvalues import derivative_cutoff, mirror_derivatives
 
 NULL_QUANTILE = 0.999
 VALIDATION_GAIN = 0.9        # an effect must reduce the validation RMS by at least 10 %
-
-
-def noise_level(residual: np.ndarray, ts: float) -> float:
-    """Standard deviation of the white part of ``residual``: median PSD over the upper half band."""
-    x = np.asarray(residual, float) - np.mean(residual)
-    f, pxx = sps.welch(x, fs=1 / ts, nperseg=min(1024, x.size))
-    band = pxx[f >= 0.25 / ts]
-    level = float(np.median(band)) if band.size else float(np.var(x)) * 2 * ts
-    return float(np.sqrt(max(level, 1e-300) / (2 * ts)))
+#: standard deviation of the white part of a residual (median PSD over the upper half band)
+noise_level = oefit.noise_level
 
 
 @dataclass

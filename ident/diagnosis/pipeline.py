@@ -27,8 +27,7 @@ from motiontwin.ident.diagnosis.remainder import EMPIRICAL_EFFECT, explain_remai
 from motiontwin.ident.diagnosis.select import VALIDATION_GAIN, select, upgrade_nested, widen_search_bounds
 from motiontwin.ident.diagnosis.structure import (AUGMENTED_CLASS, LoopCache, _log, _nominal_bounds, build_axes,
                                                   build_structure, estimation_rms, floor_rms, validate,
-                                                  validate_axes,
-                                                  validation_floor,
+                                                  validate_axes, validation_floor, validation_shift,
                                                   write_structure)
 
 #: the final validation RMS may exceed the estimated floor by this factor before the verdict is "unexplained"
@@ -47,6 +46,7 @@ def run(bundle: Bundle, work: Path, progress=None) -> dict:
     _log(progress, f"every candidate effect's augmented model builds ({time.perf_counter() - t0:.1f} s)")
     bundle.start = nominal_start(bundle, progress)
     nominal, weights = fit_nominal(bundle, progress)
+    bundle.weights = weights
     bundle.process_noise = noise.of_bundle(bundle, nominal.fit.values, weights.sigma_q)
     _log(progress, f"process force noise (not predictable from the motion): {bundle.process_noise.describe()}")
     validate(bundle, nominal, work / "v_nominal")
@@ -71,7 +71,7 @@ def run(bundle: Bundle, work: Path, progress=None) -> dict:
     loop, _ = build_structure(bundle, final.effects, values, model_dir, bundle.validation.time.size,
                               with_jacobian=False, min_substeps=final.loop.substeps)
     written = bundle.cache.models[names]
-    q_aug, u_aug = outputerror.simulate(loop, bundle.validation, values)
+    q_aug, u_aug = outputerror.simulate(loop, bundle.validation, values, shift=validation_shift(bundle, loop))
     bundle.process_noise = noise.within_residual(
         bundle.process_noise, floor_rms(final.loop, bundle.train, final.fit.values, weights.sigma_q),
         floor_rms(final.loop, bundle.train, final.fit.values, weights.sigma_q, bundle.process_noise),

@@ -108,7 +108,8 @@ def explain_remainder(bundle: Bundle, final: ModelFit, weights: outputerror.Weig
         try:
             loop, bounds = build_structure(bundle, rest, start, work / f"without_{named.name}",
                                            bundle.train.time.size, min_substeps=trial.loop.substeps)
-            result = outputerror.fit(loop, bundle.train, weights, bounds, start=start, max_nfev=MAX_NFEV)
+            result = outputerror.fit(loop, bundle.train, weights, bounds, start=start, max_nfev=MAX_NFEV,
+                                     estimate_controller=True)
         except (RuntimeError, ValueError, np.linalg.LinAlgError):
             continue
         reduced = ModelFit(rest, loop.with_values(result.values), result, bounds, work / f"without_{named.name}")

@@ -164,9 +164,18 @@ def validate(bundle: Bundle, structure: ModelFit, folder: Path) -> None:
                                       structure.fit.values, rec.time.size, with_jacobian=False,
                                       min_substeps=structure.loop.substeps, input_name=bundle.plant.input_name,
                                       tracking=_moving_start(bundle))
-    q, _ = outputerror.simulate(loop, rec, structure.fit.values)
+    q, _ = outputerror.simulate(loop, rec, structure.fit.values, shift=validation_shift(bundle, loop))
     structure.val_q = q
     structure.val_rms = float(np.sqrt(np.mean((rec["q"] - q) ** 2))) if np.all(np.isfinite(q)) else math.inf
+
+
+def validation_shift(bundle: Bundle, loop: outputerror.Loop) -> np.ndarray | None:
+    """The controller's start state on the validation recording estimated as the refits estimate it on the
+    training recording (both channels over the whole run, weighted by the diagnosis' noise levels), so that
+    neither run carries a start state fixed by its first noisy samples (issue 23)."""
+    if bundle.weights is None:
+        return None
+    return outputerror.controller_shift(loop, bundle.validation, loop.values, bundle.weights)
 
 
 def validation_floor(loop: outputerror.Loop, bundle: Bundle, values: dict[str, float], sigma_q: float | np.ndarray,
@@ -222,7 +231,8 @@ def estimation_rms(train_loop: outputerror.Loop, train: Recording, fit: outputer
         q, u = simulate(encoder, rng)
         columns = {c: train[c] for c in train.columns}
         replicate = Recording(train.time, {**columns, signals.output: q + encoder, signals.input: u})
-        refit = outputerror.fit(train_loop, replicate, weights, bounds, start=fit.values, max_nfev=max_nfev)
+        refit = outputerror.fit(train_loop, replicate, weights, bounds, start=fit.values, max_nfev=max_nfev,
+                                estimate_controller=True)
         moved = {k if k in val_values else "plant." + k: v for k, v in refit.values.items()}
         q_moved, _ = outputerror.simulate(val_loop, validation, {**val_values, **moved})
         shifts.append(float(np.mean((q_moved - q_val) ** 2)))
