@@ -119,6 +119,12 @@ class Bundle:
                                  # controller start state is estimated with them)
     observer: Observer | None = None   # unknown controller: the observer standing in for it (ident.observer)
 
+    @property
+    def estimates_controller_start(self) -> bool:
+        """Whether the refits and validation runs estimate the controller's start state from the whole run
+        (a known controller; an unknown one's observer keeps its own start)."""
+        return self.observer is None
+
     def recording_path(self, part: str) -> Path:
         """Path of the ``train`` or ``validation`` recording."""
         return self.directory / self.experiment["recordings"][part]

@@ -109,7 +109,7 @@ def explain_remainder(bundle: Bundle, final: ModelFit, weights: outputerror.Weig
             loop, bounds = build_structure(bundle, rest, start, work / f"without_{named.name}",
                                            bundle.train.time.size, min_substeps=trial.loop.substeps)
             result = outputerror.fit(loop, bundle.train, weights, bounds, start=start, max_nfev=MAX_NFEV,
-                                     estimate_controller=True)
+                                     estimate_controller=bundle.estimates_controller_start)
         except (RuntimeError, ValueError, np.linalg.LinAlgError):
             continue
         reduced = ModelFit(rest, loop.with_values(result.values), result, bounds, work / f"without_{named.name}")

@@ -107,7 +107,7 @@ def _best_fit(bundle: Bundle, loop: outputerror.Loop, bounds: dict[str, tuple[fl
     best = None
     for k in [0] + data[:count]:
         result = outputerror.fit(loop, bundle.train, weights, bounds, start=points[k], max_nfev=max_nfev,
-                                 estimate_controller=True)
+                                 estimate_controller=bundle.estimates_controller_start)
         if best is None or result.cost < best.cost:
             best = result
     return best, costs[0]
@@ -116,7 +116,7 @@ def _best_fit(bundle: Bundle, loop: outputerror.Loop, bounds: dict[str, tuple[fl
 def refine(bundle: Bundle, structure: ModelFit, weights: outputerror.Weights, max_nfev: int = MAX_NFEV) -> ModelFit:
     """Continue the fit of an already compiled structure from its current values."""
     result = outputerror.fit(structure.loop, bundle.train, weights, structure.bounds, start=structure.fit.values,
-                             max_nfev=max_nfev, estimate_controller=True)
+                             max_nfev=max_nfev, estimate_controller=bundle.estimates_controller_start)
     if result.cost >= structure.fit.cost:
         return structure
     return ModelFit(structure.effects, structure.loop.with_values(result.values), result, structure.bounds,

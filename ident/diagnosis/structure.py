@@ -173,7 +173,7 @@ def validation_shift(bundle: Bundle, loop: outputerror.Loop) -> np.ndarray | Non
     """The controller's start state on the validation recording estimated as the refits estimate it on the
     training recording (both channels over the whole run, weighted by the diagnosis' noise levels), so that
     neither run carries a start state fixed by its first noisy samples (issue 23)."""
-    if bundle.weights is None:
+    if bundle.weights is None or not bundle.estimates_controller_start:
         return None
     return outputerror.controller_shift(loop, bundle.validation, loop.values, bundle.weights)
 
@@ -231,8 +231,7 @@ def estimation_rms(train_loop: outputerror.Loop, train: Recording, fit: outputer
         q, u = simulate(encoder, rng)
         columns = {c: train[c] for c in train.columns}
         replicate = Recording(train.time, {**columns, signals.output: q + encoder, signals.input: u})
-        refit = outputerror.fit(train_loop, replicate, weights, bounds, start=fit.values, max_nfev=max_nfev,
-                                estimate_controller=True)
+        refit = outputerror.fit(train_loop, replicate, weights, bounds, start=fit.values, max_nfev=max_nfev)
         moved = {k if k in val_values else "plant." + k: v for k, v in refit.values.items()}
         q_moved, _ = outputerror.simulate(val_loop, validation, {**val_values, **moved})
         shifts.append(float(np.mean((q_moved - q_val) ** 2)))
