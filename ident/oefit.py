@@ -29,12 +29,18 @@ def initial_state(loop: Loop, rec: Recording, values: dict[str, float] | None = 
     the state an output expression is affine in (an alias, gear ratio or offset) such that the output = q_0,
     other plant states at their start values, tracked states at that position or u_0, states in ``initial`` at those
     values, and in closed loop the controller state giving the recorded force u_0 (least-norm solution of
-    C z = u_0 - u_ext_0 - D y_0), plus ``shift`` (the correction a joint fit estimates,
-    :func:`controller_shift`). Multi-axis: the same for every axis; a tracking signal may name its axis
-    by output (``"dq:q3"``, ``"q:q3"``, ``"u:q3"``; without it, the first axis)."""
+    C z = u_0 - u_ext_0 - D y_0), plus ``shift`` (the correction a joint fit estimates, :func:`fit`,
+    :func:`controller_shift`; states tracking u_0 then hold the force the shifted controller holds).
+    Multi-axis: the same for every axis; a tracking signal may name its axis by output (``"dq:q3"``,
+    ``"q:q3"``, ``"u:q3"``; without it, the first axis)."""
     s0 = _start_state(loop, rec, values, initial)
     if shift is not None and len(shift):
         s0[s0.size - len(shift):] += shift
+        held = float((loop.controller.C @ shift)[0])     # the force the shifted controller holds in addition
+        names = [v.name for v in loop.model.states]
+        for state, tracked in loop.tracking.items():
+            if tracked == "u" and state not in (initial or {}):
+                s0[names.index(state)] += held
     return s0
 
 
@@ -264,6 +270,30 @@ def controller_relation(loop: Loop, rec: Recording, z0: np.ndarray) -> tuple[np.
     return force - out, rows
 
 
+def relation_prior(loop: Loop, rec: Recording, values: dict[str, float],
+                   weights: Weights) -> tuple[np.ndarray, np.ndarray, float]:
+    """The controller's relation (:func:`controller_relation`) from the first-samples start at ``values``,
+    and its weight: the noise level of its residual after the whole-run least-squares start, at least 1e-3
+    sigma_u (a recorded command reproduces the relation to round-off: the start is then known, and a
+    shift away from it is priced far above any model error it could hide)."""
+    ctrl = loop.controller
+    z0 = initial_state(loop, rec, values)[controller_states(loop)]
+    key = (id(rec), hash(_column(rec, loop.signals.input).tobytes() + _column(rec, loop.signals.output).tobytes()),
+           z0.tobytes(), *(m.tobytes() for m in (ctrl.A, ctrl.B, ctrl.C, ctrl.D)))
+    if key not in _RELATIONS:       # one recording and start for every refit of a diagnosis
+        if len(_RELATIONS) > 8:
+            _RELATIONS.clear()
+        relation, rows = controller_relation(loop, rec, z0)
+        level = noise_level(relation - rows @ np.linalg.lstsq(rows, relation, rcond=1e-10)[0], ctrl.Ts)
+        _RELATIONS[key] = (relation, rows, level)
+    relation, rows, level = _RELATIONS[key]
+    return relation, rows, max(level, 1e-3 * float(np.max(weights.sigma_u)))
+
+
+#: relation_prior's results by recording, start state and controller
+_RELATIONS: dict[tuple, tuple[np.ndarray, np.ndarray, float]] = {}
+
+
 def controller_shift(loop: Loop, rec: Recording, values: dict[str, float], weights: Weights,
                      iterations: int = 3) -> np.ndarray | None:
     """The correction of the controller's start state on a recording with the parameters held at ``values``
@@ -280,9 +310,7 @@ def controller_shift(loop: Loop, rec: Recording, values: dict[str, float], weigh
         return None
     values = {**loop.values, **values}
     qm, um = measured(loop, rec, "output"), measured(loop, rec, "input")
-    relation, rows = controller_relation(loop, rec, initial_state(loop, rec, values)[idx])
-    sigma_c = max(noise_level(relation - rows @ np.linalg.lstsq(rows, relation, rcond=1e-10)[0], loop.controller.Ts),
-                  1e-9 * float(np.max(weights.sigma_u)))
+    relation, rows, sigma_c = relation_prior(loop, rec, values, weights)
 
     def res(shift: np.ndarray) -> np.ndarray:
         q, u = simulate(loop, rec, values, shift=shift)
@@ -338,15 +366,18 @@ def fit(loop: Loop, rec: Recording, weights: Weights, bounds: dict[str, tuple[fl
         start: dict[str, float] | None = None, max_nfev: int = 40,
         q_meas: np.ndarray | None = None, u_meas: np.ndarray | None = None,
         estimate_initial: list[str] | tuple[str, ...] = (), initial: dict[str, float] | None = None,
-        estimate_controller: bool = False) -> Fit:
+        estimate_controller: bool = False, shift: np.ndarray | None = None) -> Fit:
     """Output-error least squares of ``loop.free`` within ``bounds`` (default: the Modelica min/max), by
     scipy's trust-region reflective method with the CasADi Jacobian. The initial values of the plant states
     ``estimate_initial`` are estimated too (unbounded), e.g. the position, which the first noisy sample
     would otherwise fix with an error that the integrator carries through the whole run. ``initial``: known
     initial values of plant states (e.g. a run that starts at rest at a known position).
     ``estimate_controller``: the controller's start state is estimated with them (a shift from its
-    first-samples estimate, unbounded, :func:`controller_states`), so that a start state fixed by a few noisy
-    samples is not carried through the whole run by an integrator."""
+    first-samples estimate, unbounded, :func:`controller_states`, priced by the controller's own relation on
+    the recorded signals, :func:`relation_prior`; the reported cost, residual and Jacobian are the
+    recording's rows), so that a start state fixed by a few noisy samples is not carried through the whole
+    run by an integrator, while one the recorded force fixes exactly stays; ``shift``: where that estimate starts
+    (the fitted shift of the model a refit continues or extends; default none)."""
     known = dict(initial or {})
     values = {**loop.values, **(start or {})}
     names = loop.free
@@ -356,7 +387,7 @@ def fit(loop: Loop, rec: Recording, weights: Weights, bounds: dict[str, tuple[fl
     n_th, n_x = len(names), len(idx)
     theta0 = _interior(loop.theta(values), lo, hi)
     base = initial_state(loop, rec, values, known)
-    x_init0 = np.concatenate([base[idx], np.zeros(len(ctrl_idx))])
+    x_init0 = np.concatenate([base[idx], np.zeros(len(ctrl_idx)) if shift is None or not ctrl_idx else shift])
     scale = np.concatenate([np.maximum(np.abs(theta0), 1e-12), np.ones(x_init0.size)])
     lo_all = np.concatenate([lo, np.full(x_init0.size, -np.inf)])
     hi_all = np.concatenate([hi, np.full(x_init0.size, np.inf)])
@@ -391,12 +422,24 @@ def fit(loop: Loop, rec: Recording, weights: Weights, bounds: dict[str, tuple[fl
         j = weighted_jacobian(loop, state(theta, x_init), W, theta, pf, idx + ctrl_idx, weights) * scale
         return np.where(np.isfinite(j), j, 0.0)
 
+    if ctrl_idx:    # the controller's relation on the recorded signals prices a shift of its start
+        relation, rows, sigma_c = relation_prior(loop, rec, values, weights)
+        prior_jac = np.hstack([np.zeros((rows.shape[0], n_th + n_x)), -rows / sigma_c])
+
+        def res_all(xs: np.ndarray) -> np.ndarray:
+            return np.concatenate([res(xs), (relation - rows @ split(xs)[1][n_x:]) / sigma_c])
+
+        def jac_all(xs: np.ndarray) -> np.ndarray:
+            return np.vstack([jac(xs), prior_jac * scale])
+    else:
+        res_all, jac_all = res, jac
+
     nfev = 0
     x_start = np.concatenate([theta0, x_init0]) / scale
     if x_start.size:
         if loop.jac is None:
             raise ValueError("the loop was compiled without its Jacobian (with_jacobian=False)")
-        sol = least_squares(res, x_start, jac=jac, bounds=(lo_all / scale, hi_all / scale), method="trf",
+        sol = least_squares(res_all, x_start, jac=jac_all, bounds=(lo_all / scale, hi_all / scale), method="trf",
                             x_scale="jac", max_nfev=max_nfev, xtol=1e-10, ftol=1e-10, gtol=1e-10)
         xs = sol.x
         success = bool(sol.success or sol.status == 0)

@@ -115,15 +115,8 @@ class Bundle:
     cache: Any = None            # the compiled loops of the diagnosis running on this bundle (set by the pipeline)
     nominal_free: tuple = ()     # multi-axis: (free nominal parameters, their bounds) (set by the diagnosis)
     process_noise: Any = None    # noise.ProcessNoise of the training recording (set by the pipeline; None: none)
-    weights: Any = None          # outputerror.Weights of the refits (set by the pipeline; the validation runs'
-                                 # controller start state is estimated with them)
+    weights: Any = None          # outputerror.Weights of the refits (set by the pipeline; validation start state)
     observer: Observer | None = None   # unknown controller: the observer standing in for it (ident.observer)
-
-    @property
-    def estimates_controller_start(self) -> bool:
-        """Whether the refits and validation runs estimate the controller's start state from the whole run
-        (a known controller; an unknown one's observer keeps its own start)."""
-        return self.observer is None
 
     def recording_path(self, part: str) -> Path:
         """Path of the ``train`` or ``validation`` recording."""

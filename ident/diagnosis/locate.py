@@ -147,7 +147,7 @@ def locate(bundle: Bundle, current: ModelFit, weights: outputerror.Weights, seed
     rec = bundle.train
 
     def simulated(noise: np.ndarray | None) -> np.ndarray:
-        q, u = outputerror.simulate(current.loop, rec, current.fit.values, noise=noise)
+        q, u = outputerror.simulate(current.loop, rec, current.fit.values, noise=noise, shift=current.fit.shift)
         columns = dict(rec.columns)
         for k, a in enumerate(bundle.plant.axes):
             columns[a.output], columns[a.input] = q[k] + (0.0 if noise is None else noise[k]), u[k]

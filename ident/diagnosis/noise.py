@@ -218,14 +218,17 @@ def of_bundle(bundle: Bundle, values: dict[str, float], sigma_q: float) -> Proce
 
 
 def noisy_simulator(loop: Loop, rec: Recording, values: dict[str, float], process: ProcessNoise | None,
+                    shift: np.ndarray | None = None,
                     ) -> Callable[[np.ndarray, np.random.Generator], tuple[np.ndarray, np.ndarray]]:
     """(encoder noise, rng) -> the loop's (q, u) re-simulated along ``rec`` with that encoder noise fed back
-    and, for one axis, a fresh realisation of ``process`` acting on the plant. The returned u is the force
-    the controller commanded (the process noise is not in a recorded force)."""
+    and, for one axis, a fresh realisation of ``process`` acting on the plant, from the controller start
+    ``shift`` (the fit's, so that a replicate differs from the fitted free run by the noise alone). The
+    returned u is the force the controller commanded (the process noise is not in a recorded force)."""
     def simulate(noise: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
         if process is None or not process.present or loop.axes:
-            return outputerror.simulate(loop, rec, values, noise=noise)
+            return outputerror.simulate(loop, rec, values, noise=noise, shift=shift)
         w = process.sample(rec.time.size, loop.ts, rng)
-        q, u = outputerror.simulate(loop, with_force_noise(rec, w, loop.signals.disturbance), values, noise=noise)
+        q, u = outputerror.simulate(loop, with_force_noise(rec, w, loop.signals.disturbance), values, noise=noise,
+                                    shift=shift)
         return q, u - w
     return simulate

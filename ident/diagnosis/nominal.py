@@ -94,11 +94,11 @@ def fit_nominal(bundle: Bundle, progress=None) -> tuple[ModelFit, outputerror.We
     weights = outputerror.Weights(evidence.noise_level(bundle.train["q"] - q0, ts),
                                   evidence.noise_level(bundle.train["u"] - u0, ts))
     result = outputerror.fit(loop, bundle.train, weights, bounds, max_nfev=40,
-                             estimate_controller=bundle.estimates_controller_start)
+                             estimate_controller=bundle.observer is None)
     weights = outputerror.Weights(evidence.noise_level(bundle.train["q"] - result.q_sim, ts),
                                   evidence.noise_level(bundle.train["u"] - result.u_sim, ts))
     result = outputerror.fit(loop.with_values(result.values), bundle.train, weights, bounds, max_nfev=15,
-                             estimate_controller=bundle.estimates_controller_start)
+                             estimate_controller=bundle.observer is None, shift=result.shift)
     _log(progress, f"nominal refit: {_fmt(result.values)}; rms q {result.rms_q:.3g} m")
     hit = at_bound_text(at_bound(result.values, bounds, free))
     if hit:
@@ -167,10 +167,10 @@ def fit_nominal_axes(bundle: Bundle, work: Path, progress=None) -> tuple[ModelFi
                                    {n: loop.values[n] for n in loop.free}, _divergence_hint(bundle))
     weights = _noise_weights(bundle, loop, q0, u0)
     result = outputerror.fit(loop, bundle.train, weights, bounds, max_nfev=40,
-                             estimate_controller=bundle.estimates_controller_start)
+                             estimate_controller=bundle.observer is None)
     weights = _noise_weights(bundle, loop, result.q_sim, result.u_sim)
     result = outputerror.fit(loop.with_values(result.values), bundle.train, weights, bounds, max_nfev=15,
-                             estimate_controller=bundle.estimates_controller_start)
+                             estimate_controller=bundle.observer is None, shift=result.shift)
     _log(progress, f"nominal refit ({', '.join(loop.free)}): "
                    f"{_fmt({k: result.values[k] for k in loop.free})}; rms q {result.rms_q:.3g} m")
     return ModelFit([], loop.with_values(result.values), result, bounds), weights

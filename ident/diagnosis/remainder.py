@@ -109,7 +109,7 @@ def explain_remainder(bundle: Bundle, final: ModelFit, weights: outputerror.Weig
             loop, bounds = build_structure(bundle, rest, start, work / f"without_{named.name}",
                                            bundle.train.time.size, min_substeps=trial.loop.substeps)
             result = outputerror.fit(loop, bundle.train, weights, bounds, start=start, max_nfev=MAX_NFEV,
-                                     estimate_controller=bundle.estimates_controller_start)
+                                     estimate_controller=bundle.observer is None, shift=trial.fit.shift)
         except (RuntimeError, ValueError, np.linalg.LinAlgError):
             continue
         reduced = ModelFit(rest, loop.with_values(result.values), result, bounds, work / f"without_{named.name}")
@@ -165,7 +165,8 @@ def _null_test(bundle: Bundle, final: ModelFit, trial: ModelFit, weights: output
                dof: int) -> tuple[np.ndarray, float, float]:
     """The parametric-bootstrap null residuals of the final model (seeded after the selection's rounds), the
     empirical term's cost reduction and its 99.9 % null threshold for ``dof`` fitted parameters."""
-    noisy = noise.noisy_simulator(final.loop, bundle.train, final.fit.values, bundle.process_noise)
+    noisy = noise.noisy_simulator(final.loop, bundle.train, final.fit.values, bundle.process_noise,
+                                  final.fit.shift)
     null = evidence.bootstrap_residuals(noisy, final.fit.q_sim, final.fit.u_sim, weights.sigma_q, weights.sigma_u,
                                         bundle.train.time.size, BOOTSTRAP_COUNT, seed=MAX_EFFECTS + 1)
     null_gain = evidence.projected_gain(trial.fit.jacobian, null) - evidence.projected_gain(final.fit.jacobian, null)

@@ -52,7 +52,8 @@ def fit_structure(bundle: Bundle, current: ModelFit, candidate: effect_models.Ef
     joint = _joint_start(bundle, loop, candidate, {**values, **first})
     prior = {"plant." + k: v for k, v in default_start(bundle).items() if "plant." + k in loop.free}
     starts = starts + ([joint] if joint else []) + ([{**prior, **first}] if prior else [])
-    best, start_cost = _best_fit(bundle, loop, bounds, weights, base, starts, max_nfev, candidate.name)
+    best, start_cost = _best_fit(bundle, loop, bounds, weights, base, starts, max_nfev, candidate.name,
+                                 current.fit.shift)
     return ModelFit(effects, loop.with_values(best.values), best, bounds, folder, start_cost=start_cost)
 
 
@@ -85,29 +86,29 @@ def _joint_start(bundle: Bundle, loop: outputerror.Loop, candidate: effect_model
 
 
 def _start_cost(bundle: Bundle, loop: outputerror.Loop, weights: outputerror.Weights,
-                values: dict[str, float]) -> float:
-    """The training cost of ``loop`` at ``values`` (one free run, no fit)."""
-    r, _, _ = outputerror.residuals(loop, bundle.train, values, weights)
+                values: dict[str, float], shift: np.ndarray | None = None) -> float:
+    """The training cost of ``loop`` at ``values`` with the controller start ``shift`` (one free run, no fit)."""
+    r, _, _ = outputerror.residuals(loop, bundle.train, values, weights, shift=shift)
     return float(r @ r) if np.all(np.isfinite(r)) else math.inf
 
 
 def _best_fit(bundle: Bundle, loop: outputerror.Loop, bounds: dict[str, tuple[float, float]],
               weights: outputerror.Weights, base: dict[str, float], starts: list[dict[str, float]],
-              max_nfev: int, name: str = "") -> tuple[outputerror.Fit, float]:
+              max_nfev: int, name: str = "", shift: np.ndarray | None = None) -> tuple[outputerror.Fit, float]:
     """The lowest-cost fit of ``loop`` from ``base`` with the vanishing start (``starts[0]``) and the
     lowest-cost data-driven starts over it (each clipped into its bounds): ``SCREEN_STARTS`` of them in a
     screening fit (every one for ``MULTI_START`` effects), ``FULL_STARTS`` in a full fit. Returns the fit
     and the cost at the vanishing start. The trust-region fit accepts only descent, so no fit ends above the
-    cost of its start."""
+    cost of its start. ``shift``: the current model's controller start (where every fit's estimate starts)."""
     points = [{**base, **{k: float(np.clip(v, *bounds[k])) for k, v in start.items() if k in bounds}}
               for start in starts]
-    costs = [_start_cost(bundle, loop, weights, point) for point in points]
+    costs = [_start_cost(bundle, loop, weights, point, shift) for point in points]
     data = sorted(range(1, len(points)), key=lambda k: costs[k])
     count = len(data) if name in MULTI_START else SCREEN_STARTS if max_nfev <= SCREEN_NFEV else FULL_STARTS
     best = None
     for k in [0] + data[:count]:
         result = outputerror.fit(loop, bundle.train, weights, bounds, start=points[k], max_nfev=max_nfev,
-                                 estimate_controller=bundle.estimates_controller_start)
+                                 estimate_controller=bundle.observer is None, shift=shift)
         if best is None or result.cost < best.cost:
             best = result
     return best, costs[0]
@@ -116,7 +117,8 @@ def _best_fit(bundle: Bundle, loop: outputerror.Loop, bounds: dict[str, tuple[fl
 def refine(bundle: Bundle, structure: ModelFit, weights: outputerror.Weights, max_nfev: int = MAX_NFEV) -> ModelFit:
     """Continue the fit of an already compiled structure from its current values."""
     result = outputerror.fit(structure.loop, bundle.train, weights, structure.bounds, start=structure.fit.values,
-                             max_nfev=max_nfev, estimate_controller=bundle.estimates_controller_start)
+                             max_nfev=max_nfev, estimate_controller=bundle.observer is None,
+                             shift=structure.fit.shift)
     if result.cost >= structure.fit.cost:
         return structure
     return ModelFit(structure.effects, structure.loop.with_values(result.values), result, structure.bounds,
@@ -236,7 +238,7 @@ def fit_candidate(bundle: Bundle, current: ModelFit, effect: effect_models.Effec
     loop, bounds = build_axes(bundle, effects, values, folder, bundle.train.time.size,
                               min_substeps=current.loop.substeps)
     best, start_cost = _best_fit(bundle, loop, bounds, weights, {**loop.values, **base}, starts, max_nfev,
-                                 effect.name)
+                                 effect.name, current.fit.shift)
     return ModelFit(current.effects + [placed], loop.with_values(best.values), best, bounds, folder,
                     evidence=dict(current.evidence), axes=current.axes + [axis], start_cost=start_cost)
 

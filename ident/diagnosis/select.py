@@ -56,11 +56,13 @@ def select(bundle: Bundle, nominal: ModelFit, weights: outputerror.Weights, ctx:
             # structure, so that no candidate is credited with leftover fit slack or integration error
             loop, bounds = compiled(bundle, current, work / f"c{rounds}")
             result = outputerror.fit(loop, bundle.train, weights, bounds, start=current.fit.values,
-                                     max_nfev=4 * MAX_NFEV, estimate_controller=bundle.estimates_controller_start)
+                                     max_nfev=4 * MAX_NFEV, estimate_controller=bundle.observer is None,
+                                     shift=current.fit.shift)
             current = ModelFit(current.effects, loop.with_values(result.values), result, bounds,
                                work / f"c{rounds}", evidence=current.evidence, axes=current.axes)
             validate_any(bundle, current, work / f"v{rounds}_refined")
-        noisy = noise.noisy_simulator(current.loop, bundle.train, current.fit.values, bundle.process_noise)
+        noisy = noise.noisy_simulator(current.loop, bundle.train, current.fit.values, bundle.process_noise,
+                                      current.fit.shift)
         null = evidence.bootstrap_residuals(noisy, current.fit.q_sim, current.fit.u_sim, weights.sigma_q,
                                             weights.sigma_u, bundle.train.time.size, BOOTSTRAP_COUNT, seed=rounds)
         base_gain = evidence.projected_gain(current.fit.jacobian, null)
@@ -147,7 +149,8 @@ def upgrade_nested(bundle: Bundle, final: ModelFit, weights: outputerror.Weights
                               if s == simple.name) if e.applicable]
         if not richer:
             continue
-        noisy = noise.noisy_simulator(current.loop, bundle.train, current.fit.values, bundle.process_noise)
+        noisy = noise.noisy_simulator(current.loop, bundle.train, current.fit.values, bundle.process_noise,
+                                      current.fit.shift)
         null = evidence.bootstrap_residuals(noisy, current.fit.q_sim, current.fit.u_sim, weights.sigma_q,
                                             weights.sigma_u, bundle.train.time.size, BOOTSTRAP_COUNT, seed=99)
         base_gain = evidence.projected_gain(current.fit.jacobian, null)

@@ -173,7 +173,7 @@ def validation_shift(bundle: Bundle, loop: outputerror.Loop) -> np.ndarray | Non
     """The controller's start state on the validation recording estimated as the refits estimate it on the
     training recording (both channels over the whole run, weighted by the diagnosis' noise levels), so that
     neither run carries a start state fixed by its first noisy samples (issue 23)."""
-    if bundle.weights is None or not bundle.estimates_controller_start:
+    if bundle.weights is None or bundle.observer is not None:
         return None
     return outputerror.controller_shift(loop, bundle.validation, loop.values, bundle.weights)
 
