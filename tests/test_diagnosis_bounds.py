@@ -7,11 +7,13 @@ bounds' definition (Modelica min/max of the plant) and the widening rule's arith
 from __future__ import annotations
 
 import json
+import shutil
 from pathlib import Path
 
 import pytest
 
 from motiontwin.ident.benchmarks import single_axis as bench
+from motiontwin.ident.benchmarks import truth
 from motiontwin.ident.benchmarks.truth import V_EPS
 from motiontwin.ident.diagnosis import effects as effect_models
 from motiontwin.ident.diagnosis.locate import context
@@ -172,3 +174,29 @@ def test_level_on_its_vanishing_point_is_reported_at_bound_not_widened(tmp_path)
     top = effect.params[1].bounds[1]
     assert found["lugre_z0"]["limit"] == top and "widened_from" not in found["lugre_z0"]
     assert "lugre_z0" not in bounds_widened(final) and "widened from" not in at_bound_text(found)
+
+
+def test_widening_that_does_not_carry_over_to_validation_is_not_kept(tmp_path, monkeypatch):
+    """The Coulomb axis above for training, but a validation run from a truth whose velocity scale (1 mm/s)
+    lies inside the default range: widening the limit lowers the training cost tenfold, yet the validation run
+    gets worse (the widened law does not carry over), so the fit stays on its limit, reported at bound and not
+    widened. Also guards that a structure not validated before the widening is validated for the comparison."""
+    folder, other = tmp_path / "coulomb", tmp_path / "validation_truth"
+    bench.write_bundle(folder, "coulomb_friction", seed=1, durations=(1.5, 0.75), engine="casadi", stroke=0.01)
+    monkeypatch.setattr(truth, "V_EPS", 1e-3)
+    bench.write_bundle(other, "coulomb_friction", seed=1, durations=(1.5, 0.75), engine="casadi", stroke=0.01)
+    shutil.copy(other / "validation.csv", folder / "validation.csv")
+    bundle = read_bundle(folder)
+    bundle.cache = LoopCache()
+    bundle.start = nominal_start(bundle)
+    nominal, weights = fit_nominal(bundle)
+    ctx = context(bundle, nominal)
+    effect = effect_models.coulomb_friction(ctx)
+    fitted = refine(bundle, fit_structure(bundle, nominal, effect, ctx, weights, tmp_path / "fit"), weights)
+    lines: list[str] = []
+    final = widen_search_bounds(bundle, fitted, weights, tmp_path / "widen", progress=lines.append)
+    assert any("training cost" in line for line in lines)              # the widened refit did descend
+    assert any("does not carry over" in line for line in lines)
+    assert final.fit.values == fitted.fit.values and final.bounds == fitted.bounds
+    assert bounds_widened(final) == {}
+    assert structure_at_bound(final)["coulomb_v_eps"]["bound"] == "upper"
