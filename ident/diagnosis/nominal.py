@@ -42,7 +42,7 @@ def nominal_start(bundle: Bundle, progress=None) -> dict[str, float]:
         _log(progress, "start values: the Modelica defaults and plant.parameters (the inverse-dynamics start "
                        "needs the output to be the position state itself)")
         return values
-    estimate = startvalues.inverse_dynamics_start(model, bundle.train["q"], bundle.train["u"], bundle.controller.Ts,
+    estimate = startvalues.inverse_dynamics_start(model, bundle.train["q"], bundle.train["u"], bundle.controller.sample_time,
                                                   plant.position_state, guess, values, input_name=plant.input_name)
     kept = {n: v for n, v in estimate.items() if v * values[n] > 0 or (values[n] == 0 and v != 0)}
     if kept:
@@ -90,7 +90,7 @@ def fit_nominal(bundle: Bundle, progress=None) -> tuple[ModelFit, outputerror.We
                                f"the nominal closed loop ({bundle.plant.class_name} with the bundle's controller) on "
                                f"{bundle.recording_path('train')}", {n: values[n] for n in free},
                                _divergence_hint(bundle))
-    ts = bundle.controller.Ts
+    ts = bundle.controller.sample_time
     weights = outputerror.Weights(evidence.noise_level(bundle.train["q"] - q0, ts),
                                   evidence.noise_level(bundle.train["u"] - u0, ts))
     result = outputerror.fit(loop, bundle.train, weights, bounds, max_nfev=40)
@@ -107,7 +107,7 @@ def fit_nominal(bundle: Bundle, progress=None) -> tuple[ModelFit, outputerror.We
 def check_plant_form(bundle: Bundle, folder: Path) -> None:
     """Build every candidate effect's augmented model on the bundle's plant before any fitting (raises
     :class:`BundleError` naming the construct and the plant file's line)."""
-    plant, ts = bundle.plant, bundle.controller.Ts
+    plant, ts = bundle.plant, bundle.controller.sample_time
     values = {v.name: float(v.start) for v in plant.model.parameters}
     try:
         gain, offset = output_map(plant.model, plant.roles, values)
@@ -147,7 +147,7 @@ def nominal_free(bundle: Bundle) -> tuple[list[str], dict[str, tuple[float, floa
 
 
 def _noise_weights(bundle: Bundle, loop: outputerror.Loop, q: np.ndarray, u: np.ndarray) -> outputerror.Weights:
-    ts = bundle.controller.Ts
+    ts = bundle.controller.sample_time
     qm, um = outputerror.measured(loop, bundle.train, "output"), outputerror.measured(loop, bundle.train, "input")
     return outputerror.Weights(np.array([evidence.noise_level(qm[k] - q[k], ts) for k in range(len(qm))]),
                                np.array([evidence.noise_level(um[k] - u[k], ts) for k in range(len(um))]))

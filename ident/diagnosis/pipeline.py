@@ -109,7 +109,7 @@ def above_floor(bundle: Bundle, remainder: dict, q_final: np.ndarray, floor: flo
     above = rms > FLOOR_MARGIN * reach
     if remainder.get("status", "").startswith("unexplained") or not above:
         return remainder
-    ts = bundle.controller.Ts
+    ts = bundle.controller.sample_time
     _, v, _ = startvalues.mirror_derivatives(rec["q"], 1 / ts, startvalues.derivative_cutoff(1 / ts))
     where = empirical.locate_remainder(residual, residual, rec.time, v, rec["q"], sigma_q, ts)
     reason = (f"the validation RMS {rms:.4g} is {rms / reach:.3g} times what a correct model fitted on this training "

@@ -143,7 +143,7 @@ def build_structure(bundle: Bundle, effects: list[effect_models.Effect], values:
     tracking = {s: "q" for e in effects for s in e.tracks_position} | _moving_start(bundle, "plant.")
     tracking.update({s: "u" for e in effects for s in e.tracks_force})
     min_substeps = max([min_substeps] + [e.min_substeps for e in effects])
-    substeps = substeps or max(min_substeps, outputerror.stable_substeps(model, all_values, bundle.controller.Ts))
+    substeps = substeps or max(min_substeps, outputerror.stable_substeps(model, all_values, bundle.controller.sample_time))
     key = (names, n_samples, substeps, with_jacobian)
     if key not in cache.loops:
         cache.loops[key] = outputerror.build_loop(model, bundle.controller, "q",
@@ -348,7 +348,7 @@ def build_axes(bundle: Bundle, effects: list[tuple[str, effect_models.Effect]], 
         write_axes_structure(bundle.plant, effects, values, folder)
         model = cache.models[names] = load_structure(folder)
     free, bounds, all_values = structure_parameters(model, [e for _, e in effects], *bundle.nominal_free, values)
-    substeps = max(min_substeps, outputerror.stable_substeps(model, all_values, bundle.controller.Ts))
+    substeps = max(min_substeps, outputerror.stable_substeps(model, all_values, bundle.controller.sample_time))
     key = ("axes",) + (names, n_samples, substeps, with_jacobian)
     if key not in cache.loops:
         cache.loops[key] = outputerror.build_loop(model, bundle.controller, bundle.plant.axes[0].output, free,
