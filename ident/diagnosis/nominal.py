@@ -174,33 +174,53 @@ def fit_nominal_axes(bundle: Bundle, work: Path, progress=None) -> tuple[ModelFi
 
 def plant_physics(bundle: Bundle, nominal: ModelFit, ctx: effect_models.Context) -> dict[str, str]:
     """Catalogue effects whose force the plant already has as a refitted parameter (effect -> parameter): the
-    force the parameter adds along the recorded motion (d u_needed / d p from the plant's equations at the
-    filtered states of ``ctx``) points the same way as the effect's force shape (``Effect.regressor``), so the
-    effect would add the same physics a second time."""
+    forces the refitted parameters add along the recorded motion (d u_needed / d p from the plant's equations
+    at the filtered states of ``ctx``, u_needed the force giving its filtered acceleration) reproduce the
+    effect's force shape (``Effect.regressor``), so the effect would add the same physics a second time; the
+    parameter named is the one carrying most of it (:func:`_owner`). With u = 0 for u_needed a mass would push
+    the plant's other forces over itself, a constant on a loaded axis: an offset taken for the mass's."""
     plant = bundle.plant
-    if bundle.multi_axis or ctx.x is None or ctx.v is None or not nominal.loop.free:
+    if bundle.multi_axis or ctx.x is None or ctx.v is None or ctx.a is None or not nominal.loop.free:
         return {}
     model = plant.model
     names, inputs = [s.name for s in model.states], [v.name for v in model.inputs]
     params = [v.name for v in model.parameters]
     i_v, k_u = names.index(plant.velocity_state), inputs.index(plant.input_name)
     acc = model.dx[i_v]
-    fn = ca.Function("push", [model.x, model.u, model.p], [ca.jacobian(acc, model.u)[k_u], ca.jacobian(acc, model.p)])
+    fn = ca.Function("push", [model.x, model.u, model.p],
+                     [acc, ca.jacobian(acc, model.u)[k_u], ca.jacobian(acc, model.p)]).map(ctx.x.size)
     p = np.array([nominal.fit.values.get(n, 0.0) for n in params])
     x0 = np.array(ca.Function("x0", [model.p], [model.x0()])(p)).ravel()
     x = np.tile(x0[:, None], (1, ctx.x.size))
     x[names.index(plant.position_state)], x[i_v] = ctx.x, ctx.v
-    gain, dp = fn.map(ctx.x.size)(x, np.zeros((model.u.numel(), ctx.x.size)), p)
+    u = np.zeros((model.u.numel(), ctx.x.size))
+    acc0, gain, _ = fn(x, u, p)
+    u[k_u] = (ctx.a - np.array(acc0).ravel()) / np.array(gain).ravel()   # exact for a plant affine in u
+    _, gain, dp = fn(x, u, p)
     dp = np.array(dp).reshape(ctx.x.size, len(params)).T / np.array(gain).ravel()
+    pushes = np.array([dp[params.index(name)] for name in nominal.loop.free])
     owned = {}
-    for name in nominal.loop.free:
-        push = dp[params.index(name)]
-        for effect, factory in effect_models.VOCABULARY.items():
-            shape = factory(ctx).regressor
-            if shape is None or effect in owned:
-                continue
-            r = shape(ctx, ctx.x, ctx.v)
-            norm = float(np.linalg.norm(r) * np.linalg.norm(push))
-            if norm > 0 and abs(float(r @ push)) / norm > SAME_PHYSICS:
-                owned[effect] = name
+    for effect, factory in effect_models.VOCABULARY.items():
+        shape = factory(ctx).regressor
+        if shape is None:
+            continue
+        owner = _owner(shape(ctx, ctx.x, ctx.v), pushes)
+        if owner is not None:
+            owned[effect] = nominal.loop.free[owner]
     return owned
+
+
+def _owner(shape: np.ndarray, pushes: np.ndarray) -> int | None:
+    """The plant parameter (row of ``pushes``) that carries ``shape``: the forces of all refitted parameters
+    together reproduce it (|cosine| with its least-squares projection on them above ``SAME_PHYSICS``), and
+    that parameter's term is the largest of the projection; None when they do not."""
+    norm = float(np.linalg.norm(shape))
+    usable = np.linalg.norm(pushes, axis=1) > 0
+    if norm == 0 or not usable.any():
+        return None
+    coef = np.zeros(len(pushes))
+    coef[usable] = np.linalg.lstsq(pushes[usable].T, shape, rcond=None)[0]
+    fitted = coef @ pushes
+    if float(np.linalg.norm(fitted)) <= SAME_PHYSICS * norm:   # |cos(shape, projection)| = |projection| / |shape|
+        return None
+    return int(np.argmax(np.abs(coef) * np.linalg.norm(pushes, axis=1)))
