@@ -174,11 +174,29 @@ def fit_nominal_axes(bundle: Bundle, work: Path, progress=None) -> tuple[ModelFi
 
 def plant_physics(bundle: Bundle, nominal: ModelFit, ctx: effect_models.Context) -> dict[str, str]:
     """Catalogue effects whose force the plant already has as a refitted parameter (effect -> parameter): the
-    forces the refitted parameters add along the recorded motion (d u_needed / d p from the plant's equations
-    at the filtered states of ``ctx``, u_needed the force giving its filtered acceleration) reproduce the
-    effect's force shape (``Effect.regressor``), so the effect would add the same physics a second time; the
-    parameter named is the one carrying most of it (:func:`_owner`). With u = 0 for u_needed a mass would push
-    the plant's other forces over itself, a constant on a loaded axis: an offset taken for the mass's."""
+    force the parameter adds along the recorded motion (:func:`parameter_forces`) points the same way as the
+    effect's force shape (``Effect.regressor``), so the effect would add the same physics a second time. Of
+    several such parameters the closest (largest |cosine|) is named, whatever their order in the plant."""
+    forces = parameter_forces(bundle, nominal, ctx)
+    owned = {}
+    for effect, factory in effect_models.VOCABULARY.items():
+        shape = factory(ctx).regressor
+        if shape is None or not forces:
+            continue
+        r = shape(ctx, ctx.x, ctx.v)
+        cosine = {name: _cosine(r, push) for name, push in forces.items()}
+        best = max(cosine, key=cosine.get)
+        if cosine[best] > SAME_PHYSICS:
+            owned[effect] = best
+    return owned
+
+
+def parameter_forces(bundle: Bundle, nominal: ModelFit, ctx: effect_models.Context) -> dict[str, np.ndarray]:
+    """d u_needed / d p of every refitted nominal parameter along the training run's filtered states (``ctx``):
+    the force each parameter adds, u_needed being the force the plant's equations need for the filtered
+    acceleration (exact for a plant affine in its input; a PrismaticAxis gives a, v, tanh(v/v_eps), 1). At
+    u = 0 instead, a mass would push the plant's other forces over itself (a constant on a loaded axis: an
+    offset taken for the mass's). Empty for a multi-axis plant or without the inverse-dynamics signals."""
     plant = bundle.plant
     if bundle.multi_axis or ctx.x is None or ctx.v is None or ctx.a is None or not nominal.loop.free:
         return {}
@@ -195,32 +213,13 @@ def plant_physics(bundle: Bundle, nominal: ModelFit, ctx: effect_models.Context)
     x[names.index(plant.position_state)], x[i_v] = ctx.x, ctx.v
     u = np.zeros((model.u.numel(), ctx.x.size))
     acc0, gain, _ = fn(x, u, p)
-    u[k_u] = (ctx.a - np.array(acc0).ravel()) / np.array(gain).ravel()   # exact for a plant affine in u
+    u[k_u] = (ctx.a - np.array(acc0).ravel()) / np.array(gain).ravel()
     _, gain, dp = fn(x, u, p)
-    dp = np.array(dp).reshape(ctx.x.size, len(params)).T / np.array(gain).ravel()
-    pushes = np.array([dp[params.index(name)] for name in nominal.loop.free])
-    owned = {}
-    for effect, factory in effect_models.VOCABULARY.items():
-        shape = factory(ctx).regressor
-        if shape is None:
-            continue
-        owner = _owner(shape(ctx, ctx.x, ctx.v), pushes)
-        if owner is not None:
-            owned[effect] = nominal.loop.free[owner]
-    return owned
+    dp = -np.array(dp).reshape(ctx.x.size, len(params)).T / np.array(gain).ravel()
+    return {name: dp[params.index(name)] for name in nominal.loop.free}
 
 
-def _owner(shape: np.ndarray, pushes: np.ndarray) -> int | None:
-    """The plant parameter (row of ``pushes``) that carries ``shape``: the forces of all refitted parameters
-    together reproduce it (|cosine| with its least-squares projection on them above ``SAME_PHYSICS``), and
-    that parameter's term is the largest of the projection; None when they do not."""
-    norm = float(np.linalg.norm(shape))
-    usable = np.linalg.norm(pushes, axis=1) > 0
-    if norm == 0 or not usable.any():
-        return None
-    coef = np.zeros(len(pushes))
-    coef[usable] = np.linalg.lstsq(pushes[usable].T, shape, rcond=None)[0]
-    fitted = coef @ pushes
-    if float(np.linalg.norm(fitted)) <= SAME_PHYSICS * norm:   # |cos(shape, projection)| = |projection| / |shape|
-        return None
-    return int(np.argmax(np.abs(coef) * np.linalg.norm(pushes, axis=1)))
+def _cosine(a: np.ndarray, b: np.ndarray) -> float:
+    """|cosine| between two vectors (0 when one is zero)."""
+    norm = float(np.linalg.norm(a) * np.linalg.norm(b))
+    return abs(float(a @ b)) / norm if norm > 0 else 0.0
