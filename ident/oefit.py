@@ -241,6 +241,37 @@ def weighted_jacobian(loop: Loop, s0: np.ndarray, W: np.ndarray, theta: np.ndarr
     return j
 
 
+#: a start value at or below this magnitude counts as zero: the optimiser's scale of that parameter comes from
+#: the data, not from the value itself
+ZERO_START = 1e-12
+
+
+def parameter_scale(theta0: np.ndarray, r0: np.ndarray | None = None, j0: np.ndarray | None = None) -> np.ndarray:
+    """The optimiser's unit of each free parameter: its start value's magnitude; for a parameter that starts at
+    zero (Fc, F0 of a plant written without them, refitted because ``plant.free`` lists them), the magnitude
+    the data ask for: its own one-parameter Gauss-Newton step from the start, |J_i . r0| / |J_i|^2, at least
+    the change that moves the weighted residual by one (1 / |J_i|), and 1 where it has no effect at the start
+    (``r0``, ``j0``: weighted residual and its Jacobian w.r.t. ``theta0`` at the start). Why: the trust region
+    is scaled by the Jacobian anyway (x_scale="jac"), but a unit of 1e-12 puts a moved parameter at 1e11 in
+    the solver's variables, whose step test (xtol, relative to their norm) then stops the fit early. Without
+    ``r0`` and ``j0`` a zero start gets the unit 1."""
+    theta0 = np.asarray(theta0, float)
+    scale = np.abs(theta0)
+    zero = scale <= ZERO_START
+    if not zero.any() or r0 is None or j0 is None:
+        return np.where(zero, 1.0, scale)
+    j0 = np.where(np.isfinite(j0), j0, 0.0)
+    r0 = np.where(np.isfinite(r0), r0, 0.0)
+    for i in np.flatnonzero(zero):
+        norm2 = float(j0[:, i] @ j0[:, i])
+        if not (norm2 > 0 and math.isfinite(norm2)):
+            scale[i] = 1.0
+            continue
+        step = abs(float(j0[:, i] @ r0)) / norm2
+        scale[i] = max(step, 1.0 / math.sqrt(norm2), scale[i])
+    return scale
+
+
 def fit(loop: Loop, rec: Recording, weights: Weights, bounds: dict[str, tuple[float, float]] | None = None,
         start: dict[str, float] | None = None, max_nfev: int = 40,
         q_meas: np.ndarray | None = None, u_meas: np.ndarray | None = None,
@@ -259,7 +290,7 @@ def fit(loop: Loop, rec: Recording, weights: Weights, bounds: dict[str, tuple[fl
     theta0 = _interior(loop.theta(values), lo, hi)
     base = initial_state(loop, rec, values, known)
     x_init0 = base[idx]
-    scale = np.concatenate([np.maximum(np.abs(theta0), 1e-12), np.ones(len(idx))])
+    scale = np.concatenate([np.ones(n_th), np.ones(len(idx))])   # set below, from the start values
     lo_all = np.concatenate([lo, np.full(len(idx), -np.inf)])
     hi_all = np.concatenate([hi, np.full(len(idx), np.inf)])
     s0_cache: dict[bytes, np.ndarray] = {}
@@ -280,21 +311,36 @@ def fit(loop: Loop, rec: Recording, weights: Weights, bounds: dict[str, tuple[fl
                                           {**known, **dict(zip(estimate_initial, x_init))})
         return s0_cache[key]
 
-    def res(xs: np.ndarray) -> np.ndarray:
-        theta, x_init = split(xs)
+    def res_at(theta: np.ndarray, x_init: np.ndarray) -> np.ndarray:
         q, u = loop.sim(state(theta, x_init), W, theta, pf)
         r = _weighted(qm, _shaped(loop, np.array(q)), weights.sigma_q)
         if loop.closed:
             r = np.concatenate([r, _weighted(um, _shaped(loop, np.array(u)), weights.sigma_u)])
         return np.where(np.isfinite(r), r, 1e12)
 
-    def jac(xs: np.ndarray) -> np.ndarray:
-        theta, x_init = split(xs)
-        j = weighted_jacobian(loop, state(theta, x_init), W, theta, pf, idx, weights) * scale
+    def jac_at(theta: np.ndarray, x_init: np.ndarray) -> np.ndarray:
+        j = weighted_jacobian(loop, state(theta, x_init), W, theta, pf, idx, weights)
         return np.where(np.isfinite(j), j, 0.0)
 
+    jac_cache: dict[bytes, np.ndarray] = {}
+
+    def res(xs: np.ndarray) -> np.ndarray:
+        return res_at(*split(xs))
+
+    def jac(xs: np.ndarray) -> np.ndarray:
+        key = xs.tobytes()
+        return jac_cache[key] if key in jac_cache else jac_at(*split(xs)) * scale
+
     nfev = 0
+    j_start = None
+    if np.any(np.abs(theta0) <= ZERO_START) and loop.jac is not None:
+        j_start = jac_at(theta0, x_init0)
+        scale[:n_th] = parameter_scale(theta0, res_at(theta0, x_init0), j_start[:, :n_th])
+    else:
+        scale[:n_th] = parameter_scale(theta0)
     x_start = np.concatenate([theta0, x_init0]) / scale
+    if j_start is not None:      # the solver's first Jacobian is this one: not computed twice
+        jac_cache[x_start.tobytes()] = j_start * scale
     if x_start.size:
         if loop.jac is None:
             raise ValueError("the loop was compiled without its Jacobian (with_jacobian=False)")

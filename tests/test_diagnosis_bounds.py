@@ -10,18 +10,20 @@ import json
 import shutil
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from motiontwin.ident.benchmarks import single_axis as bench
 from motiontwin.ident.benchmarks import truth
 from motiontwin.ident.benchmarks.truth import V_EPS
 from motiontwin.ident.diagnosis import effects as effect_models
+from motiontwin.ident.diagnosis import pipeline
 from motiontwin.ident.diagnosis.locate import context
 from motiontwin.ident.diagnosis.bounds import (at_bound, at_bound_markdown, at_bound_text, bounds_widened,
                                                physical_sides, structure_at_bound, widened_limits)
 from motiontwin.ident.diagnosis.bundle import read_bundle
 from motiontwin.ident.diagnosis.effect_base import Param
-from motiontwin.ident.diagnosis.nominal import fit_nominal, nominal_start, plant_physics
+from motiontwin.ident.diagnosis.nominal import fit_nominal, nominal_start, parameter_forces, plant_physics
 from motiontwin.ident.diagnosis.screen import candidates, fit_structure, refine
 from motiontwin.ident.diagnosis.select import widen_search_bounds
 from motiontwin.ident.diagnosis.structure import LoopCache
@@ -87,6 +89,45 @@ def test_zero_plant_friction_listed_free_is_refitted_not_added_twice(tmp_path):
     assert owned == {"coulomb_friction": "Fc", "gravity_offset": "F0"}
     offered = [n for n in candidates(ctx, set()) if n not in owned]
     assert "stribeck_friction" in offered and "coulomb_friction" not in offered
+
+
+#: the truth of the end-to-end case: the rigid axis with Coulomb friction and a constant force, written as the
+#: catalogue's two effects (the CasADi truth), on a PrismaticAxis plant file whose Fc and F0 are 0
+FC, F0 = 0.15, 0.6
+COULOMB_OFFSET = truth.TruthPlant("coulomb+offset", {"m": 2.0, "d": 15.0},
+                                  [truth._effect("coulomb_friction", {"Fc": FC}, {"coulomb_Fc": FC, "coulomb_v_eps": V_EPS}),
+                                   truth._effect("gravity_offset", {"F0": F0}, {"gravity_F0": F0})])
+
+
+def test_diagnosis_refits_the_plants_own_zero_friction_and_offset(tmp_path):
+    """End to end: a PrismaticAxis plant with Fc = F0 = 0 listed in plant.free, on an axis with Coulomb friction
+    and a constant force. The diagnosis refits the plant's own Fc and F0 to the truth's (2 %), names them as
+    carrying the catalogue's coulomb_friction and gravity_offset (each parameter's force along the motion is
+    its term of the plant's equation: a mass's is m's acceleration, never a constant), never fits either of
+    those on top (not even as a candidate), and ends with no effect; diagnosis.json says the same."""
+    folder = tmp_path / "coulomb_offset"
+    bench.write_bundle(folder, "coulomb_offset", seed=3, durations=(1.2, 0.6), engine="casadi",
+                       truth_model=COULOMB_OFFSET)
+    (folder / "plant.mo").write_text(PRISMATIC)
+    _edit(folder, **{"class": "PrismaticAxis", "input": "u", "output": "q", "free": ["m", "d", "Fc", "F0"],
+                     "parameters": {"v_eps": V_EPS}})
+    lines: list[str] = []
+    result = pipeline.run(read_bundle(folder), tmp_path / "work", progress=lines.append)
+    nominal = result["nominal"].fit.values
+    assert nominal["Fc"] == pytest.approx(FC, rel=0.02) and nominal["F0"] == pytest.approx(F0, rel=0.02)
+    assert result["plant_physics"] == {"coulomb_friction": "Fc", "gravity_offset": "F0"}
+    ctx = result["context"]      # each parameter's force: the PrismaticAxis equation's terms, written out
+    analytic = {"m": ctx.a, "d": ctx.v, "Fc": np.tanh(ctx.v / V_EPS), "F0": np.ones_like(ctx.v)}
+    forces = parameter_forces(result["bundle"], result["nominal"], ctx)
+    for name, force in analytic.items():
+        np.testing.assert_allclose(forces[name], force, rtol=1e-9, atol=1e-9 * np.max(np.abs(force)), err_msg=name)
+    screened = {line.split()[1].rstrip(":") for line in lines if line.lstrip().startswith("screen ")}
+    tried = screened | {e["effect"] for e in result["log"]} | {e.name for e in result["final"].effects}
+    assert "stribeck_friction" in screened and not tried & {"coulomb_friction", "gravity_offset"}, tried
+    document = pipeline.Diagnosis.from_result(result).write(tmp_path / "out")
+    assert document["effects"] == [] and document["plant_physics"] == result["plant_physics"]
+    for name, true in (("Fc", FC), ("F0", F0)):
+        assert document["augmented_parameters"][name] == pytest.approx(true, rel=0.02), name
 
 
 def test_plant_without_that_physics_owns_nothing(tmp_path):
