@@ -135,6 +135,7 @@ def test_floor_of_a_quiet_parameters_only_case_is_the_encoder_noise(short_bundle
     assert truth["floor_rms"] == pytest.approx(white, rel=0.15)
     assert truth["floor_reseed_rms"] == pytest.approx(math.sqrt(2) * truth["floor_rms"], rel=0.1)
     assert truth["without_effect_rms"] == truth["floor_rms"]       # no effect: the same noise-free lane
+    assert truth["force_without_effect_rms"] == truth["force_floor_rms"] > 0
 
 
 def test_effect_over_the_floor_is_the_truth_without_its_effect(short_bundles: Path) -> None:

@@ -19,7 +19,8 @@ of the measured position against the truth re-simulated without any noise (what 
 as the diagnosis' validation simulation is, can reach), and ``floor_reseed_rms``, against the truth
 re-simulated with other noise seeds (about sqrt(2) x ``floor_rms`` in a linear loop), and ``without_effect_rms``,
 against the truth re-simulated noise-free without its effects (how far the effect shows above the floor on the
-validation run). Units: SI.
+validation run); ``force_floor_rms`` and ``force_without_effect_rms`` the same for the recorded force u (an effect the
+loop's integral action rejects, a constant force, shows in u only). Units: SI.
 
     python -m motiontwin.ident.benchmarks.independent generate OUT_DIR [--set heldout|tuning] [--case A,B]
 """
@@ -286,13 +287,15 @@ def simulate_case(case: Case) -> dict:
                        "q": out["q"][pre:m, lane], "u_ext": drive_[1][pre:]}
     m_train, m_val = drives[0][0].size, drives[1][0].size
     moved = out["q"][pre:m_train, 1] - out["q"][pre:m_train, 2]
-    q_val = out["q"][pre:m_val, 3:]
+    q_val, u_val = out["q"][pre:m_val, 3:], out["u"][pre:m_val, 3:]
     return {"recordings": parts, "laws": laws,
             "concealment": {"max_abs": float(np.max(np.abs(moved))), "rms": float(np.sqrt(np.mean(moved ** 2))),
                             "force_max_abs": float(np.max(np.abs(np.diff(out["u"][pre:m_train, 1:3], axis=1))))},
             "floor_rms": float(np.sqrt(np.mean((q_val[:, 0] - q_val[:, 1]) ** 2))),
             "floor_reseed_rms": float(np.sqrt(np.mean((q_val[:, 0] - q_val[:, 2]) ** 2))),
-            "without_effect_rms": float(np.sqrt(np.mean((q_val[:, 0] - q_val[:, 3]) ** 2)))}
+            "without_effect_rms": float(np.sqrt(np.mean((q_val[:, 0] - q_val[:, 3]) ** 2))),
+            "force_floor_rms": float(np.sqrt(np.mean((u_val[:, 0] - u_val[:, 1]) ** 2))),
+            "force_without_effect_rms": float(np.sqrt(np.mean((u_val[:, 0] - u_val[:, 3]) ** 2)))}
 
 
 # -- bundles ---------------------------------------------------------------------------------------
@@ -334,7 +337,8 @@ def write_bundle(folder: Path, case: Case) -> dict:
                        "process_coloured_tau": case.coloured_tau, "time_jitter_bound": JITTER},
              "concealment_targets": case.targets, "concealment": sim["concealment"],
              "floor_rms": sim["floor_rms"], "floor_reseed_rms": sim["floor_reseed_rms"],
-             "without_effect_rms": sim["without_effect_rms"]}
+             "without_effect_rms": sim["without_effect_rms"], "force_floor_rms": sim["force_floor_rms"],
+             "force_without_effect_rms": sim["force_without_effect_rms"]}
     atomic_write_texts({
         folder / "plant.mo": form.text.format(a=float(round(case.nominal[0], 4)) * form.scale,
                                               b=float(round(case.nominal[1], 4)) * form.scale),

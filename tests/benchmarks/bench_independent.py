@@ -7,10 +7,11 @@ the validation RMS (nominal -> augmented) and the augmented RMS over the ACHIEVA
 re-simulated noise-free, truth.json's floor_rms), then the confusion table (rows: true answer, "(none)" for
 the parameters-only controls; columns: named effect, "unexplained", "(none)", "(stopped)" when the diagnosis
 raised). A case is named right when the set of answers equals the expected set exactly. An effect case is
-DETECTABLE when its truth without the effects misses the recording's validation run by more than FLOOR_MARGIN
-(1.5, the diagnosis' own floor rule) times the achievable floor (truth.json's without_effect_rms / floor_rms,
-column "effect/floor"): below it no free-run criterion can tell the effect from the noise, and the summary also
-counts the cases named right among the detectable ones and the controls.
+DETECTABLE when its truth without the effects misses the recording's validation run, in position or in force,
+by more than FLOOR_MARGIN (1.5, the diagnosis' own floor rule) times the achievable floor (truth.json's
+without_effect_rms / floor_rms and force_without_effect_rms / force_floor_rms, the larger in column
+"effect/floor"): below it no free-run criterion can tell the effect from the noise, and the summary also counts
+the cases named right among the detectable ones and the controls.
 
 Run: MOTIONTWIN_DIAGNOSIS_WORKERS=1 .venv/bin/python tests/benchmarks/bench_independent.py [BENCH_DIR]
 [--set heldout|tuning] [--case NAME ...] (bundles are generated into BENCH_DIR/SET by
@@ -72,11 +73,13 @@ def parameter_errors(truth: dict, doc: dict) -> list[str]:
 
 
 def effect_over_floor(truth: dict) -> float | None:
-    """How far the truth without its effects misses the validation recording, over the achievable floor (None
-    for a parameters-only control, or a truth.json written before the field existed)."""
-    if not truth["expected"] or "without_effect_rms" not in truth:
+    """How far the truth without its effects misses the validation recording, over the achievable floor, in
+    position or in force (the larger; None for a parameters-only control, or a truth.json written before the
+    fields existed)."""
+    if not truth["expected"] or "force_without_effect_rms" not in truth:
         return None
-    return truth["without_effect_rms"] / truth["floor_rms"]
+    return max(truth["without_effect_rms"] / truth["floor_rms"],
+               truth["force_without_effect_rms"] / truth["force_floor_rms"])
 
 
 def confusion_table(rows: list[tuple[list[str], list[str]]]) -> str:
