@@ -161,13 +161,18 @@ def test_widening_rule_moves_search_limits_ten_times_and_never_a_physical_side()
     assert 0 < bounds[0] < 1e-32 and bounds[1] > 1e29
 
 
-def _coulomb_bundle(folder: Path, case: str, seed: int, stroke: float):
-    bench.write_bundle(folder, case, seed=seed, durations=(1.5, 0.75), engine="casadi", stroke=stroke)
+def _nominal_of(folder: Path):
+    """The bundle in ``folder`` with its nominal refit, weights and context."""
     bundle = read_bundle(folder)
     bundle.cache = LoopCache()
     bundle.start = nominal_start(bundle)
     nominal, weights = fit_nominal(bundle)
     return bundle, nominal, weights, context(bundle, nominal)
+
+
+def _coulomb_bundle(folder: Path, case: str, seed: int, stroke: float):
+    bench.write_bundle(folder, case, seed=seed, durations=(1.5, 0.75), engine="casadi", stroke=stroke)
+    return _nominal_of(folder)
 
 
 def test_velocity_scale_beyond_its_search_range_is_refitted_to_the_truth(tmp_path):
@@ -200,11 +205,7 @@ def test_level_on_its_vanishing_point_is_reported_at_bound_not_widened(tmp_path)
     folder = tmp_path / "rigid"
     bench.write_bundle(folder, "params_only_a", seed=5, durations=(1.5, 0.75), engine="casadi", nominal=(2.0, 25.0))
     _edit(folder, free=["m"], parameters={"d": 25.0})
-    bundle = read_bundle(folder)
-    bundle.cache = LoopCache()
-    bundle.start = nominal_start(bundle)
-    nominal, weights = fit_nominal(bundle)
-    ctx = context(bundle, nominal)
+    bundle, nominal, weights, ctx = _nominal_of(folder)
     effect = effect_models.lugre_friction(ctx)
     fitted = refine(bundle, fit_structure(bundle, nominal, effect, ctx, weights, tmp_path / "fit"), weights)
     final = widen_search_bounds(bundle, fitted, weights, tmp_path / "widen")
@@ -227,11 +228,7 @@ def test_widening_that_does_not_carry_over_to_validation_is_not_kept(tmp_path, m
     monkeypatch.setattr(truth, "V_EPS", 1e-3)
     bench.write_bundle(other, "coulomb_friction", seed=1, durations=(1.5, 0.75), engine="casadi", stroke=0.01)
     shutil.copy(other / "validation.csv", folder / "validation.csv")
-    bundle = read_bundle(folder)
-    bundle.cache = LoopCache()
-    bundle.start = nominal_start(bundle)
-    nominal, weights = fit_nominal(bundle)
-    ctx = context(bundle, nominal)
+    bundle, nominal, weights, ctx = _nominal_of(folder)
     effect = effect_models.coulomb_friction(ctx)
     fitted = refine(bundle, fit_structure(bundle, nominal, effect, ctx, weights, tmp_path / "fit"), weights)
     lines: list[str] = []
