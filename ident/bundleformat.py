@@ -25,7 +25,8 @@ experiment.json:
    "recordings": {"train": "train.csv", "validation": "validation.csv"}}
 
 train.csv, validation.csv: columns time [s], r [m], u [N], q [m], optional u_ext [N], sampled at the
-controller's instants (step Ts); closed loop: u = controller output + u_ext is the force the plant got.
+controller's instants (step Ts, or a whole number N of Ts: a faster controller is then simulated at its own
+period, N updates per sample); closed loop: u = controller output + u_ext is the force the plant got.
 Every file named in experiment.json must resolve (symbolic links followed) inside the bundle folder.
 The recordings may start while the loop is moving.
 

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from motiontwin.harness.recording import Recording
-from motiontwin.ident.controller import Controller
+from motiontwin.ident.controller import Controller, at_recording_step
 from motiontwin.ident.oeloop import Signals
 
 __all__ = ["ChannelCheck", "check_channels", "channel_problem", "MAX_DELAY", "NOISE_FACTOR",
@@ -52,18 +52,33 @@ class ChannelCheck:
     cause: str
 
 
+def lifted(ctrl: Controller) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The controller over one recorded sample (``ctrl.ticks`` updates) as the loop simulates it, the references
+    held over the sample and the positions interpolated linearly between the samples (the loop takes them
+    from the model at each update): z_{k+1} = A_l z_k + B_0 y_k + B_1 y_{k+1}. One update: (A, B, 0)."""
+    n, n_ref = ctrl.ticks, ctrl.B.shape[1] // 2      # y = [r_1..r_n, q_1..q_n]
+    a_l, b0, b1 = np.eye(ctrl.A.shape[0]), np.zeros_like(ctrl.B), np.zeros_like(ctrl.B)
+    for j in range(n):               # update j sees r_k and q_k + j/n (q_{k+1} - q_k)
+        w1 = np.r_[np.zeros(n_ref), np.full(ctrl.B.shape[1] - n_ref, j / n)]
+        a_l = ctrl.A @ a_l
+        b0, b1 = ctrl.A @ b0 + ctrl.B * (1 - w1), ctrl.A @ b1 + ctrl.B * w1
+    return a_l, b0, b1
+
+
 def _controller_responses(ctrl: Controller, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Forced response p (outputs x N) from z_0 = 0 and free-response rows G (outputs x N x states)."""
+    """Forced response p (outputs x N) from z_0 = 0 and free-response rows G (outputs x N x states); a
+    controller faster than the recording by :func:`lifted`."""
     n = y.shape[1]
     n_out, n_z = ctrl.C.shape[0], ctrl.A.shape[0]
+    a_l, b0, b1 = lifted(ctrl)
     p = np.zeros((n_out, n))
     g = np.zeros((n_out, n, n_z))
     z, power = np.zeros(n_z), np.eye(n_z)
     for k in range(n):
         p[:, k] = ctrl.C @ z + ctrl.D @ y[:, k]
         g[:, k, :] = ctrl.C @ power
-        z = ctrl.A @ z + ctrl.B @ y[:, k]
-        power = ctrl.A @ power
+        z = a_l @ z + b0 @ y[:, k] + b1 @ y[:, min(k + 1, n - 1)]
+        power = a_l @ power
     return p, g
 
 
@@ -147,11 +162,12 @@ def check_channels(rec: Recording, controller: Controller,
     missing = [c for s in channels for c in (s.reference, s.output, s.input) if c not in rec.columns]
     if missing:
         raise KeyError(f"recording has no column {', '.join(map(repr, missing))} (columns: {', '.join(rec.columns)})")
+    controller = at_recording_step(controller, rec.time, "recording")
     y = np.vstack([rec[s.reference] for s in channels] + [rec[s.output] for s in channels])
     p, g = _controller_responses(controller, y)
     zero = np.zeros_like(rec.time)
     return [_check_axis(rec[s.input], rec[s.disturbance] if s.disturbance in rec.columns else zero, p[i], g[i],
-                        controller.Ts, s) for i, s in enumerate(channels)]
+                        controller.sample_time, s) for i, s in enumerate(channels)]
 
 
 def channel_problem(rec: Recording, controller: Controller,

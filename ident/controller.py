@@ -15,6 +15,7 @@ matrices map the reference and the measured position [m] to the force [N].
 """
 from __future__ import annotations
 
+import dataclasses
 import functools
 import math
 from dataclasses import dataclass
@@ -39,17 +40,55 @@ class ControllerError(ValueError):
 @dataclass
 class Controller:
     """Sampled linear controller z+ = A z + B y, u = C z + D y with y = [r; q] (inputs reordered to r, q);
-    a multi-axis one has y = [r_1..r_n, q_1..q_n] and u = [u_1..u_n]."""
+    a multi-axis one has y = [r_1..r_n, q_1..q_n] and u = [u_1..u_n]. ``Ts``: the controller's own period [s];
+    ``ticks``: its updates per recorded sample (a controller faster than the recording, set by
+    :func:`at_recording_step`), so that ``sample_time`` = ``ticks`` x ``Ts`` is the recording's step."""
 
     Ts: float
     A: np.ndarray
     B: np.ndarray
     C: np.ndarray
     D: np.ndarray
+    ticks: int = 1
 
     @property
     def n_states(self) -> int:
         return self.A.shape[0]
+
+    @property
+    def sample_time(self) -> float:
+        """The step of the recordings and of the simulated loop [s]."""
+        return self.Ts * self.ticks
+
+    def describe_rate(self) -> str:
+        """How the controller's period relates to the recording's, in words."""
+        if self.ticks == 1:
+            return f"the controller runs at the recording's step, {self.Ts:.6g} s"
+        return (f"the controller runs at {self.Ts:.6g} s, {self.ticks} updates per recorded sample of "
+                f"{self.sample_time:.6g} s: simulated at its own period (the reference held over each recorded "
+                f"sample, the position taken from the model at each update), the force recorded at the update on "
+                f"the sample instant")
+
+
+#: a recording step is a whole number of controller periods when within this relative tolerance (the one the
+#: recording checks allow each step)
+TICKS_TOLERANCE = 1e-3
+
+
+def at_recording_step(controller: Controller, time: np.ndarray, where: str,
+                      error: type[ValueError] = ControllerError) -> Controller:
+    """``controller`` for a recording at the times ``time`` [s]: its own period when that is the median step,
+    else ``ticks`` = step / ``Ts`` updates per recorded sample when that is a whole number (a drive's fast
+    controller under a slower recording). Raises ``error`` naming ``where`` otherwise."""
+    steps = np.diff(np.asarray(time, float))
+    step = float(np.median(steps)) if steps.size else controller.Ts * controller.ticks
+    ticks = round(step / controller.Ts)
+    if ticks < 1 or abs(ticks * controller.Ts - step) > TICKS_TOLERANCE * step:
+        raise error(
+            f"{where}: the recording's step {step:.9g} s is not a whole number of the controller's period Ts = "
+            f"{controller.Ts:.9g} s (ratio {step / controller.Ts:.6g}); resample the recording onto a multiple of "
+            f"it (motiontwin import --resample --sample-time TS)")
+    return dataclasses.replace(controller, ticks=int(ticks))
 
 
 def field(doc: dict, key: str, where: str, kind: type | tuple[type, ...],

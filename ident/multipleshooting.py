@@ -96,7 +96,6 @@ def fit(loop: oeloop.Loop, rec: Recording, weights: oe.Weights, segments: int,
     theta0 = oe._interior(loop.theta(values), lo, hi)
     base = oe.initial_state(loop, rec, values, known)
     x_init0 = base[idx]
-    th_scale = np.maximum(np.abs(theta0), 1e-12)
     sig = loop.signals
     qm = oe._column(rec, sig.output) if q_meas is None else q_meas
     um = (oe._column(rec, sig.input) if u_meas is None else u_meas) if loop.closed else None
@@ -104,6 +103,15 @@ def fit(loop: oeloop.Loop, rec: Recording, weights: oe.Weights, segments: int,
     W_pad = np.hstack([W, np.zeros((W.shape[0], n_seg * length - n))])
     pf = np.array([values[k] for k in loop.fixed])
     s0_fn = initial_state_function(loop, rec, values, known, estimate_initial)
+    th_scale = oe.parameter_scale(theta0)
+    if np.any(np.abs(theta0) <= oe.ZERO_START):   # zero starts: scaled by what the data ask for, as in oefit.fit
+        s0 = np.array(s0_fn(theta0, x_init0)).ravel()
+        q0, u0 = loop.sim(s0, W, theta0, pf)
+        r0 = oe._weighted(qm, np.array(q0).ravel(), weights.sigma_q)
+        if loop.closed:
+            r0 = np.concatenate([r0, oe._weighted(um, np.array(u0).ravel(), weights.sigma_u)])
+        j0 = oe.weighted_jacobian(loop, s0, W, theta0, pf, idx, weights)[:, :n_th]
+        th_scale = oe.parameter_scale(theta0, r0, j0)
     segment = loop.step.mapaccum("segment", length, [0], [0])
     ns = segment.numel_in(0)
 

@@ -168,6 +168,7 @@ class Fit:
     initial: dict[str, float] = field(default_factory=dict)   # estimated initial plant states
     residual: np.ndarray | None = None   # weighted residual at the optimum, rows as ``jacobian`` (for the HAC std)
     shift: np.ndarray | None = None      # estimated correction of the controller's start state (estimate_controller)
+    weights: Weights | None = None       # the noise levels that weighted the fit
 
 
 @dataclass
@@ -246,8 +247,9 @@ def state_indices(loop: Loop, names: list[str] | tuple[str, ...]) -> list[int]:
 
 def controller_states(loop: Loop) -> list[int]:
     """Indices of the controller states in the loop state (empty in open loop, for a controller without
-    states and for a multi-axis loop, whose start states stay the first-samples estimate)."""
-    if not loop.closed or not loop.controller.n_states or loop.axes:
+    states, a multi-axis loop and a controller faster than the recording, whose start states stay the
+    first-samples estimate)."""
+    if not loop.closed or not loop.controller.n_states or loop.axes or loop.controller.ticks != 1:
         return []
     nx = loop.model.x.numel()
     return list(range(nx, nx + loop.controller.n_states))
@@ -362,6 +364,37 @@ def weighted_jacobian(loop: Loop, s0: np.ndarray, W: np.ndarray, theta: np.ndarr
     return j
 
 
+#: a start value at or below this magnitude counts as zero: the optimiser's scale of that parameter comes from
+#: the data, not from the value itself
+ZERO_START = 1e-12
+
+
+def parameter_scale(theta0: np.ndarray, r0: np.ndarray | None = None, j0: np.ndarray | None = None) -> np.ndarray:
+    """The optimiser's unit of each free parameter: its start value's magnitude; for a parameter that starts at
+    zero (Fc, F0 of a plant written without them, refitted because ``plant.free`` lists them), the magnitude
+    the data ask for: its own one-parameter Gauss-Newton step from the start, |J_i . r0| / |J_i|^2, at least
+    the change that moves the weighted residual by one (1 / |J_i|), and 1 where it has no effect at the start
+    (``r0``, ``j0``: weighted residual and its Jacobian w.r.t. ``theta0`` at the start). Why: the trust region
+    is scaled by the Jacobian anyway (x_scale="jac"), but a unit of 1e-12 puts a moved parameter at 1e11 in
+    the solver's variables, whose step test (xtol, relative to their norm) then stops the fit early. Without
+    ``r0`` and ``j0`` a zero start gets the unit 1."""
+    theta0 = np.asarray(theta0, float)
+    scale = np.abs(theta0)
+    zero = scale <= ZERO_START
+    if not zero.any() or r0 is None or j0 is None:
+        return np.where(zero, 1.0, scale)
+    j0 = np.where(np.isfinite(j0), j0, 0.0)
+    r0 = np.where(np.isfinite(r0), r0, 0.0)
+    for i in np.flatnonzero(zero):
+        norm2 = float(j0[:, i] @ j0[:, i])
+        if not (norm2 > 0 and math.isfinite(norm2)):
+            scale[i] = 1.0
+            continue
+        step = abs(float(j0[:, i] @ r0)) / norm2
+        scale[i] = max(step, 1.0 / math.sqrt(norm2), scale[i])
+    return scale
+
+
 def fit(loop: Loop, rec: Recording, weights: Weights, bounds: dict[str, tuple[float, float]] | None = None,
         start: dict[str, float] | None = None, max_nfev: int = 40,
         q_meas: np.ndarray | None = None, u_meas: np.ndarray | None = None,
@@ -388,7 +421,7 @@ def fit(loop: Loop, rec: Recording, weights: Weights, bounds: dict[str, tuple[fl
     theta0 = _interior(loop.theta(values), lo, hi)
     base = initial_state(loop, rec, values, known)
     x_init0 = np.concatenate([base[idx], np.zeros(len(ctrl_idx)) if shift is None or not ctrl_idx else shift])
-    scale = np.concatenate([np.maximum(np.abs(theta0), 1e-12), np.ones(x_init0.size)])
+    scale = np.concatenate([np.ones(n_th), np.ones(x_init0.size)])   # set below, from the start values
     lo_all = np.concatenate([lo, np.full(x_init0.size, -np.inf)])
     hi_all = np.concatenate([hi, np.full(x_init0.size, np.inf)])
     s0_cache: dict[bytes, np.ndarray] = {}
@@ -409,18 +442,25 @@ def fit(loop: Loop, rec: Recording, weights: Weights, bounds: dict[str, tuple[fl
                                           {**known, **dict(zip(estimate_initial, x_init[:n_x]))}, x_init[n_x:])
         return s0_cache[key]
 
-    def res(xs: np.ndarray) -> np.ndarray:
-        theta, x_init = split(xs)
+    def res_at(theta: np.ndarray, x_init: np.ndarray) -> np.ndarray:
         q, u = loop.sim(state(theta, x_init), W, theta, pf)
         r = _weighted(qm, _shaped(loop, np.array(q)), weights.sigma_q)
         if loop.closed:
             r = np.concatenate([r, _weighted(um, _shaped(loop, np.array(u)), weights.sigma_u)])
         return np.where(np.isfinite(r), r, 1e12)
 
-    def jac(xs: np.ndarray) -> np.ndarray:
-        theta, x_init = split(xs)
-        j = weighted_jacobian(loop, state(theta, x_init), W, theta, pf, idx + ctrl_idx, weights) * scale
+    def jac_at(theta: np.ndarray, x_init: np.ndarray) -> np.ndarray:
+        j = weighted_jacobian(loop, state(theta, x_init), W, theta, pf, idx + ctrl_idx, weights)
         return np.where(np.isfinite(j), j, 0.0)
+
+    jac_cache: dict[bytes, np.ndarray] = {}
+
+    def res(xs: np.ndarray) -> np.ndarray:
+        return res_at(*split(xs))
+
+    def jac(xs: np.ndarray) -> np.ndarray:
+        key = xs.tobytes()
+        return jac_cache[key] if key in jac_cache else jac_at(*split(xs)) * scale
 
     if ctrl_idx:    # the controller's relation on the recorded signals prices a shift of its start
         relation, rows, sigma_c = relation_prior(loop, rec, values, weights)
@@ -435,7 +475,15 @@ def fit(loop: Loop, rec: Recording, weights: Weights, bounds: dict[str, tuple[fl
         res_all, jac_all = res, jac
 
     nfev = 0
+    j_start = None
+    if np.any(np.abs(theta0) <= ZERO_START) and loop.jac is not None:
+        j_start = jac_at(theta0, x_init0)
+        scale[:n_th] = parameter_scale(theta0, res_at(theta0, x_init0), j_start[:, :n_th])
+    else:
+        scale[:n_th] = parameter_scale(theta0)
     x_start = np.concatenate([theta0, x_init0]) / scale
+    if j_start is not None:      # the solver's first Jacobian is this one: not computed twice
+        jac_cache[x_start.tobytes()] = j_start * scale
     if x_start.size:
         if loop.jac is None:
             raise ValueError("the loop was compiled without its Jacobian (with_jacobian=False)")
@@ -455,4 +503,4 @@ def fit(loop: Loop, rec: Recording, weights: Weights, bounds: dict[str, tuple[fl
     j = jac(xs) / scale if xs.size else np.zeros((r.size, 0))
     cost = float(r @ r) if np.all(np.isfinite(r)) else math.inf
     rms = float(np.sqrt(np.mean((qm - q) ** 2))) if np.all(np.isfinite(q)) else math.inf
-    return Fit(final, cost, rms, q, u, j, success, nfev, initial, r, shift)
+    return Fit(final, cost, rms, q, u, j, success, nfev, initial, r, shift, weights)

@@ -209,7 +209,7 @@ def build_loop(model: symbolic.SymbolicModel, controller: Controller | None, pos
     _check_names(model, free)
     if controller is None and not (ts and ts > 0):
         raise ValueError("open-loop simulation needs the sample period ts [s]")
-    ts = float(controller.Ts if controller is not None else ts)
+    ts = float(controller.sample_time if controller is not None else ts)
     names = [v.name for v in model.parameters]
     inputs = [v.name for v in model.inputs]
     if axes:
@@ -228,6 +228,8 @@ def build_loop(model: symbolic.SymbolicModel, controller: Controller | None, pos
         _check_controller_shape(controller, n_ax)
     values = {n: float(values.get(n, model.parameters[i].start)) for i, n in enumerate(names)}
     substeps = substeps or max(min_substeps, stable_substeps(model, values, ts))
+    ticks = controller.ticks if controller is not None else 1
+    substeps = ticks * -(-substeps // ticks)      # whole RK4 substeps per controller update
     fixed = [n for n in names if n not in free]
     f = ca.Function("f", [model.x, model.u, model.p], [model.dx])
     # a large right-hand side (a coupled mechanism's mass-matrix solve) is called, not inlined, in every RK4
@@ -249,29 +251,31 @@ def build_loop(model: symbolic.SymbolicModel, controller: Controller | None, pos
     def plant_input(u_vec: ca.SX) -> ca.SX:
         return ca.vertcat(*[u_vec[k_in.index(i)] if i in k_in else held[i] for i in range(len(inputs))])
 
-    if controller is None:
-        u = w[n_ax:2 * n_ax]
-        q = h_out(x, plant_input(u), p_full)
-        z_next = z
-    else:
-        if ca.depends_on(q_expr, model.u):
-            raise ValueError(f"{model.name}: output {', '.join(map(repr, observed))} depends on the input "
-                             "directly; closing a sampled loop around it is an algebraic loop")
-        q = h_out(x, plant_input(sym.zeros(n_ax)), p_full)
-        y = ca.vertcat(w[:n_ax], q + w[2 * n_ax:])
-        A, B, C, D = (ca.DM(m) for m in (controller.A, controller.B, controller.C, controller.D))
-        u = (C @ z if nz else 0) + D @ y + w[n_ax:2 * n_ax]
-        z_next = A @ z + B @ y if nz else z
-    uvec = plant_input(u)
+    if controller is not None and ca.depends_on(q_expr, model.u):
+        raise ValueError(f"{model.name}: output {', '.join(map(repr, observed))} depends on the input "
+                         "directly; closing a sampled loop around it is an algebraic loop")
     h = ts / substeps
-    xk = x
-    for _ in range(substeps):
-        k1 = f(xk, uvec, p_full)
-        k2 = f(xk + h / 2 * k1, uvec, p_full)
-        k3 = f(xk + h / 2 * k2, uvec, p_full)
-        k4 = f(xk + h * k3, uvec, p_full)
-        xk = xk + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
-    s_next, out_k = ca.vertcat(xk, z_next), ca.vertcat(q, u)
+    xk, zk = x, z
+    for tick in range(ticks):       # a controller faster than the recording updates ticks times per sample
+        if controller is None:
+            u_tick = w[n_ax:2 * n_ax]
+            q_tick = h_out(xk, plant_input(u_tick), p_full)
+        else:
+            q_tick = h_out(xk, plant_input(sym.zeros(n_ax)), p_full)
+            y = ca.vertcat(w[:n_ax], q_tick + w[2 * n_ax:])
+            A, B, C, D = (ca.DM(m) for m in (controller.A, controller.B, controller.C, controller.D))
+            u_tick = (C @ zk if nz else 0) + D @ y + w[n_ax:2 * n_ax]
+            zk = A @ zk + B @ y if nz else zk
+        if tick == 0:               # recorded: the position and force at the sample instant
+            q, u = q_tick, u_tick
+        uvec = plant_input(u_tick)
+        for _ in range(substeps // ticks):
+            k1 = f(xk, uvec, p_full)
+            k2 = f(xk + h / 2 * k1, uvec, p_full)
+            k3 = f(xk + h / 2 * k2, uvec, p_full)
+            k4 = f(xk + h * k3, uvec, p_full)
+            xk = xk + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+    s_next, out_k = ca.vertcat(xk, zk), ca.vertcat(q, u)
     step = ca.Function("step", [s, w, theta, pfix], [ca.densify(s_next), ca.densify(q), ca.densify(u)])
     if not with_jacobian:
         aug, seed = None, None
@@ -353,38 +357,39 @@ def _called_sensitivity_step(model: symbolic.SymbolicModel, observed: list[str],
     dp = ca.horzcat(ca.DM(select_p), ca.DM.zeros(select_p.shape[0], n0))      # d p / d [theta, s0]
     p_val = p_full       # an expression of theta and pfix, inputs of the augmented step too
     su = ca.DM(select_u)
-    if controller is None:
-        u, du = w[n_ax:2 * n_ax], ca.MX.zeros(n_ax, na)
-        q, hx, hu, hp = h_jac(x, plant_input(u), p_val)
-        dq = hx @ sx + hp @ dp
-        z_next, dz = z, sz
-    else:
-        q, hx, hu, hp = h_jac(x, plant_input(ca.MX.zeros(n_ax)), p_val)
-        dq = hx @ sx + hp @ dp
-        y = ca.vertcat(w[:n_ax], q + w[2 * n_ax:])
-        A, B, C, D = (ca.DM(m) for m in (controller.A, controller.B, controller.C, controller.D))
-        u = (C @ z if nz else 0) + D @ y + w[n_ax:2 * n_ax]
-        du = (C @ sz if nz else 0) + D[:, n_ax:] @ dq
-        z_next = A @ z + B @ y if nz else z
-        dz = A @ sz + B[:, n_ax:] @ dq if nz else sz
-    uvec = plant_input(u)
-    duvec = su @ du
+    ticks = controller.ticks if controller is not None else 1
     h = ts / substeps
-    xk, sk = x, sx
+    xk, sk, zk, dzk = x, sx, z, sz
+    for tick in range(ticks):       # a controller faster than the recording, as in build_loop's step
+        if controller is None:
+            u_tick, du_tick = w[n_ax:2 * n_ax], ca.MX.zeros(n_ax, na)
+            q_tick, hx, hu, hp = h_jac(xk, plant_input(u_tick), p_val)
+            dq_tick = hx @ sk + hp @ dp
+        else:
+            q_tick, hx, hu, hp = h_jac(xk, plant_input(ca.MX.zeros(n_ax)), p_val)
+            dq_tick = hx @ sk + hp @ dp
+            y = ca.vertcat(w[:n_ax], q_tick + w[2 * n_ax:])
+            A, B, C, D = (ca.DM(m) for m in (controller.A, controller.B, controller.C, controller.D))
+            u_tick = (C @ zk if nz else 0) + D @ y + w[n_ax:2 * n_ax]
+            du_tick = (C @ dzk if nz else 0) + D[:, n_ax:] @ dq_tick
+            zk, dzk = (A @ zk + B @ y, A @ dzk + B[:, n_ax:] @ dq_tick) if nz else (zk, dzk)
+        if tick == 0:
+            dq, du = dq_tick, du_tick
+        uvec, duvec = plant_input(u_tick), su @ du_tick
 
-    def stage(xs: ca.MX, dxs: ca.MX) -> tuple[ca.MX, ca.MX]:
-        k, fx, fu, fp = f_jac(xs, uvec, p_val)
-        return k, fx @ dxs + fu @ duvec + fp @ dp
+        def stage(xs: ca.MX, dxs: ca.MX, uvec=uvec, duvec=duvec) -> tuple[ca.MX, ca.MX]:
+            k, fx, fu, fp = f_jac(xs, uvec, p_val)
+            return k, fx @ dxs + fu @ duvec + fp @ dp
 
-    for _ in range(substeps):
-        k1, d1 = stage(xk, sk)
-        k2, d2 = stage(xk + h / 2 * k1, sk + h / 2 * d1)
-        k3, d3 = stage(xk + h / 2 * k2, sk + h / 2 * d2)
-        k4, d4 = stage(xk + h * k3, sk + h * d3)
-        xk = xk + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
-        sk = sk + h / 6 * (d1 + 2 * d2 + 2 * d3 + d4)
-    s_sens = ca.vertcat(sk, dz)
-    outs = [ca.vertcat(xk, z_next, ca.vec(s_sens)), ca.vec(dq[:, :nth].T), ca.vec(du[:, :nth].T)]
+        for _ in range(substeps // ticks):
+            k1, d1 = stage(xk, sk)
+            k2, d2 = stage(xk + h / 2 * k1, sk + h / 2 * d1)
+            k3, d3 = stage(xk + h / 2 * k2, sk + h / 2 * d2)
+            k4, d4 = stage(xk + h * k3, sk + h * d3)
+            xk = xk + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+            sk = sk + h / 6 * (d1 + 2 * d2 + 2 * d3 + d4)
+    s_sens = ca.vertcat(sk, dzk)
+    outs = [ca.vertcat(xk, zk, ca.vec(s_sens)), ca.vec(dq[:, :nth].T), ca.vec(du[:, :nth].T)]
     if initial:
         outs += [ca.vec(dq[:, nth:].T), ca.vec(du[:, nth:].T)]
     aug = ca.Function("sstep", [s_aug, w, theta, pfix], [ca.densify(o) for o in outs])

@@ -42,7 +42,7 @@ import numpy as np
 from motiontwin.fmus import symbolic
 from motiontwin.harness.recording import Recording
 from motiontwin.ident import multipleshooting, plant_states, startvalues
-from motiontwin.ident.controller import Controller
+from motiontwin.ident.controller import Controller, at_recording_step
 from motiontwin.ident.leastsquares import (LeastSquaresResult, UnidentifiableError, check_identifiability,
                                           hac_covariance)
 from motiontwin.ident.oefit import (Fit, Weights, _column, _interior, bound_arrays, controller_shift,
@@ -174,7 +174,9 @@ def identify(model: symbolic.SymbolicModel, rec: Recording, free: list[str], con
         raise KeyError(f"recording has no column {', '.join(repr(c) for c in missing)} "
                        f"(columns: {', '.join(rec.columns)})")
     steps = np.diff(rec.time)
-    ts = float(np.median(steps)) if controller is None else controller.Ts
+    if controller is not None:
+        controller = at_recording_step(controller, rec.time, "recording")
+    ts = float(np.median(steps)) if controller is None else controller.sample_time
     bad = np.flatnonzero(np.abs(steps - ts) > 1e-3 * ts)
     if bad.size:
         i = int(bad[0])

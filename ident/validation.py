@@ -48,7 +48,7 @@ from motiontwin.fmus.limits import load_json
 from motiontwin.harness.recording import Recording, write_figure
 from motiontwin.ident import outputerror as oe
 from motiontwin.ident import plant_states
-from motiontwin.ident.controller import Controller
+from motiontwin.ident.controller import Controller, at_recording_step
 
 __all__ = ["ModelSpec", "CorrelationTest", "Validation", "load_model_spec", "load_model", "fit_percent",
            "free_run", "autocorrelation_test", "cross_correlation_test", "validate", "validation_document",
@@ -292,7 +292,9 @@ def free_run(model: symbolic.SymbolicModel, values: dict[str, float], rec: Recor
     if initial not in ("samples", "rest"):
         raise ValueError(f"initial must be 'samples' or 'rest', not {initial!r}")
     steps = np.diff(rec.time)
-    ts = controller.Ts if controller is not None else float(rec.sample_time or np.median(steps))
+    if controller is not None:
+        controller = at_recording_step(controller, rec.time, where or "recording")
+    ts = controller.sample_time if controller is not None else float(rec.sample_time or np.median(steps))
     bad = np.flatnonzero(np.abs(steps - ts) > 1e-3 * ts)
     if bad.size:
         i = int(bad[0])

@@ -79,3 +79,34 @@ def test_bad_in_memory_input_names_the_field(inputs):
         diagnose("no_such_plant.mo", inputs["controller"], train, inputs["validation"])
     with pytest.raises(BundleError, match="'parameters.mass'|no parameter 'mass'"):
         diagnose(inputs["text"], inputs["controller"], train, inputs["validation"], parameters={"mass": 2.0})
+
+
+class _Stop(Exception):
+    pass
+
+
+def test_a_diagnosis_called_from_python_runs_one_blas_thread(inputs, monkeypatch):
+    """Called from Python (not through the command, which sets the variables before numpy loads), the diagnosis
+    still runs one BLAS thread, and the caller's setting is back afterwards; a thread count the user set in the
+    environment is kept. Reference: threadpoolctl's report of the loaded BLAS libraries."""
+    import threadpoolctl
+
+    def blas_threads() -> int:
+        return max(p["num_threads"] for p in threadpoolctl.threadpool_info() if p["user_api"] == "blas")
+
+    def stop(line: str) -> None:
+        seen.append(blas_threads())
+        raise _Stop
+
+    for name in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+        monkeypatch.delenv(name, raising=False)
+    with threadpoolctl.threadpool_limits(limits=2, user_api="blas"):
+        seen: list[int] = []
+        with pytest.raises(_Stop):
+            diagnose(inputs["text"], inputs["controller"], inputs["train"], inputs["validation"], progress=stop)
+        assert seen == [1] and blas_threads() == 2
+        monkeypatch.setenv("OPENBLAS_NUM_THREADS", "2")
+        seen.clear()
+        with pytest.raises(_Stop):
+            diagnose(inputs["text"], inputs["controller"], inputs["train"], inputs["validation"], progress=stop)
+        assert seen == [2]

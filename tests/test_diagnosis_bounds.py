@@ -7,19 +7,23 @@ bounds' definition (Modelica min/max of the plant) and the widening rule's arith
 from __future__ import annotations
 
 import json
+import shutil
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from motiontwin.ident.benchmarks import single_axis as bench
+from motiontwin.ident.benchmarks import truth
 from motiontwin.ident.benchmarks.truth import V_EPS
 from motiontwin.ident.diagnosis import effects as effect_models
+from motiontwin.ident.diagnosis import pipeline
 from motiontwin.ident.diagnosis.locate import context
 from motiontwin.ident.diagnosis.bounds import (at_bound, at_bound_markdown, at_bound_text, bounds_widened,
                                                physical_sides, structure_at_bound, widened_limits)
 from motiontwin.ident.diagnosis.bundle import read_bundle
 from motiontwin.ident.diagnosis.effect_base import Param
-from motiontwin.ident.diagnosis.nominal import fit_nominal, nominal_start, plant_physics
+from motiontwin.ident.diagnosis.nominal import fit_nominal, nominal_start, parameter_forces, plant_physics
 from motiontwin.ident.diagnosis.screen import candidates, fit_structure, refine
 from motiontwin.ident.diagnosis.select import widen_search_bounds
 from motiontwin.ident.diagnosis.structure import LoopCache
@@ -87,6 +91,45 @@ def test_zero_plant_friction_listed_free_is_refitted_not_added_twice(tmp_path):
     assert "stribeck_friction" in offered and "coulomb_friction" not in offered
 
 
+#: the truth of the end-to-end case: the rigid axis with Coulomb friction and a constant force, written as the
+#: catalogue's two effects (the CasADi truth), on a PrismaticAxis plant file whose Fc and F0 are 0
+FC, F0 = 0.15, 0.6
+COULOMB_OFFSET = truth.TruthPlant("coulomb+offset", {"m": 2.0, "d": 15.0},
+                                  [truth._effect("coulomb_friction", {"Fc": FC}, {"coulomb_Fc": FC, "coulomb_v_eps": V_EPS}),
+                                   truth._effect("gravity_offset", {"F0": F0}, {"gravity_F0": F0})])
+
+
+def test_diagnosis_refits_the_plants_own_zero_friction_and_offset(tmp_path):
+    """End to end: a PrismaticAxis plant with Fc = F0 = 0 listed in plant.free, on an axis with Coulomb friction
+    and a constant force. The diagnosis refits the plant's own Fc and F0 to the truth's (2 %), names them as
+    carrying the catalogue's coulomb_friction and gravity_offset (each parameter's force along the motion is
+    its term of the plant's equation: a mass's is m's acceleration, never a constant), never fits either of
+    those on top (not even as a candidate), and ends with no effect; diagnosis.json says the same."""
+    folder = tmp_path / "coulomb_offset"
+    bench.write_bundle(folder, "coulomb_offset", seed=3, durations=(1.2, 0.6), engine="casadi",
+                       truth_model=COULOMB_OFFSET)
+    (folder / "plant.mo").write_text(PRISMATIC)
+    _edit(folder, **{"class": "PrismaticAxis", "input": "u", "output": "q", "free": ["m", "d", "Fc", "F0"],
+                     "parameters": {"v_eps": V_EPS}})
+    lines: list[str] = []
+    result = pipeline.run(read_bundle(folder), tmp_path / "work", progress=lines.append)
+    nominal = result["nominal"].fit.values
+    assert nominal["Fc"] == pytest.approx(FC, rel=0.02) and nominal["F0"] == pytest.approx(F0, rel=0.02)
+    assert result["plant_physics"] == {"coulomb_friction": "Fc", "gravity_offset": "F0"}
+    ctx = result["context"]      # each parameter's force: the PrismaticAxis equation's terms, written out
+    analytic = {"m": ctx.a, "d": ctx.v, "Fc": np.tanh(ctx.v / V_EPS), "F0": np.ones_like(ctx.v)}
+    forces = parameter_forces(result["bundle"], result["nominal"], ctx)
+    for name, force in analytic.items():
+        np.testing.assert_allclose(forces[name], force, rtol=1e-9, atol=1e-9 * np.max(np.abs(force)), err_msg=name)
+    screened = {line.split()[1].rstrip(":") for line in lines if line.lstrip().startswith("screen ")}
+    tried = screened | {e["effect"] for e in result["log"]} | {e.name for e in result["final"].effects}
+    assert "stribeck_friction" in screened and not tried & {"coulomb_friction", "gravity_offset"}, tried
+    document = pipeline.Diagnosis.from_result(result).write(tmp_path / "out")
+    assert document["effects"] == [] and document["plant_physics"] == result["plant_physics"]
+    for name, true in (("Fc", FC), ("F0", F0)):
+        assert document["augmented_parameters"][name] == pytest.approx(true, rel=0.02), name
+
+
 def test_plant_without_that_physics_owns_nothing(tmp_path):
     """The benchmark's own plant (m, d only): no catalogue effect is taken as already in the plant."""
     folder = tmp_path / "plain"
@@ -118,13 +161,18 @@ def test_widening_rule_moves_search_limits_ten_times_and_never_a_physical_side()
     assert 0 < bounds[0] < 1e-32 and bounds[1] > 1e29
 
 
-def _coulomb_bundle(folder: Path, case: str, seed: int, stroke: float):
-    bench.write_bundle(folder, case, seed=seed, durations=(1.5, 0.75), engine="casadi", stroke=stroke)
+def _nominal_of(folder: Path):
+    """The bundle in ``folder`` with its nominal refit, weights and context."""
     bundle = read_bundle(folder)
     bundle.cache = LoopCache()
     bundle.start = nominal_start(bundle)
     nominal, weights = fit_nominal(bundle)
     return bundle, nominal, weights, context(bundle, nominal)
+
+
+def _coulomb_bundle(folder: Path, case: str, seed: int, stroke: float):
+    bench.write_bundle(folder, case, seed=seed, durations=(1.5, 0.75), engine="casadi", stroke=stroke)
+    return _nominal_of(folder)
 
 
 def test_velocity_scale_beyond_its_search_range_is_refitted_to_the_truth(tmp_path):
@@ -157,11 +205,7 @@ def test_level_on_its_vanishing_point_is_reported_at_bound_not_widened(tmp_path)
     folder = tmp_path / "rigid"
     bench.write_bundle(folder, "params_only_a", seed=5, durations=(1.5, 0.75), engine="casadi", nominal=(2.0, 25.0))
     _edit(folder, free=["m"], parameters={"d": 25.0})
-    bundle = read_bundle(folder)
-    bundle.cache = LoopCache()
-    bundle.start = nominal_start(bundle)
-    nominal, weights = fit_nominal(bundle)
-    ctx = context(bundle, nominal)
+    bundle, nominal, weights, ctx = _nominal_of(folder)
     effect = effect_models.lugre_friction(ctx)
     fitted = refine(bundle, fit_structure(bundle, nominal, effect, ctx, weights, tmp_path / "fit"), weights)
     final = widen_search_bounds(bundle, fitted, weights, tmp_path / "widen")
@@ -172,3 +216,25 @@ def test_level_on_its_vanishing_point_is_reported_at_bound_not_widened(tmp_path)
     top = effect.params[1].bounds[1]
     assert found["lugre_z0"]["limit"] == top and "widened_from" not in found["lugre_z0"]
     assert "lugre_z0" not in bounds_widened(final) and "widened from" not in at_bound_text(found)
+
+
+def test_widening_that_does_not_carry_over_to_validation_is_not_kept(tmp_path, monkeypatch):
+    """The Coulomb axis above for training, but a validation run from a truth whose velocity scale (1 mm/s)
+    lies inside the default range: widening the limit lowers the training cost tenfold, yet the validation run
+    gets worse (the widened law does not carry over), so the fit stays on its limit, reported at bound and not
+    widened. Also guards that a structure not validated before the widening is validated for the comparison."""
+    folder, other = tmp_path / "coulomb", tmp_path / "validation_truth"
+    bench.write_bundle(folder, "coulomb_friction", seed=1, durations=(1.5, 0.75), engine="casadi", stroke=0.01)
+    monkeypatch.setattr(truth, "V_EPS", 1e-3)
+    bench.write_bundle(other, "coulomb_friction", seed=1, durations=(1.5, 0.75), engine="casadi", stroke=0.01)
+    shutil.copy(other / "validation.csv", folder / "validation.csv")
+    bundle, nominal, weights, ctx = _nominal_of(folder)
+    effect = effect_models.coulomb_friction(ctx)
+    fitted = refine(bundle, fit_structure(bundle, nominal, effect, ctx, weights, tmp_path / "fit"), weights)
+    lines: list[str] = []
+    final = widen_search_bounds(bundle, fitted, weights, tmp_path / "widen", progress=lines.append)
+    assert any("training cost" in line for line in lines)              # the widened refit did descend
+    assert any("does not carry over" in line for line in lines)
+    assert final.fit.values == fitted.fit.values and final.bounds == fitted.bounds
+    assert bounds_widened(final) == {}
+    assert structure_at_bound(final)["coulomb_v_eps"]["bound"] == "upper"

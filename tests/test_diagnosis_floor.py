@@ -81,7 +81,7 @@ def _stub(rms_ratio: float) -> tuple[SimpleNamespace, np.ndarray, float]:
     q = 1e-3 * np.sin(2 * np.pi * t)
     rng = np.random.default_rng(0)
     residual = 1e-7 * rng.standard_normal(n)
-    bundle = SimpleNamespace(validation=Recording(t, {"q": q}), controller=SimpleNamespace(Ts=TS),
+    bundle = SimpleNamespace(validation=Recording(t, {"q": q}), controller=SimpleNamespace(Ts=TS, sample_time=TS),
                              plant=SimpleNamespace(output_name="q"))
     floor = float(np.sqrt(np.mean(residual ** 2))) / rms_ratio
     return bundle, q - residual, floor

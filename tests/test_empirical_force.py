@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from motiontwin.fmus import build
+from motiontwin.ident.diagnosis import empirical
 from motiontwin.ident.diagnosis.empirical import fit_empirical_force
 
 
@@ -71,3 +72,40 @@ def test_bad_signals_name_the_field():
         fit_empirical_force({k: v for k, v in signals.items() if k != "a"}, np.zeros(signals["v"].size))
     with pytest.raises(ValueError, match="NaN"):
         fit_empirical_force(signals, np.full(signals["v"].size, np.nan))
+
+
+@pytest.mark.parametrize("strength", [0.0, 0.001, 0.0016, 0.002, 0.01, 0.05])
+def test_lower_bound_shortcut_gives_the_answer_of_the_full_threshold_path(strength, monkeypatch):
+    """The reference is the full cross-validated threshold path (the bound switched off): from pure noise to a
+    drag just past the MIN_GAIN cut (0.001: shortcut; 0.0016: path, nothing; 0.002: v|v|), the answer with the
+    shortcut is the same; where the shortcut decides (no path), the full path also finds nothing."""
+    signals = _signals(seconds=3.0)
+    noise = np.random.default_rng(7).normal(0, 0.02, signals["v"].size)
+    residual = noise + strength * 1e3 * signals["v"] * np.abs(signals["v"])
+    fast = fit_empirical_force(signals, residual)
+    monkeypatch.setattr(empirical, "cross_validation_bound", lambda *args: -np.inf)
+    full = fit_empirical_force(signals, residual)
+    assert fast.names == full.names and fast.cv_rms == full.cv_rms
+    np.testing.assert_array_equal(fast.coefficients, full.coefficients)
+    if not fast.path:
+        assert full.terms == []
+    else:
+        assert fast.path == full.path
+
+
+def test_lower_bound_is_below_every_cross_validated_rms():
+    signals = _signals(seconds=3.0)
+    rng = np.random.default_rng(3)
+    theta = np.column_stack([t.evaluate(signals, 1e-3) for t in empirical.default_library()])[::3]
+    theta = theta / np.sqrt(np.mean(theta ** 2, axis=0))
+    y = rng.normal(0, 1, theta.shape[0]) + 0.3 * theta[:, 4]
+    blocks = np.array_split(np.arange(y.size), empirical.FOLDS)
+    bound = empirical.cross_validation_bound(theta, y, blocks)
+    for threshold in empirical.THRESHOLDS:
+        errors = []
+        for test in blocks:
+            train = np.setdiff1d(np.arange(y.size), test)
+            xi = empirical._stlsq(theta[train], y[train], threshold)
+            errors.append(np.sqrt(np.mean((y[test] - theta[test] @ xi) ** 2)))
+        assert bound <= np.mean(errors)
+    assert bound > 0.9     # tight: only the noise the 13 columns absorb per block is below it

@@ -134,6 +134,16 @@ def test_floor_of_a_quiet_parameters_only_case_is_the_encoder_noise(short_bundle
     assert truth["noise"]["process_white_std"] == 0 and truth["laws"] == []
     assert truth["floor_rms"] == pytest.approx(white, rel=0.15)
     assert truth["floor_reseed_rms"] == pytest.approx(math.sqrt(2) * truth["floor_rms"], rel=0.1)
+    assert truth["without_effect_rms"] == truth["floor_rms"]       # no effect: the same noise-free lane
+    assert truth["force_without_effect_rms"] == truth["force_floor_rms"] > 0
+
+
+def test_effect_over_the_floor_is_the_truth_without_its_effect(short_bundles: Path) -> None:
+    """The detectability lane (the truth re-simulated noise-free without its effects, against the validation
+    recording): the Coulomb case, concealed well above its noise, misses the recording without its friction
+    by more than the diagnosis' floor margin (1.5) times the floor."""
+    truth = json.loads((short_bundles / "coulomb.truth.json").read_text())
+    assert truth["without_effect_rms"] > 1.5 * truth["floor_rms"]
 
 
 def test_the_truth_does_not_import_the_diagnosis_candidates_or_the_effects_library() -> None:

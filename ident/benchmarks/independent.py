@@ -17,7 +17,10 @@ Next to each bundle folder ``OUT/SET/CASE`` the file ``OUT/SET/CASE.truth.json``
 parameters, the expected answers, the concealment, and the ACHIEVABLE FLOOR: ``floor_rms``, the validation RMS
 of the measured position against the truth re-simulated without any noise (what a correct deterministic model,
 as the diagnosis' validation simulation is, can reach), and ``floor_reseed_rms``, against the truth
-re-simulated with other noise seeds (about sqrt(2) x ``floor_rms`` in a linear loop). Units: SI.
+re-simulated with other noise seeds (about sqrt(2) x ``floor_rms`` in a linear loop), and ``without_effect_rms``,
+against the truth re-simulated noise-free without its effects (how far the effect shows above the floor on the
+validation run); ``force_floor_rms`` and ``force_without_effect_rms`` the same for the recorded force u (an effect the
+loop's integral action rejects, a constant force, shows in u only). Units: SI.
 
     python -m motiontwin.ident.benchmarks.independent generate OUT_DIR [--set heldout|tuning] [--case A,B]
 """
@@ -254,9 +257,9 @@ def _current_limit(case: Case, law, drives: list, peak: float):
 
 
 def simulate_case(case: Case) -> dict:
-    """Train and validation recordings of ``case`` and what truth.json reports: in one integration of six
+    """Train and validation recordings of ``case`` and what truth.json reports: in one integration of seven
     lanes, train (noisy; noise-free; noise-free without the effects) and validation (noisy; noise-free; noisy
-    with other seeds). Returns recordings (time, r, u, q, u_ext per part), the sized laws, the concealment and
+    with other seeds; noise-free without the effects). Returns recordings (time, r, u, q, u_ext per part), the sized laws, the concealment and
     the floor."""
     rng = np.random.default_rng(case.seed + 1)
     force = 0.02 * case.axis.mass * case.scale     # u_ext multisine RMS: 0.02 m/s2 x the equivalent mass x L
@@ -265,15 +268,15 @@ def simulate_case(case: Case) -> dict:
     laws = calibrate(case, drives)
     n = max(d[0].size for d in drives)
     pad = [np.concatenate([x, np.full(n - x.size, x[-1])]) for d in drives for x in d[:2]]
-    r = np.column_stack([pad[0]] * 3 + [pad[2]] * 3)
-    u_ext = np.column_stack([pad[1]] * 3 + [pad[3]] * 3)
-    noisy = np.array([True, False, False, True, False, True])
-    process = np.zeros((n, 6))
-    sensor = np.zeros((n, 6))
+    r = np.column_stack([pad[0]] * 3 + [pad[2]] * 4)
+    u_ext = np.column_stack([pad[1]] * 3 + [pad[3]] * 4)
+    noisy = np.array([True, False, False, True, False, True, False])
+    process = np.zeros((n, 7))
+    sensor = np.zeros((n, 7))
     for lane in np.flatnonzero(noisy):
         process[:, lane] = process_noise(case, n, rng)
         sensor[:, lane] = NOISE[case.axis.rotary] * rng.standard_normal(n)
-    gains = np.tile(np.array([1, 1, 0, 1, 1, 1.0]), (len(laws), 1))
+    gains = np.tile(np.array([1, 1, 0, 1, 1, 1, 0.0]), (len(laws), 1))
     out = simulate(make_loop(case, laws, gains), r, u_ext, process, sensor, quantise=noisy)
     parts = {}
     for part, lane, drive_ in (("train", 0, drives[0]), ("validation", 3, drives[1])):
@@ -284,12 +287,15 @@ def simulate_case(case: Case) -> dict:
                        "q": out["q"][pre:m, lane], "u_ext": drive_[1][pre:]}
     m_train, m_val = drives[0][0].size, drives[1][0].size
     moved = out["q"][pre:m_train, 1] - out["q"][pre:m_train, 2]
-    q_val = out["q"][pre:m_val, 3:]
+    q_val, u_val = out["q"][pre:m_val, 3:], out["u"][pre:m_val, 3:]
     return {"recordings": parts, "laws": laws,
             "concealment": {"max_abs": float(np.max(np.abs(moved))), "rms": float(np.sqrt(np.mean(moved ** 2))),
                             "force_max_abs": float(np.max(np.abs(np.diff(out["u"][pre:m_train, 1:3], axis=1))))},
             "floor_rms": float(np.sqrt(np.mean((q_val[:, 0] - q_val[:, 1]) ** 2))),
-            "floor_reseed_rms": float(np.sqrt(np.mean((q_val[:, 0] - q_val[:, 2]) ** 2)))}
+            "floor_reseed_rms": float(np.sqrt(np.mean((q_val[:, 0] - q_val[:, 2]) ** 2))),
+            "without_effect_rms": float(np.sqrt(np.mean((q_val[:, 0] - q_val[:, 3]) ** 2))),
+            "force_floor_rms": float(np.sqrt(np.mean((u_val[:, 0] - u_val[:, 1]) ** 2))),
+            "force_without_effect_rms": float(np.sqrt(np.mean((u_val[:, 0] - u_val[:, 3]) ** 2)))}
 
 
 # -- bundles ---------------------------------------------------------------------------------------
@@ -330,7 +336,9 @@ def write_bundle(folder: Path, case: Case) -> dict:
                        "process_white_std": case.white_std, "process_coloured_std": case.coloured_std,
                        "process_coloured_tau": case.coloured_tau, "time_jitter_bound": JITTER},
              "concealment_targets": case.targets, "concealment": sim["concealment"],
-             "floor_rms": sim["floor_rms"], "floor_reseed_rms": sim["floor_reseed_rms"]}
+             "floor_rms": sim["floor_rms"], "floor_reseed_rms": sim["floor_reseed_rms"],
+             "without_effect_rms": sim["without_effect_rms"], "force_floor_rms": sim["force_floor_rms"],
+             "force_without_effect_rms": sim["force_without_effect_rms"]}
     atomic_write_texts({
         folder / "plant.mo": form.text.format(a=float(round(case.nominal[0], 4)) * form.scale,
                                               b=float(round(case.nominal[1], 4)) * form.scale),

@@ -50,7 +50,7 @@ def write_bundle(folder: Path, case: str, seed: int, scale: float = 1.0, nominal
                  resolution: float = RESOLUTION, fmu_dir: Path | None = None, stroke: float = 0.1,
                  sweep_fraction: float = 0.25, form: str = "alias", engine: str = "fmu", mass: float = TRUE_M,
                  damping: float = TRUE_D, nominal: tuple[float, float] | None = None,
-                 start_offset: float = 0.0) -> dict:
+                 start_offset: float = 0.0, truth_model: TruthPlant | None = None) -> dict:
     """Write one bundle (experiment.json, plant.mo, train.csv, validation.csv) and its ``NAME.truth.json``
     next to it (true effects, truth model, concealment: max and RMS |q_truth - q_rigid| [m] and max |u_truth -
     u_rigid| [N] on the training run, the rigid axis at the true m, d driven by the same r, u_ext and noise).
@@ -58,7 +58,8 @@ def write_bundle(folder: Path, case: str, seed: int, scale: float = 1.0, nominal
     ``engine``: how the truth is computed, see :func:`simulate_truth`; ``mass``, ``damping``: the true rigid axis
     (the PID is tuned for ``mass``); ``nominal``: (m, d) of plant.mo instead of 20-50 % off the truth;
     ``start_offset`` [s]: the recordings start this long after the pre-roll (inside the first move, so the
-    loop is already moving at t = 0)."""
+    loop is already moving at t = 0); ``truth_model``: the truth instead of ``case``'s (the CasADi engine
+    writes its effects as the diagnosis' augmented model; ``case`` then only names the bundle)."""
     written = PLANT_FORMS[form]
     rng = np.random.default_rng(seed)
     folder = Path(folder)
@@ -68,7 +69,7 @@ def write_bundle(folder: Path, case: str, seed: int, scale: float = 1.0, nominal
     d_nom = damping * (1 + rng.uniform(0.2, 0.5) * rng.choice([-1, 1]))
     if nominal is not None:
         m_nom, d_nom = nominal
-    plant = truth_plant(case, scale, mass, damping)
+    plant = truth_model or truth_plant(case, scale, mass, damping)
     ctrl = pid_controller(mass=mass)
     skip = int(round(start_offset / TS))
     concealment = {}
@@ -77,7 +78,7 @@ def write_bundle(folder: Path, case: str, seed: int, scale: float = 1.0, nominal
         noise_seed = int(rng.integers(2 ** 31))
         q, u, q_true = simulate_truth(case, t, r, u_ext, np.random.default_rng(noise_seed), scale,
                                       noise_std=noise_std, resolution=resolution, fmu_dir=fmu_dir,
-                                      engine=engine, mass=mass, damping=damping, skip=skip)
+                                      engine=engine, mass=mass, damping=damping, skip=skip, truth=truth_model)
         if part == "train":
             _, u_rigid, q_rigid = simulate_truth(case, t, r, u_ext, np.random.default_rng(noise_seed), scale,
                                                  with_effects=False, noise_std=noise_std, resolution=resolution,

@@ -524,11 +524,13 @@ def simulate_truth(case: str, t: np.ndarray, r: np.ndarray, u_ext: np.ndarray, r
                    scale: float, with_effects: bool = True, noise_std: float = NOISE,
                    resolution: float = RESOLUTION, fmu_dir: Path | None = None,
                    engine: str = "fmu", mass: float = TRUE_M, damping: float = TRUE_D,
-                   skip: int = 0) -> tuple[np.ndarray, ...]:
+                   skip: int = 0, truth: TruthPlant | None = None) -> tuple[np.ndarray, ...]:
     """Closed-loop truth (pre-roll and ``skip`` more samples cut off); returns the measured q, the force u and
     the true q. ``engine``: "fmu" (library FMUs co-simulated by the harness, quantised encoder) or "casadi"
-    (:func:`casadi_truth`); ``mass``, ``damping``: the rigid axis (the PID is tuned for ``mass``)."""
-    plant = truth_plant(case if with_effects else "params_only_a", scale, mass, damping)
+    (:func:`casadi_truth`); ``mass``, ``damping``: the rigid axis (the PID is tuned for ``mass``); ``truth``:
+    a plant of the caller's own instead of the case's (e.g. two catalogue effects at once)."""
+    plant = truth if with_effects and truth is not None else \
+        truth_plant(case if with_effects else "params_only_a", scale, mass, damping)
     rr, ue, pre = with_preroll(r, u_ext)
     noise = measurement.add_noise(np.zeros(rr.size), noise_std, rng)
     ctrl = pid_controller(mass=mass)

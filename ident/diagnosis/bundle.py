@@ -42,7 +42,7 @@ import numpy as np
 from motiontwin.fmus import frontend, symbolic
 from motiontwin.harness.recording import Recording, RecordingError, read_recording
 from motiontwin.ident import controller, startvalues, units
-from motiontwin.ident.controller import Controller, field
+from motiontwin.ident.controller import Controller, at_recording_step, field
 from motiontwin.ident.observer import UNKNOWN_KIND, Observer, ObserverError, observer_from_document
 from motiontwin.ident.diagnosis import axis_kinematics
 from motiontwin.ident.diagnosis.plant_roles import PlantFormError, PlantRoles, find_roles
@@ -115,7 +115,6 @@ class Bundle:
     cache: Any = None            # the compiled loops of the diagnosis running on this bundle (set by the pipeline)
     nominal_free: tuple = ()     # multi-axis: (free nominal parameters, their bounds) (set by the diagnosis)
     process_noise: Any = None    # noise.ProcessNoise of the training recording (set by the pipeline; None: none)
-    weights: Any = None          # outputerror.Weights of the refits (set by the pipeline; validation start state)
     observer: Observer | None = None   # unknown controller: the observer standing in for it (ident.observer)
 
     def recording_path(self, part: str) -> Path:
@@ -388,16 +387,17 @@ def _to_si(rec: Recording, source: str, axes: list[PlantRoles] | None = None) ->
 
 
 def _recording(doc: dict, key: str, bundle_dir: Path, where: str, ts: float | None,
-               axes: list[PlantRoles] | None = None) -> Recording:
-    """The recording ``recordings.<key>`` in SI and checked; ``ts`` None: an unknown controller's recording
-    (columns time, u, q), in SI but not checked yet (:func:`predictor_recording` does)."""
+               axes: list[PlantRoles] | None = None, predictor: bool = False) -> Recording:
+    """The recording ``recordings.<key>`` in SI and checked at steps ``ts``; ``ts`` None: in SI but not checked
+    yet; ``predictor``: an unknown controller's recording (columns time, u, q; :func:`predictor_recording`
+    checks it)."""
     name = _field(doc, key, where, str)
     path = bundle_dir / name
     if not path.is_file():
         raise BundleError(f"{where}: field 'recordings.{key}' names {name!r}, but {path} does not exist")
     try:
         rec = read_recording(path, ("time", *axis_columns(axes)) if axes else
-                             REQUIRED_COLUMNS if ts is not None else PREDICTOR_COLUMNS)
+                             PREDICTOR_COLUMNS if predictor else REQUIRED_COLUMNS)
         _to_si(rec, str(path), axes)
     except RecordingError as exc:
         raise BundleError(str(exc)) from None
@@ -487,9 +487,12 @@ def read_bundle(bundle_dir: str | Path, allow_outside_paths: bool = False) -> Bu
     plant.free = check_free(plant_doc.get("free"), plant.model, f"{exp_path}: plant")
     recs = _field(experiment, "recordings", str(exp_path), dict)
     where = f"{exp_path}: recordings"
-    train = _recording(recs, "train", bundle_dir, where, controller.Ts, plant.axes)
-    validation = _recording(recs, "validation", bundle_dir, where, controller.Ts, plant.axes)
+    train = _recording(recs, "train", bundle_dir, where, None, plant.axes)
+    controller = at_recording_step(controller, train.time, str(bundle_dir / recs["train"]), BundleError)
+    train = check_recording(train, bundle_dir / recs["train"], controller.sample_time, plant.axes)
+    validation = _recording(recs, "validation", bundle_dir, where, controller.sample_time, plant.axes)
     return Bundle(bundle_dir, experiment, plant, controller, train, validation)
+
 
 
 def _observer(doc: dict, train: Recording, where: str, source: str) -> Observer:
@@ -510,7 +513,7 @@ def _unknown_controller_bundle(bundle_dir: Path, experiment: dict, exp_path: Pat
     plant.free = check_free(plant_doc.get("free"), plant.model, f"{exp_path}: plant")
     recs = _field(experiment, "recordings", str(exp_path), dict)
     where = f"{exp_path}: recordings"
-    raw = {key: _recording(recs, key, bundle_dir, where, None) for key in ("train", "validation")}
+    raw = {key: _recording(recs, key, bundle_dir, where, None, predictor=True) for key in ("train", "validation")}
     ts = controller_doc.get("Ts") or float(np.median(np.diff(raw["train"].time)))
     train, validation = (predictor_recording(raw[key], bundle_dir / recs[key], ts) for key in ("train", "validation"))
     observer = _observer({**controller_doc, "Ts": ts}, train, str(exp_path), str(bundle_dir / recs["train"]))
@@ -591,6 +594,7 @@ def make_bundle(plant: str | Path, controller: Controller | dict, train: Recordi
     if not isinstance(controller, Controller):
         controller = (read_axes_controller(dict(controller), "controller", info.axes) if axes
                       else read_controller(dict(controller), "controller"))
-    checked = [check_recording(rec, name, controller.Ts, info.axes)
+    controller = at_recording_step(controller, train.time, "train", BundleError)
+    checked = [check_recording(rec, name, controller.sample_time, info.axes)
                for rec, name in ((train, "train"), (validation, "validation"))]
     return Bundle(IN_MEMORY, experiment, info, controller, *checked)

@@ -26,7 +26,7 @@ def _in_state_coordinates(rec: Recording, gain: float, offset: float) -> Recordi
 
 def context(bundle: Bundle, nominal: ModelFit) -> effect_models.Context:
     """Recorded ranges and inverse-dynamics signals in the plant's state coordinates."""
-    ts = bundle.controller.Ts
+    ts = bundle.controller.sample_time
     plant = bundle.plant
     gain, offset = output_map(plant.model, plant.roles, nominal.fit.values)
     rec = _in_state_coordinates(bundle.train, gain, offset)
@@ -76,7 +76,7 @@ def _axis_motion(bundle: Bundle, rec: Recording, values: dict[str, float],
                  fc: float | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Filtered position, velocity, acceleration (in axis coordinates: the state's, or an expression axis's
     output) and force of every axis (each axes x samples)."""
-    fs = 1 / bundle.controller.Ts
+    fs = 1 / bundle.controller.sample_time
     fc = fc or startvalues.derivative_cutoff(fs)
     motion, forces = [], []
     for a in bundle.plant.axes:
@@ -171,7 +171,7 @@ def locate(bundle: Bundle, current: ModelFit, weights: outputerror.Weights, seed
 
 def axis_context(bundle: Bundle, current: ModelFit, k: int, force: np.ndarray) -> effect_models.Context:
     """Recorded ranges and inverse-dynamics signals of axis ``k`` in its state coordinates."""
-    ts = bundle.controller.Ts
+    ts = bundle.controller.sample_time
     roles = bundle.plant.axes[k]
     model = bundle.plant.model
     plain = {v.name: current.fit.values.get("plant." + v.name, float(v.start)) for v in model.parameters}

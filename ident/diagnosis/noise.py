@@ -207,10 +207,10 @@ def of_bundle(bundle: Bundle, values: dict[str, float], sigma_q: float) -> Proce
     rec = Recording(bundle.train.time, {**bundle.train.columns, "q": (bundle.train["q"] - offset) / gain})
     inputs = [v.name for v in plant.model.inputs]
     inv = evidence.inverse_dynamics(rec, plant.model, values, plant.position_state, plant.velocity_state,
-                                    bundle.controller.Ts, inputs.index(plant.input_name), held_input=True)
+                                    bundle.controller.sample_time, inputs.index(plant.input_name), held_input=True)
     if inv is None:
         return ProcessNoise()
-    ts = bundle.controller.Ts
+    ts = bundle.controller.sample_time
     input_gain = 1 / evidence.mass_equivalent(plant.model, values, plant.velocity_state,
                                               inputs.index(plant.input_name))
     return estimate(held_force(inv, input_gain, ts), inv.x, inv.v, inv.a, input_gain, sigma_q / abs(gain), ts,

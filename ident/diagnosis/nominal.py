@@ -42,7 +42,7 @@ def nominal_start(bundle: Bundle, progress=None) -> dict[str, float]:
         _log(progress, "start values: the Modelica defaults and plant.parameters (the inverse-dynamics start "
                        "needs the output to be the position state itself)")
         return values
-    estimate = startvalues.inverse_dynamics_start(model, bundle.train["q"], bundle.train["u"], bundle.controller.Ts,
+    estimate = startvalues.inverse_dynamics_start(model, bundle.train["q"], bundle.train["u"], bundle.controller.sample_time,
                                                   plant.position_state, guess, values, input_name=plant.input_name)
     kept = {n: v for n, v in estimate.items() if v * values[n] > 0 or (values[n] == 0 and v != 0)}
     if kept:
@@ -90,7 +90,7 @@ def fit_nominal(bundle: Bundle, progress=None) -> tuple[ModelFit, outputerror.We
                                f"the nominal closed loop ({bundle.plant.class_name} with the bundle's controller) on "
                                f"{bundle.recording_path('train')}", {n: values[n] for n in free},
                                _divergence_hint(bundle))
-    ts = bundle.controller.Ts
+    ts = bundle.controller.sample_time
     weights = outputerror.Weights(evidence.noise_level(bundle.train["q"] - q0, ts),
                                   evidence.noise_level(bundle.train["u"] - u0, ts))
     result = outputerror.fit(loop, bundle.train, weights, bounds, max_nfev=40,
@@ -109,7 +109,7 @@ def fit_nominal(bundle: Bundle, progress=None) -> tuple[ModelFit, outputerror.We
 def check_plant_form(bundle: Bundle, folder: Path) -> None:
     """Build every candidate effect's augmented model on the bundle's plant before any fitting (raises
     :class:`BundleError` naming the construct and the plant file's line)."""
-    plant, ts = bundle.plant, bundle.controller.Ts
+    plant, ts = bundle.plant, bundle.controller.sample_time
     values = {v.name: float(v.start) for v in plant.model.parameters}
     try:
         gain, offset = output_map(plant.model, plant.roles, values)
@@ -149,7 +149,7 @@ def nominal_free(bundle: Bundle) -> tuple[list[str], dict[str, tuple[float, floa
 
 
 def _noise_weights(bundle: Bundle, loop: outputerror.Loop, q: np.ndarray, u: np.ndarray) -> outputerror.Weights:
-    ts = bundle.controller.Ts
+    ts = bundle.controller.sample_time
     qm, um = outputerror.measured(loop, bundle.train, "output"), outputerror.measured(loop, bundle.train, "input")
     return outputerror.Weights(np.array([evidence.noise_level(qm[k] - q[k], ts) for k in range(len(qm))]),
                                np.array([evidence.noise_level(um[k] - u[k], ts) for k in range(len(um))]))
@@ -178,33 +178,52 @@ def fit_nominal_axes(bundle: Bundle, work: Path, progress=None) -> tuple[ModelFi
 
 def plant_physics(bundle: Bundle, nominal: ModelFit, ctx: effect_models.Context) -> dict[str, str]:
     """Catalogue effects whose force the plant already has as a refitted parameter (effect -> parameter): the
-    force the parameter adds along the recorded motion (d u_needed / d p from the plant's equations at the
-    filtered states of ``ctx``) points the same way as the effect's force shape (``Effect.regressor``), so the
-    effect would add the same physics a second time."""
+    force the parameter adds along the recorded motion (:func:`parameter_forces`) points the same way as the
+    effect's force shape (``Effect.regressor``), so the effect would add the same physics a second time. Of
+    several such parameters the closest (largest |cosine|) is named, whatever their order in the plant."""
+    forces = parameter_forces(bundle, nominal, ctx)
+    owned = {}
+    for effect, factory in effect_models.VOCABULARY.items():
+        shape = factory(ctx).regressor
+        if shape is None or not forces:
+            continue
+        r = shape(ctx, ctx.x, ctx.v)
+        cosine = {name: _cosine(r, push) for name, push in forces.items()}
+        best = max(cosine, key=cosine.get)
+        if cosine[best] > SAME_PHYSICS:
+            owned[effect] = best
+    return owned
+
+
+def parameter_forces(bundle: Bundle, nominal: ModelFit, ctx: effect_models.Context) -> dict[str, np.ndarray]:
+    """d u_needed / d p of every refitted nominal parameter along the training run's filtered states (``ctx``):
+    the force each parameter adds, u_needed being the force the plant's equations need for the filtered
+    acceleration (exact for a plant affine in its input; a PrismaticAxis gives a, v, tanh(v/v_eps), 1). At
+    u = 0 instead, a mass would push the plant's other forces over itself (a constant on a loaded axis: an
+    offset taken for the mass's). Empty for a multi-axis plant or without the inverse-dynamics signals."""
     plant = bundle.plant
-    if bundle.multi_axis or ctx.x is None or ctx.v is None or not nominal.loop.free:
+    if bundle.multi_axis or ctx.x is None or ctx.v is None or ctx.a is None or not nominal.loop.free:
         return {}
     model = plant.model
     names, inputs = [s.name for s in model.states], [v.name for v in model.inputs]
     params = [v.name for v in model.parameters]
     i_v, k_u = names.index(plant.velocity_state), inputs.index(plant.input_name)
     acc = model.dx[i_v]
-    fn = ca.Function("push", [model.x, model.u, model.p], [ca.jacobian(acc, model.u)[k_u], ca.jacobian(acc, model.p)])
+    fn = ca.Function("push", [model.x, model.u, model.p],
+                     [acc, ca.jacobian(acc, model.u)[k_u], ca.jacobian(acc, model.p)]).map(ctx.x.size)
     p = np.array([nominal.fit.values.get(n, 0.0) for n in params])
     x0 = np.array(ca.Function("x0", [model.p], [model.x0()])(p)).ravel()
     x = np.tile(x0[:, None], (1, ctx.x.size))
     x[names.index(plant.position_state)], x[i_v] = ctx.x, ctx.v
-    gain, dp = fn.map(ctx.x.size)(x, np.zeros((model.u.numel(), ctx.x.size)), p)
-    dp = np.array(dp).reshape(ctx.x.size, len(params)).T / np.array(gain).ravel()
-    owned = {}
-    for name in nominal.loop.free:
-        push = dp[params.index(name)]
-        for effect, factory in effect_models.VOCABULARY.items():
-            shape = factory(ctx).regressor
-            if shape is None or effect in owned:
-                continue
-            r = shape(ctx, ctx.x, ctx.v)
-            norm = float(np.linalg.norm(r) * np.linalg.norm(push))
-            if norm > 0 and abs(float(r @ push)) / norm > SAME_PHYSICS:
-                owned[effect] = name
-    return owned
+    u = np.zeros((model.u.numel(), ctx.x.size))
+    acc0, gain, _ = fn(x, u, p)
+    u[k_u] = (ctx.a - np.array(acc0).ravel()) / np.array(gain).ravel()
+    _, gain, dp = fn(x, u, p)
+    dp = -np.array(dp).reshape(ctx.x.size, len(params)).T / np.array(gain).ravel()
+    return {name: dp[params.index(name)] for name in nominal.loop.free}
+
+
+def _cosine(a: np.ndarray, b: np.ndarray) -> float:
+    """|cosine| between two vectors (0 when one is zero)."""
+    norm = float(np.linalg.norm(a) * np.linalg.norm(b))
+    return abs(float(a @ b)) / norm if norm > 0 else 0.0

@@ -46,7 +46,6 @@ def run(bundle: Bundle, work: Path, progress=None) -> dict:
     _log(progress, f"every candidate effect's augmented model builds ({time.perf_counter() - t0:.1f} s)")
     bundle.start = nominal_start(bundle, progress)
     nominal, weights = fit_nominal(bundle, progress)
-    bundle.weights = weights
     bundle.process_noise = noise.of_bundle(bundle, nominal.fit.values, weights.sigma_q)
     _log(progress, f"process force noise (not predictable from the motion): {bundle.process_noise.describe()}")
     validate(bundle, nominal, work / "v_nominal")
@@ -71,7 +70,8 @@ def run(bundle: Bundle, work: Path, progress=None) -> dict:
     loop, _ = build_structure(bundle, final.effects, values, model_dir, bundle.validation.time.size,
                               with_jacobian=False, min_substeps=final.loop.substeps)
     written = bundle.cache.models[names]
-    q_aug, u_aug = outputerror.simulate(loop, bundle.validation, values, shift=validation_shift(bundle, loop))
+    q_aug, u_aug = outputerror.simulate(loop, bundle.validation, values,
+                                        shift=validation_shift(bundle, loop, final.fit))
     bundle.process_noise = noise.within_residual(
         bundle.process_noise, floor_rms(final.loop, bundle.train, final.fit.values, weights.sigma_q),
         floor_rms(final.loop, bundle.train, final.fit.values, weights.sigma_q, bundle.process_noise),
@@ -109,7 +109,7 @@ def above_floor(bundle: Bundle, remainder: dict, q_final: np.ndarray, floor: flo
     above = rms > FLOOR_MARGIN * reach
     if remainder.get("status", "").startswith("unexplained") or not above:
         return remainder
-    ts = bundle.controller.Ts
+    ts = bundle.controller.sample_time
     _, v, _ = startvalues.mirror_derivatives(rec["q"], 1 / ts, startvalues.derivative_cutoff(1 / ts))
     where = empirical.locate_remainder(residual, residual, rec.time, v, rec["q"], sigma_q, ts)
     reason = (f"the validation RMS {rms:.4g} is {rms / reach:.3g} times what a correct model fitted on this training "

@@ -50,7 +50,7 @@ def explain_remainder(bundle: Bundle, final: ModelFit, weights: outputerror.Weig
     rec = _in_state_coordinates(bundle.train, gain, offset)
     inputs = [v.name for v in model.inputs]
     inv = evidence.inverse_dynamics(rec, model, values, prefix + plant.position_state,
-                                    prefix + plant.velocity_state, bundle.controller.Ts,
+                                    prefix + plant.velocity_state, bundle.controller.sample_time,
                                     inputs.index("u" if final.effects else plant.input_name), held_input=True,
                                     states=_free_run_states(bundle, final, model))
     if inv is None:
@@ -127,7 +127,7 @@ def explain_remainder(bundle: Bundle, final: ModelFit, weights: outputerror.Weig
         trial = reduced
     where = empirical.locate_remainder((trial.fit.q_sim - final.fit.q_sim), bundle.train["q"] - final.fit.q_sim,
                                        bundle.train.time, inv.v * gain, bundle.train["q"], weights.sigma_q,
-                                       bundle.controller.Ts)
+                                       bundle.controller.sample_time)
     term = {"terms": law.names, "coefficients": effect.contract(trial.fit.values, ctx),
             "units": {name: empirical.TERM_UNITS.get(name, "") for name in law.names},
             "v_eps": (None if "empirical_v_eps" not in trial.fit.values
@@ -221,7 +221,7 @@ def explain_remainder_axes(bundle: Bundle, final: ModelFit, weights: outputerror
     k = [a.output for a in bundle.plant.axes].index(axis)
     where = empirical.locate_remainder(trial.fit.q_sim[k] - final.fit.q_sim[k], bundle.train[axis] - final.fit.q_sim[k],
                                        bundle.train.time, ctx.v * ctx.position_gain, bundle.train[axis],
-                                       float(np.atleast_1d(weights.sigma_q)[k]), bundle.controller.Ts)
+                                       float(np.atleast_1d(weights.sigma_q)[k]), bundle.controller.sample_time)
     placed = trial.effects[-1]
     term = {"terms": law.names, "coefficients": placed.contract(trial.fit.values, ctx),
             "units": {name: empirical.TERM_UNITS.get(name, "") for name in law.names},

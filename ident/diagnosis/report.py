@@ -113,7 +113,7 @@ def _location(result: dict, name: str) -> dict:
     previous = info["previous"]
     contribution = final.fit.q_sim - previous.fit.q_sim
     ctx = result["context"]
-    ts = bundle.controller.Ts
+    ts = bundle.controller.sample_time
     v = ctx.v if ctx.v is not None else np.gradient(bundle.train["q"], ts)
     loc = evidence.locate(contribution, v, bundle.train["q"], ts)
     sigma = max(result["weights"].sigma_q, 1e-15)
@@ -175,7 +175,9 @@ def diagnosis_document(result: dict, out: Path, fmu_path: Path | None) -> dict:
         "plant_physics": result.get("plant_physics", {}),
         "units": units.as_dict(),
         "controller": (result["bundle"].observer.as_dict() if result["bundle"].observer is not None
-                       else {"kind": "given"}),
+                       else {"kind": "given", "Ts": result["bundle"].controller.Ts,
+                             "updates_per_sample": result["bundle"].controller.ticks,
+                             "rate": result["bundle"].controller.describe_rate()}),
     }
 
 
@@ -225,7 +227,7 @@ def _plots(result: dict, staging: Path) -> tuple[list[str], dict[str, int]]:
     """The PNG plots and, per plot, how many residual points were clipped to its robust limits."""
     bundle, nominal, final = result["bundle"], result["nominal"], result["final"]
     train, val = bundle.train, bundle.validation
-    ts = bundle.controller.Ts
+    ts = bundle.controller.sample_time
     sigma = result["weights"].sigma_q
     res_nom = train["q"] - nominal.fit.q_sim
     res_aug = train["q"] - final.fit.q_sim
@@ -511,7 +513,7 @@ def _effect_entry(bundle: Bundle, final: ModelFit, axis: str, effect: effect_mod
     ctx = info["context"]
     params = effect.contract(final.fit.values, ctx)
     k = [a.output for a in bundle.plant.axes].index(axis)
-    ts = bundle.controller.Ts
+    ts = bundle.controller.sample_time
     location = evidence.locate(info["force_residual"], ctx.v, ctx.x * ctx.position_gain, ts)
     sigma = max(float(np.atleast_1d(info["sigma_q"])[k]), 1e-15)
     previous = info["previous_q"][k]

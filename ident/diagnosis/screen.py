@@ -79,7 +79,7 @@ def _joint_start(bundle: Bundle, loop: outputerror.Loop, candidate: effect_model
     free = [n for n in loop.free if n.startswith("plant.")] + [p.name for p in candidate.params if p.fitted]
     try:
         estimate = startvalues.inverse_dynamics_start(model, bundle.train["q"], bundle.train["u"],
-                                                      bundle.controller.Ts, position, free, values, input_name="u")
+                                                      bundle.controller.sample_time, position, free, values, input_name="u")
     except (ValueError, np.linalg.LinAlgError, RuntimeError):
         return {}
     return {**{p.name: values[p.name] for p in candidate.params if p.fitted and p.name in values}, **estimate}

@@ -195,15 +195,16 @@ def widen_search_bounds(bundle: Bundle, final: ModelFit, weights: outputerror.We
     """The chosen structure refitted with every effect parameter that ended on a search limit of its effect
     (not a physical one, :func:`bounds.physical_sides`) given that limit widened (:func:`bounds.widened_effects`),
     up to ``rounds`` times, from the fitted values on the same compiled loop: only descent is accepted, so the
-    result never has a higher training cost than ``final``, and only a validation run no worse than before (on the
-    held-out friction-bump case a Coulomb velocity scale widened 10x lowered the training cost and broke the
-    validation run). One axis or
-    several."""
+    result never has a higher training cost than ``final``, and only a validation run no worse than before (``final``
+    is validated first when it was not; on the held-out friction-bump case a Coulomb velocity scale widened 10x
+    lowered the training cost and broke the validation run). One axis or several."""
     current = final
     for k in range(rounds):
         effects, changed = widened_effects(current)
         if not changed:
             break
+        if math.isnan(current.val_rms):      # not validated yet: the comparison below needs its figure
+            validate_any(bundle, current, work / f"v_before{k + 1}")
         trial = ModelFit(effects, current.loop, current.fit, {**current.bounds, **changed}, current.folder,
                          evidence=current.evidence, axes=current.axes)
         refit = refine(bundle, trial, weights, 2 * MAX_NFEV)

@@ -143,7 +143,7 @@ def build_structure(bundle: Bundle, effects: list[effect_models.Effect], values:
     tracking = {s: "q" for e in effects for s in e.tracks_position} | _moving_start(bundle, "plant.")
     tracking.update({s: "u" for e in effects for s in e.tracks_force})
     min_substeps = max([min_substeps] + [e.min_substeps for e in effects])
-    substeps = substeps or max(min_substeps, outputerror.stable_substeps(model, all_values, bundle.controller.Ts))
+    substeps = substeps or max(min_substeps, outputerror.stable_substeps(model, all_values, bundle.controller.sample_time))
     key = (names, n_samples, substeps, with_jacobian)
     if key not in cache.loops:
         cache.loops[key] = outputerror.build_loop(model, bundle.controller, "q",
@@ -164,18 +164,20 @@ def validate(bundle: Bundle, structure: ModelFit, folder: Path) -> None:
                                       structure.fit.values, rec.time.size, with_jacobian=False,
                                       min_substeps=structure.loop.substeps, input_name=bundle.plant.input_name,
                                       tracking=_moving_start(bundle))
-    q, _ = outputerror.simulate(loop, rec, structure.fit.values, shift=validation_shift(bundle, loop))
+    q, _ = outputerror.simulate(loop, rec, structure.fit.values,
+                                shift=validation_shift(bundle, loop, structure.fit))
     structure.val_q = q
     structure.val_rms = float(np.sqrt(np.mean((rec["q"] - q) ** 2))) if np.all(np.isfinite(q)) else math.inf
 
 
-def validation_shift(bundle: Bundle, loop: outputerror.Loop) -> np.ndarray | None:
+def validation_shift(bundle: Bundle, loop: outputerror.Loop, fit: outputerror.Fit) -> np.ndarray | None:
     """The controller's start state on the validation recording estimated as the refits estimate it on the
-    training recording (both channels over the whole run, weighted by the diagnosis' noise levels), so that
-    neither run carries a start state fixed by its first noisy samples (issue 23)."""
-    if bundle.weights is None or bundle.observer is not None:
+    training recording (both channels over the whole run and the controller's relation, weighted by the
+    noise levels of ``fit``), so that neither run carries a start state fixed by its first noisy samples
+    (issue 23). None for an unknown controller (its observer keeps its own start)."""
+    if fit.weights is None or bundle.observer is not None:
         return None
-    return outputerror.controller_shift(loop, bundle.validation, loop.values, bundle.weights)
+    return outputerror.controller_shift(loop, bundle.validation, loop.values, fit.weights)
 
 
 def validation_floor(loop: outputerror.Loop, bundle: Bundle, values: dict[str, float], sigma_q: float | np.ndarray,
@@ -357,7 +359,7 @@ def build_axes(bundle: Bundle, effects: list[tuple[str, effect_models.Effect]], 
         write_axes_structure(bundle.plant, effects, values, folder)
         model = cache.models[names] = load_structure(folder)
     free, bounds, all_values = structure_parameters(model, [e for _, e in effects], *bundle.nominal_free, values)
-    substeps = max(min_substeps, outputerror.stable_substeps(model, all_values, bundle.controller.Ts))
+    substeps = max(min_substeps, outputerror.stable_substeps(model, all_values, bundle.controller.sample_time))
     key = ("axes",) + (names, n_samples, substeps, with_jacobian)
     if key not in cache.loops:
         cache.loops[key] = outputerror.build_loop(model, bundle.controller, bundle.plant.axes[0].output, free,

@@ -13,10 +13,10 @@ import sys
 import threading
 from typing import Callable, Iterator
 
-#: One BLAS thread per process unless the user sets these: the work is many small least-squares problems and
-#: scales out by worker processes (sweep, screening, fleet), while OpenBLAS's own threads spin: a diagnosis of a
-#: 12 s + 6 s bundle took 34.8 s of CPU (22.9 s wall) with them and 17.0 s (18.1 s wall) without, same result.
-BLAS_THREAD_VARIABLES = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
+from motiontwin.harness import BLAS_THREAD_VARIABLES  # numpy-free: set before numpy loads
+
+#: One BLAS thread per process unless the user sets one: a diagnosis of a 12 s + 6 s bundle took 34.8 s of CPU
+#: (22.9 s wall) with OpenBLAS's threads and 17.0 s (18.1 s wall) without, same result.
 for _variable in BLAS_THREAD_VARIABLES:   # before numpy is imported; spawned workers inherit them
     os.environ.setdefault(_variable, "1")
 

@@ -409,7 +409,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     q.add_argument("--input", default="u", help="plant input = recording column (default u)")
     q.add_argument("--output", default="q", help="plant output/state = recording column (default q)")
     q.add_argument("--controller", default=None,
-                   help="controller JSON (discrete_state_space, or an experiment.json); the recording then needs r. "
+                   help="controller JSON (discrete_state_space, or an experiment.json; its Ts the recording's step or a whole "
+                        "fraction of it, a faster controller run at its own period); the recording then needs r. "
                         "'unknown' (or a JSON {\"kind\": \"unknown\"}): no controller known, the model runs as a "
                         "prediction-error predictor (measured force plus a fixed PD observer on the measured "
                         "position, ident.observer) so a double integrator does not drift; needs only u and q")

@@ -90,7 +90,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "beside it; default: the JSON's, the FMU's neighbour, else the library)")
     p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE", help="override a parameter value")
     p.add_argument("--controller", default=None,
-                   help="closed loop: controller JSON (discrete_state_space, or a library controller by name); "
+                   help="closed loop: controller JSON (discrete_state_space, or a library controller by name; its Ts may be "
+                        "the recording's step or a whole fraction of it, a faster controller run at its own period); "
                         "'unknown' (or a JSON {\"kind\": \"unknown\"}): the prediction-error predictor "
                         "(measured force u plus a fixed PD observer on the measured q, ident.observer; columns u, "
                         "q only): the RMS is then the predictor's and the k-step-ahead scores are printed")
