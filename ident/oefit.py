@@ -395,6 +395,10 @@ def parameter_scale(theta0: np.ndarray, r0: np.ndarray | None = None, j0: np.nda
     return scale
 
 
+#: largest magnitude of a solver Jacobian entry: its column norms (squares summed over 1e5+ rows) stay finite
+JACOBIAN_LIMIT = 1e100
+
+
 def fit(loop: Loop, rec: Recording, weights: Weights, bounds: dict[str, tuple[float, float]] | None = None,
         start: dict[str, float] | None = None, max_nfev: int = 40,
         q_meas: np.ndarray | None = None, u_meas: np.ndarray | None = None,
@@ -450,8 +454,15 @@ def fit(loop: Loop, rec: Recording, weights: Weights, bounds: dict[str, tuple[fl
         return np.where(np.isfinite(r), r, 1e12)
 
     def jac_at(theta: np.ndarray, x_init: np.ndarray) -> np.ndarray:
-        j = weighted_jacobian(loop, state(theta, x_init), W, theta, pf, idx + ctrl_idx, weights)
-        return np.where(np.isfinite(j), j, 0.0)
+        return weighted_jacobian(loop, state(theta, x_init), W, theta, pf, idx + ctrl_idx, weights)
+
+    def solver_jacobian(j: np.ndarray) -> np.ndarray:
+        """The solver's Jacobian: scaled, finite and bounded (a diverging free run overflows it, and the solver
+        squares it for its column norms; its SVD refuses inf and NaN, while a zero or clipped entry only stalls
+        that direction of a step the cost then rejects)."""
+        with np.errstate(over="ignore", invalid="ignore"):
+            j = j * scale
+        return np.clip(np.where(np.isfinite(j), j, 0.0), -JACOBIAN_LIMIT, JACOBIAN_LIMIT)
 
     jac_cache: dict[bytes, np.ndarray] = {}
 
@@ -460,7 +471,7 @@ def fit(loop: Loop, rec: Recording, weights: Weights, bounds: dict[str, tuple[fl
 
     def jac(xs: np.ndarray) -> np.ndarray:
         key = xs.tobytes()
-        return jac_cache[key] if key in jac_cache else jac_at(*split(xs)) * scale
+        return jac_cache[key] if key in jac_cache else solver_jacobian(jac_at(*split(xs)))
 
     if ctrl_idx:    # the controller's relation on the recorded signals prices a shift of its start
         relation, rows, sigma_c = relation_prior(loop, rec, values, weights)
@@ -478,12 +489,13 @@ def fit(loop: Loop, rec: Recording, weights: Weights, bounds: dict[str, tuple[fl
     j_start = None
     if np.any(np.abs(theta0) <= ZERO_START) and loop.jac is not None:
         j_start = jac_at(theta0, x_init0)
+        j_start = np.where(np.isfinite(j_start), j_start, 0.0)
         scale[:n_th] = parameter_scale(theta0, res_at(theta0, x_init0), j_start[:, :n_th])
     else:
         scale[:n_th] = parameter_scale(theta0)
     x_start = np.concatenate([theta0, x_init0]) / scale
     if j_start is not None:      # the solver's first Jacobian is this one: not computed twice
-        jac_cache[x_start.tobytes()] = j_start * scale
+        jac_cache[x_start.tobytes()] = solver_jacobian(j_start)
     if x_start.size:
         if loop.jac is None:
             raise ValueError("the loop was compiled without its Jacobian (with_jacobian=False)")
