@@ -25,7 +25,7 @@ from motiontwin.harness.recording import Recording
 from motiontwin.ident.controller import Controller, at_recording_step
 from motiontwin.ident.oeloop import Signals
 
-__all__ = ["ChannelCheck", "check_channels", "channel_problem", "MAX_DELAY", "NOISE_FACTOR",
+__all__ = ["ChannelCheck", "check_channels", "channel_problem", "controller_responses", "lifted", "MAX_DELAY", "NOISE_FACTOR",
            "RELATIVE_TOLERANCE", "UNEXPLAINED_SHARE"]
 
 MAX_DELAY = 10            # samples searched either way
@@ -65,7 +65,7 @@ def lifted(ctrl: Controller) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return a_l, b0, b1
 
 
-def _controller_responses(ctrl: Controller, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def controller_responses(ctrl: Controller, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Forced response p (outputs x N) from z_0 = 0 and free-response rows G (outputs x N x states); a
     controller faster than the recording by :func:`lifted`."""
     n = y.shape[1]
@@ -164,7 +164,7 @@ def check_channels(rec: Recording, controller: Controller,
         raise KeyError(f"recording has no column {', '.join(map(repr, missing))} (columns: {', '.join(rec.columns)})")
     controller = at_recording_step(controller, rec.time, "recording")
     y = np.vstack([rec[s.reference] for s in channels] + [rec[s.output] for s in channels])
-    p, g = _controller_responses(controller, y)
+    p, g = controller_responses(controller, y)
     zero = np.zeros_like(rec.time)
     return [_check_axis(rec[s.input], rec[s.disturbance] if s.disturbance in rec.columns else zero, p[i], g[i],
                         controller.sample_time, s) for i, s in enumerate(channels)]

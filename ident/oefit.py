@@ -13,6 +13,7 @@ from scipy.optimize import least_squares
 
 from motiontwin.harness.recording import Recording
 from motiontwin.ident import startvalues
+from motiontwin.ident.channels import controller_responses
 from motiontwin.ident.oeloop import Loop, Signals, _output_gain, _state_for_output, default_bounds, output_state
 
 def _column(rec: Recording, name: str, optional: bool = False) -> np.ndarray:
@@ -259,17 +260,11 @@ def controller_relation(loop: Loop, rec: Recording, z0: np.ndarray) -> tuple[np.
     """The controller's own relation over the whole recording, without the plant: the recorded force minus
     u_ext minus the controller's output on the recorded r and q from ``z0`` (its residual), and the free
     response rows C A^k (samples x states) that a start-state change adds to that output (single axis)."""
-    ctrl, sig = loop.controller, loop.signals
-    y = np.column_stack([_column(rec, sig.reference), _column(rec, sig.output)])
+    sig = loop.signals
+    y = np.vstack([_column(rec, sig.reference), _column(rec, sig.output)])
     force = _column(rec, sig.input) - _column(rec, sig.disturbance, True)
-    out, rows = np.empty(y.shape[0]), np.empty((y.shape[0], ctrl.n_states))
-    z, power = np.array(z0, float), np.eye(ctrl.n_states)
-    for k in range(y.shape[0]):
-        out[k] = (ctrl.C @ z + ctrl.D @ y[k])[0]
-        rows[k] = (ctrl.C @ power)[0]
-        z = ctrl.A @ z + ctrl.B @ y[k]
-        power = ctrl.A @ power
-    return force - out, rows
+    forced, free = controller_responses(loop.controller, y)
+    return force - forced[0] - free[0] @ np.asarray(z0, float), free[0]
 
 
 def relation_prior(loop: Loop, rec: Recording, values: dict[str, float],

@@ -255,6 +255,8 @@ def build_loop(model: symbolic.SymbolicModel, controller: Controller | None, pos
         raise ValueError(f"{model.name}: output {', '.join(map(repr, observed))} depends on the input "
                          "directly; closing a sampled loop around it is an algebraic loop")
     h = ts / substeps
+    if controller is not None:
+        A, B, C, D = (ca.DM(m) for m in (controller.A, controller.B, controller.C, controller.D))
     xk, zk = x, z
     for tick in range(ticks):       # a controller faster than the recording updates ticks times per sample
         if controller is None:
@@ -263,7 +265,6 @@ def build_loop(model: symbolic.SymbolicModel, controller: Controller | None, pos
         else:
             q_tick = h_out(xk, plant_input(sym.zeros(n_ax)), p_full)
             y = ca.vertcat(w[:n_ax], q_tick + w[2 * n_ax:])
-            A, B, C, D = (ca.DM(m) for m in (controller.A, controller.B, controller.C, controller.D))
             u_tick = (C @ zk if nz else 0) + D @ y + w[n_ax:2 * n_ax]
             zk = A @ zk + B @ y if nz else zk
         if tick == 0:               # recorded: the position and force at the sample instant
@@ -359,6 +360,8 @@ def _called_sensitivity_step(model: symbolic.SymbolicModel, observed: list[str],
     su = ca.DM(select_u)
     ticks = controller.ticks if controller is not None else 1
     h = ts / substeps
+    if controller is not None:
+        A, B, C, D = (ca.DM(m) for m in (controller.A, controller.B, controller.C, controller.D))
     xk, sk, zk, dzk = x, sx, z, sz
     for tick in range(ticks):       # a controller faster than the recording, as in build_loop's step
         if controller is None:
@@ -369,7 +372,6 @@ def _called_sensitivity_step(model: symbolic.SymbolicModel, observed: list[str],
             q_tick, hx, hu, hp = h_jac(xk, plant_input(ca.MX.zeros(n_ax)), p_val)
             dq_tick = hx @ sk + hp @ dp
             y = ca.vertcat(w[:n_ax], q_tick + w[2 * n_ax:])
-            A, B, C, D = (ca.DM(m) for m in (controller.A, controller.B, controller.C, controller.D))
             u_tick = (C @ zk if nz else 0) + D @ y + w[n_ax:2 * n_ax]
             du_tick = (C @ dzk if nz else 0) + D[:, n_ax:] @ dq_tick
             zk, dzk = (A @ zk + B @ y, A @ dzk + B[:, n_ax:] @ dq_tick) if nz else (zk, dzk)
