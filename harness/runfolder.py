@@ -167,21 +167,25 @@ def commit_each(executor: Any, fn: Callable[[Any], Any], items: Sequence[Any], r
     run's error to ``on_failure``) as it arrives, rewrite the manifest as "running" at most every
     ``MANIFEST_INTERVAL`` seconds and with the final status at the end, also when interrupted; returns it."""
     from .executor import RunFailed
+    from .interrupt import raise_if_terminated, uninterrupted
 
     last_write = time.perf_counter()
     status = "interrupted"
     failed = False
     try:
         for index, result in executor.imap(fn, items, retries):
-            if isinstance(result, RunFailed):
-                failed = True
-                on_failure(index, result.error)
-            else:
-                on_result(index, result)
-            if time.perf_counter() - last_write >= MANIFEST_INTERVAL:
-                write_manifest("running")
-                last_write = time.perf_counter()
+            raise_if_terminated()   # a SIGTERM whose exception a library swallowed during the run
+            with uninterrupted():   # a run's files and its manifest row are committed together
+                if isinstance(result, RunFailed):
+                    failed = True
+                    on_failure(index, result.error)
+                else:
+                    on_result(index, result)
+                if time.perf_counter() - last_write >= MANIFEST_INTERVAL:
+                    write_manifest("running")
+                    last_write = time.perf_counter()
         status = "failed" if failed else "complete"
     finally:
-        write_manifest(status)
+        with uninterrupted():
+            write_manifest(status)
     return status

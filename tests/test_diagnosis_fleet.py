@@ -178,8 +178,8 @@ def test_bad_fleet_arguments_name_the_path_or_option(bundles, tmp_path, capsys):
 
 
 def test_sigterm_marks_the_fleet_interrupted_and_leaves_no_temporary_files(bundles, tmp_path):
-    """A real fleet sent SIGTERM during its first diagnosis: exit 143, the resume hint, the manifest and summary
-    written with status "interrupted", no staging folder or half-written bundle left."""
+    """A real fleet sent SIGTERM during its diagnoses: exit 143, the resume hint, the manifest and summary
+    written with status "interrupted", no staging folder or uncommitted bundle left."""
     out = tmp_path / "fleet"
     proc = subprocess.Popen([sys.executable, "-m", "motiontwin", "diagnose", str(bundles), "--out", str(out),
                              "--quiet"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
@@ -192,5 +192,13 @@ def test_sigterm_marks_the_fleet_interrupted_and_leaves_no_temporary_files(bundl
     _, err = proc.communicate(timeout=300)
     assert proc.returncode == 143, err
     assert err.strip().splitlines()[-1].endswith("(add --resume to continue)") and "Traceback" not in err
-    assert json.loads((out / fleet.MANIFEST).read_text())["status"] == "interrupted"
-    assert sorted(p.name for p in out.iterdir()) == [fleet.MANIFEST, "summary.csv", "summary.html"]
+    manifest = json.loads((out / fleet.MANIFEST).read_text())
+    assert manifest["status"] == "interrupted"
+    committed = [row["bundle"] for row in manifest["bundles"]]
+    assert len(committed) < len(GOOD)   # stopped before the end
+    # what is there is committed: a bundle's folder only with its manifest row (a diagnosis that finished
+    # just before the signal may be), and no staging folder
+    assert sorted(p.name for p in out.iterdir()) == sorted([fleet.MANIFEST, "summary.csv", "summary.html",
+                                                            *committed])
+    for row in manifest["bundles"]:
+        assert _files(out / row["bundle"]) == {rel.split("/", 1)[1] for rel in row["files"]}

@@ -10,7 +10,7 @@ import sys
 import time
 from pathlib import Path
 
-from motiontwin.cli import _signals
+from motiontwin.harness.interrupt import handle_termination
 
 
 def test_forked_workers_of_a_subcommand_leave_ctrl_c_to_it_and_die_quietly_on_sigterm() -> None:
@@ -21,7 +21,7 @@ def test_forked_workers_of_a_subcommand_leave_ctrl_c_to_it_and_die_quietly_on_si
             os._exit(0 if ok else 1)
         return os.waitpid(pid, 0)[1]
 
-    with _signals():
+    with handle_termination():
         assert child_dispositions() == 0
     assert child_dispositions() != 0   # outside a subcommand, forks keep Python's handlers
 
@@ -49,3 +49,56 @@ def test_sigterm_on_diagnose_removes_its_temporary_folder_and_exits_143(tmp_path
                                             "complete, nothing half-written was kept (run the command again)")
     assert "Traceback" not in err
     assert list(temp.glob("motiontwin-diagnosis-*")) == [] and not out.exists()
+
+
+def _commit_runs(fn, on_result) -> tuple[list[str], BaseException | None]:
+    """commit_each over three in-process runs under the CLI's SIGTERM handling: the statuses written, the
+    exception it ended with."""
+    from motiontwin.harness import runfolder
+    from motiontwin.harness.executor import InProcessExecutor
+
+    statuses: list[str] = []
+    try:
+        with handle_termination():
+            runfolder.commit_each(InProcessExecutor(), fn, [0, 1, 2], 0, on_result, lambda i, e: None,
+                                  statuses.append)
+    except KeyboardInterrupt as exc:
+        return statuses, exc
+    return statuses, None
+
+
+def test_a_sigterm_during_a_commit_is_delivered_after_the_run_is_recorded() -> None:
+    """SIGTERM between writing a run's files and recording them: the commit completes (files and row
+    together), then the run stops as terminated; the third run never starts."""
+    from motiontwin.harness.interrupt import Terminated
+
+    recorded: list[int] = []
+
+    def on_result(index: int, result: int) -> None:
+        if index == 1:
+            os.kill(os.getpid(), signal.SIGTERM)   # the files are written, the row not yet recorded
+        recorded.append(result)
+
+    statuses, exc = _commit_runs(lambda item: item * 10, on_result)
+    assert isinstance(exc, Terminated)
+    assert recorded == [0, 10] and statuses[-1] == "interrupted"
+
+
+def test_a_sigterm_a_library_swallowed_still_stops_the_runs() -> None:
+    """A run whose library catches every exception (here: the Terminated that SIGTERM raised inside it) and
+    returns a result: that result is not committed, the runs stop as terminated."""
+    from motiontwin.harness.interrupt import Terminated
+
+    def swallowing(item: int) -> int:
+        if item == 1:
+            try:
+                os.kill(os.getpid(), signal.SIGTERM)
+                time.sleep(1.0)
+            except BaseException:
+                pass
+        return item
+
+    recorded: list[int] = []
+    statuses, exc = _commit_runs(swallowing, lambda index, result: recorded.append(result))
+    assert isinstance(exc, Terminated)
+    assert recorded == [0] and statuses[-1] == "interrupted"

@@ -245,5 +245,11 @@ def run_fleet(paths: Sequence[str | os.PathLike], out: str | os.PathLike, execut
     screen = None if isinstance(executor, InProcessExecutor) else 1   # the bundles share the cores, not the fits
     # absolute paths: a worker of a remote scheduler runs in another folder
     jobs = [FleetJob(str(bundles[n].absolute()), str(out.absolute() / n), allow_outside_paths, screen) for n in todo]
-    commit_each(executor, diagnose_job, jobs, retries, commit, fail, write_manifest)
+    try:
+        commit_each(executor, diagnose_job, jobs, retries, commit, fail, write_manifest)
+    except KeyboardInterrupt:   # a diagnosis that finished its folder but was not committed leaves nothing
+        for name in todo:
+            if name not in rows:
+                _remove_bundle(out, name)
+        raise
     return Outcome(completed, resumed, failed, time.perf_counter() - t0)

@@ -6,14 +6,12 @@ Each module of this package parses its subcommands' arguments and calls the libr
 from __future__ import annotations
 
 import argparse
-import contextlib
 import os
-import signal
 import sys
-import threading
-from typing import Callable, Iterator
+from typing import Callable
 
 from motiontwin.harness import BLAS_THREAD_VARIABLES  # numpy-free: set before numpy loads
+from motiontwin.harness.interrupt import Terminated, handle_termination, raise_if_terminated
 
 #: One BLAS thread per process unless the user sets one: a diagnosis of a 12 s + 6 s bundle took 34.8 s of CPU
 #: (22.9 s wall) with OpenBLAS's threads and 17.0 s (18.1 s wall) without, same result.
@@ -37,49 +35,6 @@ def parser() -> argparse.ArgumentParser:
     return top
 
 
-class Terminated(KeyboardInterrupt):
-    """SIGTERM (what ``timeout``, systemd and batch schedulers send), raised where the program is, so the same
-    cleanup as Ctrl-C's runs: ``finally`` blocks and context managers remove temporary files and folders,
-    a sweep records "interrupted"."""
-
-
-def _terminate(signum: int, frame: object) -> None:
-    signal.signal(signal.SIGTERM, signal.SIG_IGN)   # a second SIGTERM must not cut the cleanup short
-    raise Terminated
-
-
-_ACTIVE = False   # a subcommand runs in this process: its forked children leave the signals to it
-
-
-def _quiet_child() -> None:
-    """In a forked worker of a running subcommand: Ctrl-C is the parent's to handle (it stops the pool, a
-    worker would print a KeyboardInterrupt traceback), SIGTERM ends the worker without Python cleanup."""
-    if _ACTIVE:
-        with contextlib.suppress(ValueError):
-            signal.signal(signal.SIGINT, signal.SIG_IGN)
-            signal.signal(signal.SIGTERM, signal.SIG_DFL)
-
-
-os.register_at_fork(after_in_child=_quiet_child)
-
-
-@contextlib.contextmanager
-def _signals() -> Iterator[None]:
-    """SIGTERM raises :class:`Terminated` while a subcommand runs (main thread only: Python delivers signals
-    there); the previous handlers are back afterwards."""
-    global _ACTIVE
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    previous = signal.signal(signal.SIGTERM, _terminate)
-    _ACTIVE = True
-    try:
-        yield
-    finally:
-        _ACTIVE = False
-        signal.signal(signal.SIGTERM, previous)
-
-
 def main(argv: list[str] | None = None) -> int:
     """Run one subcommand; every expected failure is one line on stderr.
 
@@ -99,9 +54,11 @@ def main(argv: list[str] | None = None) -> int:
     func: Callable[[argparse.Namespace], int] = args.func
     prefix = f"motiontwin {args.command}"
     try:
-        with _signals():
+        with handle_termination():
             preflight(args)
-            return func(args)
+            code = func(args)
+            raise_if_terminated()   # a SIGTERM whose exception a library swallowed still ends the command
+            return code
     except KeyboardInterrupt as exc:
         again = "add --resume to continue" if getattr(args, "resumable", False) else "run the command again"
         what = "terminated (SIGTERM)" if isinstance(exc, Terminated) else "interrupted"
