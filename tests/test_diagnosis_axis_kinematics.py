@@ -13,6 +13,7 @@ import pytest
 from motiontwin.fmus import frontend, symbolic
 from motiontwin.fmus.build import MODELICA_DIR
 from motiontwin.harness import kinematics
+from motiontwin.ident import oefit, startvalues
 from motiontwin.ident.diagnosis import axis_kinematics, structure
 from motiontwin.ident.diagnosis import effects as effect_models
 from motiontwin.ident.diagnosis.bundle import BundleError, read_axes_plant
@@ -147,3 +148,22 @@ def test_acceleration_term_on_a_leg_is_the_leg_acceleration(hexapod, tmp_path: P
     assert abs(force) > 1e-3
     np.testing.assert_allclose((with_effect - without).ravel(), -force * gain[:, 2], rtol=1e-5,
                                atol=1e-6 * float(np.max(np.abs(with_effect - without))))
+
+
+def test_loop_starts_at_the_recorded_pose(hexapod) -> None:
+    """The output-error loop's start on a Hexapod recording that does not begin at the plant's start pose: the
+    pose whose numpy leg lengths are the first recorded ones and the twist whose leg rates are their slopes
+    (a recording that starts while the loop still settles against gravity was simulated from the start pose,
+    tens of micrometres off on every leg)."""
+    model = hexapod.model
+    p = np.array([float(v.start) for v in model.parameters])
+    x0 = np.array(ca.Function("x0", [model.p], [model.x0()])(p)).ravel()
+    ts, t = 1e-3, np.arange(40) * 1e-3
+    legs = np.column_stack([kinematics.hexapod_inverse(POSE + POSE_DOT * tk) for tk in t])
+    targets = {f"L{j + 1}": startvalues.first_samples(legs[j], ts) for j in range(6)}
+    x = x0.copy()
+    assert oefit._states_for_outputs(model, targets, x, p)
+    expected = _state(POSE, POSE_DOT)
+    np.testing.assert_allclose(x[:6], expected[:6], atol=1e-10)
+    np.testing.assert_allclose(x[6:], expected[6:], atol=1e-6)
+    assert np.max(np.abs(x0[:6] - expected[:6])) > 0.01      # the start pose is elsewhere
