@@ -5,6 +5,7 @@ white encoder noise fed back through the loop): Coulomb friction on q2 -> exactl
 parameters-only bundle -> no effect."""
 from __future__ import annotations
 
+import dataclasses
 import json
 import shutil
 from pathlib import Path
@@ -124,12 +125,15 @@ def test_mimo_jacobian_matches_finite_differences(tmp_path):
         assert np.max(np.abs(jac[:, j] - numeric)) < 1e-4 * np.max(np.abs(numeric))
 
 
-def test_called_rhs_loop_equals_inlined_loop(tmp_path, monkeypatch):
+@pytest.mark.parametrize("ticks", [1, 2])
+def test_called_rhs_loop_equals_inlined_loop(tmp_path, monkeypatch, ticks):
     """The large-plant forms of the loop (right-hand side and its full Jacobians, or its forward directional
     derivatives, called in an MX graph, variational RK4 written out) against the inlined SX loop with CasADi's
-    own AD: same free run and same Jacobian, the initial-state sensitivities included."""
+    own AD: same free run and same Jacobian, the initial-state sensitivities included; also with a controller
+    updating twice per recorded sample (``ticks`` = 2, the same matrices at half the period)."""
     n = 400
     model, ctrl, signals, rec, values = _coupled_case(tmp_path, n, 0.2)
+    ctrl = dataclasses.replace(ctrl, Ts=ctrl.Ts / ticks, ticks=ticks)
     tracking = {"v2": "dq:q2"}
     loops = []
     for limit, directional in ((10 ** 9, 10 ** 9), (0, 10 ** 9), (0, 0)):   # inlined SX, called, directional
