@@ -13,10 +13,12 @@ import pytest
 from motiontwin.fmus import frontend, symbolic
 from motiontwin.fmus.build import MODELICA_DIR
 from motiontwin.harness import kinematics
-from motiontwin.ident import oefit, startvalues
+from motiontwin.harness.recording import make_recording
+from motiontwin.ident import oefit, oeloop, startvalues
+from motiontwin.ident.benchmarks import multi_axis_truth as truth
 from motiontwin.ident.diagnosis import axis_kinematics, structure
 from motiontwin.ident.diagnosis import effects as effect_models
-from motiontwin.ident.diagnosis.bundle import BundleError, read_axes_plant
+from motiontwin.ident.diagnosis.bundle import BundleError, read_axes_controller, read_axes_plant
 
 pytestmark = pytest.mark.timeout(120)
 
@@ -151,10 +153,10 @@ def test_acceleration_term_on_a_leg_is_the_leg_acceleration(hexapod, tmp_path: P
 
 
 def test_loop_starts_at_the_recorded_pose(hexapod) -> None:
-    """The output-error loop's start on a Hexapod recording that does not begin at the plant's start pose: the
-    pose whose numpy leg lengths are the first recorded ones and the twist whose leg rates are their slopes
-    (a recording that starts while the loop still settles against gravity was simulated from the start pose,
-    tens of micrometres off on every leg)."""
+    """The output-error loop's start (:func:`oefit.initial_state`) on a Hexapod recording that does not begin at
+    the plant's start pose: the pose whose numpy leg lengths are the first recorded ones and the twist whose leg
+    rates are their slopes (a recording that starts while the loop still settles against gravity was simulated
+    from the start pose, tens of micrometres off on every leg), and a finite controller state."""
     model = hexapod.model
     p = np.array([float(v.start) for v in model.parameters])
     x0 = np.array(ca.Function("x0", [model.p], [model.x0()])(p)).ravel()
@@ -163,7 +165,19 @@ def test_loop_starts_at_the_recorded_pose(hexapod) -> None:
     targets = {f"L{j + 1}": startvalues.first_samples(legs[j], ts) for j in range(6)}
     x = x0.copy()
     assert oefit._states_for_outputs(model, targets, x, p)
+    signals = structure.axes_signals(hexapod)
+    ctrl = read_axes_controller({"kind": "per_axis", "axes": [truth.pid_document(ts, 33.0, 10.0)] * 6}, "test",
+                                hexapod.axes)
+    columns = {}
+    for k, sig in enumerate(signals):
+        columns.update({sig.reference: legs[k], sig.output: legs[k], sig.input: np.zeros(t.size)})
+    values = {v.name: float(v.start) for v in model.parameters}
+    loop = oeloop.Loop(model, ctrl, signals[0].output, [], values, 2, t.size, sim=None, jac=None, ts=ts,
+                       axes=tuple(signals))
+    s0 = oefit.initial_state(loop, make_recording(t, columns))
     expected = _state(POSE, POSE_DOT)
-    np.testing.assert_allclose(x[:6], expected[:6], atol=1e-10)
-    np.testing.assert_allclose(x[6:], expected[6:], atol=1e-6)
+    for start in (x, s0[:model.x.numel()]):
+        np.testing.assert_allclose(start[:6], expected[:6], atol=1e-10)
+        np.testing.assert_allclose(start[6:], expected[6:], atol=1e-6)
+    assert s0.size == model.x.numel() + ctrl.n_states and np.all(np.isfinite(s0))
     assert np.max(np.abs(x0[:6] - expected[:6])) > 0.01      # the start pose is elsewhere
