@@ -13,9 +13,12 @@ import pytest
 from motiontwin.fmus import frontend, symbolic
 from motiontwin.fmus.build import MODELICA_DIR
 from motiontwin.harness import kinematics
+from motiontwin.harness.recording import make_recording
+from motiontwin.ident import oefit, oeloop, startvalues
+from motiontwin.ident.benchmarks import multi_axis_truth as truth
 from motiontwin.ident.diagnosis import axis_kinematics, structure
 from motiontwin.ident.diagnosis import effects as effect_models
-from motiontwin.ident.diagnosis.bundle import BundleError, read_axes_plant
+from motiontwin.ident.diagnosis.bundle import BundleError, read_axes_controller, read_axes_plant
 
 pytestmark = pytest.mark.timeout(120)
 
@@ -112,3 +115,69 @@ def test_rate_depending_on_an_input_is_refused(tmp_path: Path) -> None:
                                                           {"input": "u2", "output": "y2"}]}
     with pytest.raises(BundleError, match=r"plant.axes\[0\].*y1.*not a position-level expression"):
         read_axes_plant(doc, tmp_path, "experiment.json")
+
+
+def _pose_rates(x: np.ndarray) -> np.ndarray:
+    """Pose rates [v, angle rates] of a Hexapod state [p, angles, v, w]."""
+    return np.concatenate([x[6:9], np.linalg.solve(kinematics.angular_velocity_map(x[3:6]), x[9:12])])
+
+
+def test_acceleration_term_on_a_leg_is_the_leg_acceleration(hexapod, tmp_path: Path) -> None:
+    """An effect written with der($v) (position-dependent inertia) on leg 3 builds (the front end's der() of
+    the leg-velocity call would differentiate the parameter arguments) and changes the pose accelerations as
+    the force slope*(L3 - c)*a3 + slope/2*v3^2 subtracted from tau3, with a3 the finite-difference derivative of
+    the numpy leg rate along the augmented model's own motion."""
+    ctx = effect_models.Context(1e-3, 0.7, 0.9, 0.1, 10.0)
+    effect = structure.on_axis(effect_models.VOCABULARY["position_dependent_inertia"](ctx), hexapod.axes[2],
+                               hexapod.model)
+    structure.write_axes_structure(hexapod, [("L3", effect)], {q.name: float(np.mean(q.bounds)) for q in effect.params},
+                                   tmp_path)
+    model = structure.load_structure(tmp_path)
+    params = [v.name for v in model.parameters]
+    p = np.array([float(v.start) for v in model.parameters])
+    slope, centre = 3.0, 0.8
+    p[params.index("L3_inertia_slope")], p[params.index("L3_inertia_centre")] = slope, centre
+    fn = ca.Function("f", [model.x, model.u, model.p], [model.dx, ca.jacobian(model.dx, model.u)])
+    x = _state(POSE, POSE_DOT)
+    u = np.array([10.0, -5.0, 3.0, 7.0, 0.0, 1.0])
+    with_effect = np.array(fn(x, u, p)[0])
+    p[params.index("L3_inertia_slope")] = 0.0
+    without, gain = (np.array(m) for m in fn(x, u, p))     # the plant's own response to a leg force
+    h = 1e-4
+    rate = [_leg_rates(y[:6], _pose_rates(y))[2] for y in (x + h * with_effect.ravel(), x - h * with_effect.ravel())]
+    accel = (rate[0] - rate[1]) / (2 * h)
+    force = slope * (kinematics.hexapod_inverse(POSE)[2] - centre) * accel + 0.5 * slope * _leg_rates(POSE, POSE_DOT)[2] ** 2
+    assert abs(force) > 1e-3
+    np.testing.assert_allclose((with_effect - without).ravel(), -force * gain[:, 2], rtol=1e-5,
+                               atol=1e-6 * float(np.max(np.abs(with_effect - without))))
+
+
+def test_loop_starts_at_the_recorded_pose(hexapod) -> None:
+    """The output-error loop's start (:func:`oefit.initial_state`) on a Hexapod recording that does not begin at
+    the plant's start pose: the pose whose numpy leg lengths are the first recorded ones and the twist whose leg
+    rates are their slopes (a recording that starts while the loop still settles against gravity was simulated
+    from the start pose, tens of micrometres off on every leg), and a finite controller state."""
+    model = hexapod.model
+    p = np.array([float(v.start) for v in model.parameters])
+    x0 = np.array(ca.Function("x0", [model.p], [model.x0()])(p)).ravel()
+    ts, t = 1e-3, np.arange(40) * 1e-3
+    legs = np.column_stack([kinematics.hexapod_inverse(POSE + POSE_DOT * tk) for tk in t])
+    targets = {f"L{j + 1}": startvalues.first_samples(legs[j], ts) for j in range(6)}
+    x = x0.copy()
+    assert oefit._states_for_outputs(model, targets, x, p)
+    signals = structure.axes_signals(hexapod)
+    ctrl = read_axes_controller({"kind": "per_axis", "axes": [truth.pid_document(ts, 33.0, 10.0)] * 6}, "test",
+                                hexapod.axes)
+    columns = {}
+    for k, sig in enumerate(signals):
+        columns.update({sig.reference: legs[k], sig.output: legs[k], sig.input: np.zeros(t.size)})
+    values = {v.name: float(v.start) for v in model.parameters}
+    loop = oeloop.Loop(model, ctrl, signals[0].output, [], values, 2, t.size, sim=None, jac=None, ts=ts,
+                       axes=tuple(signals))
+    s0 = oefit.initial_state(loop, make_recording(t, columns))
+    expected = _state(POSE, POSE_DOT)
+    for start in (x, s0[:model.x.numel()]):
+        np.testing.assert_allclose(start[:6], expected[:6], atol=1e-10)
+        np.testing.assert_allclose(start[6:], expected[6:], atol=1e-6)
+    assert s0.size == model.x.numel() + ctrl.n_states and np.all(np.isfinite(s0))
+    assert np.max(np.abs(x0[:6] - expected[:6])) > 0.01      # the start pose is elsewhere

@@ -5,6 +5,7 @@ white encoder noise fed back through the loop): Coulomb friction on q2 -> exactl
 parameters-only bundle -> no effect."""
 from __future__ import annotations
 
+import dataclasses
 import json
 import shutil
 from pathlib import Path
@@ -124,24 +125,32 @@ def test_mimo_jacobian_matches_finite_differences(tmp_path):
         assert np.max(np.abs(jac[:, j] - numeric)) < 1e-4 * np.max(np.abs(numeric))
 
 
-def test_called_rhs_loop_equals_inlined_loop(tmp_path, monkeypatch):
-    """The large-plant form of the loop (right-hand side and its Jacobians called in an MX graph, variational
-    RK4 written out) against the inlined SX loop with CasADi's own AD: same free run and same Jacobian."""
+@pytest.mark.parametrize("ticks", [1, 2])
+def test_called_rhs_loop_equals_inlined_loop(tmp_path, monkeypatch, ticks):
+    """The large-plant forms of the loop (right-hand side and its full Jacobians, or its forward directional
+    derivatives, called in an MX graph, variational RK4 written out) against the inlined SX loop with CasADi's
+    own AD: same free run and same Jacobian, the initial-state sensitivities included; also with a controller
+    updating twice per recorded sample (``ticks`` = 2, the same matrices at half the period)."""
     n = 400
     model, ctrl, signals, rec, values = _coupled_case(tmp_path, n, 0.2)
+    ctrl = dataclasses.replace(ctrl, Ts=ctrl.Ts / ticks, ticks=ticks)
     tracking = {"v2": "dq:q2"}
     loops = []
-    for limit in (10 ** 9, 0):          # inlined SX, then called MX
+    for limit, directional in ((10 ** 9, 10 ** 9), (0, 10 ** 9), (0, 0)):   # inlined SX, called, directional
         monkeypatch.setattr(oeloop, "CALL_INSTRUCTIONS", limit)
+        monkeypatch.setattr(oeloop, "DIRECTIONAL_INSTRUCTIONS", directional)
         loops.append(outputerror.build_loop(model, ctrl, "q1", ["m1", "kc", "d"], values, n, substeps=2,
                                             axes=signals, tracking=tracking))
     s0 = outputerror.initial_state(loops[0], rec)
     W = outputerror.drive(rec, signals=loops[0].channels)
     args = (s0, W, loops[0].theta(), loops[0].pfix())
-    for inlined, called in zip(loops[0].sim(*args), loops[1].sim(*args)):
-        assert np.max(np.abs(np.array(inlined) - np.array(called))) <= 1e-12 * np.max(np.abs(inlined))
-    for inlined, called in zip(loops[0].jac(*args), loops[1].jac(*args)):
-        assert np.max(np.abs(np.array(inlined) - np.array(called))) <= 1e-9 * np.max(np.abs(inlined))
+    for called in loops[1:]:
+        for inlined, other in zip(loops[0].sim(*args), called.sim(*args)):
+            assert np.max(np.abs(np.array(inlined) - np.array(other))) <= 1e-12 * np.max(np.abs(inlined))
+        blocks = list(zip(loops[0].jac(*args), called.jac(*args)))
+        assert len(blocks) == 4 and all(np.size(b[0]) for b in blocks)
+        for inlined, other in blocks:
+            assert np.max(np.abs(np.array(inlined) - np.array(other))) <= 1e-9 * np.max(np.abs(inlined))
 
 
 def test_coulomb_on_one_axis_found_on_that_axis(coulomb_q2):

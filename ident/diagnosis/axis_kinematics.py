@@ -43,12 +43,12 @@ def _literal(value: float) -> str:
     return f"({text})" if value < 0 else text
 
 
-def modelica_function(name: str, fn: ca.Function, description: str) -> str:
-    """Source of a Modelica function computing the scalar output of ``fn(x, p)`` (SX, inputs the state and
-    parameter vectors) instruction by instruction; raises :class:`PlantFormError` on an operation Modelica
-    has no counterpart for here."""
+def modelica_function(name: str, fn: ca.Function, description: str, prefixes: tuple[str, ...] = ("x", "p")) -> str:
+    """Source of a Modelica function computing the scalar output of ``fn`` (SX; its inputs vectors, by default
+    the states and the parameters, whose formal arguments are named by ``prefixes``) instruction by
+    instruction; raises :class:`PlantFormError` on an operation Modelica has no counterpart for here."""
     sizes = [fn.nnz_in(i) for i in range(fn.n_in())]
-    formal = [[f"{'xp'[i]}{j + 1}" for j in range(n)] for i, n in enumerate(sizes)]
+    formal = [[f"{prefixes[i]}{j + 1}" for j in range(n)] for i, n in enumerate(sizes)]
     body, work = [], [f"w{k}" for k in range(fn.sz_w())]
     for k in range(fn.n_instructions()):
         op, args, outs = fn.instruction_id(k), fn.instruction_input(k), fn.instruction_output(k)
@@ -77,7 +77,8 @@ def kinematics(model: symbolic.SymbolicModel, roles: PlantRoles) -> ca.Function:
 
 
 def function_files(model: symbolic.SymbolicModel, axes: list[PlantRoles]) -> dict[str, str]:
-    """File name -> source of the position and velocity functions of every expression axis."""
+    """File name -> source of the position, velocity and acceleration functions of every expression axis (the
+    acceleration takes the state derivatives too: dh_dot/dx * der(x))."""
     files = {}
     for roles in axes:
         if not roles.expression:
@@ -88,15 +89,29 @@ def function_files(model: symbolic.SymbolicModel, axes: list[PlantRoles]) -> dic
             single = ca.Function(name, [model.x, model.p], [fn.call([model.x, model.p])[i]])
             files[f"{name}.mo"] = modelica_function(name, single, f"The {kind} of axis {roles.output} "
                                                     f"(generated from the plant's output expression)")
+        name = function_name(roles, "acceleration")
+        xdot = ca.SX.sym("xdot", model.x.numel())
+        acc = ca.Function(name, [model.x, xdot, model.p], [ca.jtimes(output_rate(model, roles.output)[1], model.x, xdot)])
+        files[f"{name}.mo"] = modelica_function(name, acc, f"The acceleration of axis {roles.output} from the "
+                                                f"states and their derivatives (generated from the plant's output "
+                                                f"expression)", ("x", "d", "p"))
     return files
 
 
 def substitutions(model: symbolic.SymbolicModel | None, roles: PlantRoles) -> dict[str, str]:
-    """What an effect's ``$x`` and ``$v`` become on axis ``roles`` in the augmented model."""
+    """What an effect's ``$x`` and ``$v`` (and, on an expression axis, ``der($v)``, written ``$a`` there) become
+    on axis ``roles`` in the augmented model. An expression axis's acceleration is its own generated function
+    of the states' derivatives: the front end's der() of a function call would differentiate the parameter
+    arguments too (undeclared der(plant.rP) on the Hexapod)."""
     if not roles.expression:
         return {"x": f"plant.{roles.position}", "v": f"plant.{roles.velocity}"}
     args = ", ".join(f"plant.{v.name}" for v in model.states + model.parameters)
-    return {key: f"{function_name(roles, kind)}({args})" for key, kind in (("x", "position"), ("v", "velocity"))}
+    out = {key: f"{function_name(roles, kind)}({args})" for key, kind in (("x", "position"), ("v", "velocity"))}
+    rates = ", ".join(f"der(plant.{v.name})" for v in model.states)
+    params = ", ".join(f"plant.{v.name}" for v in model.parameters)
+    states = ", ".join(f"plant.{v.name}" for v in model.states)
+    out["a"] = f"{function_name(roles, 'acceleration')}({states}, {rates}, {params})"
+    return out
 
 
 def axis_acceleration(model: symbolic.SymbolicModel, roles: PlantRoles) -> ca.SX:

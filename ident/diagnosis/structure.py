@@ -260,6 +260,8 @@ def on_axis(effect: effect_models.Effect, roles: PlantRoles,
     def rename(text: str) -> str:
         if pattern is not None:
             text = pattern.sub(lambda m: roles.input if m.group(1) == "u" else prefix + m.group(1), text)
+        if roles.expression:
+            text = text.replace("der($v)", "$a")
         return string.Template(text).safe_substitute(kinematics)
 
     def initial(ctx: effect_models.Context) -> list[dict[str, float]]:
