@@ -202,3 +202,22 @@ def test_sigterm_marks_the_fleet_interrupted_and_leaves_no_temporary_files(bundl
                                                             *committed])
     for row in manifest["bundles"]:
         assert _files(out / row["bundle"]) == {rel.split("/", 1)[1] for rel in row["files"]}
+
+
+def test_a_diagnosis_finished_but_not_committed_when_stopped_is_removed(bundles, tmp_path):
+    """Stopped after a bundle's diagnosis wrote its folder and before the fleet recorded it (the signal lands
+    between the two): the folder is removed, the manifest says "interrupted" and lists nothing."""
+    from motiontwin.harness.executor import InProcessExecutor
+    from motiontwin.harness.interrupt import Terminated
+
+    class StoppedAfterTheRun(InProcessExecutor):
+        def imap(self, fn, items, retries=2):
+            fn(items[0])
+            raise Terminated
+
+    out = tmp_path / "fleet"
+    with pytest.raises(Terminated):
+        fleet.run_fleet([bundles / "axis_b"], out, StoppedAfterTheRun(), log=lambda line: None)
+    manifest = json.loads((out / fleet.MANIFEST).read_text())
+    assert manifest["status"] == "interrupted" and manifest["bundles"] == []
+    assert sorted(p.name for p in out.iterdir()) == [fleet.MANIFEST, "summary.csv", "summary.html"]
