@@ -130,9 +130,10 @@ def _start_state(loop: Loop, rec: Recording, values: dict[str, float] | None,
     if solved or any(t.partition(":")[0] == "dq" for t in loop.tracking.values()):   # moving at t = 0 (or a
         # pose found from the outputs, whose loop need not have settled at rest): the controller
         count = min(rec.time.size, max(20, 4 * ctrl.n_states))            # state from its first outputs
-        y = np.vstack([refs[:, :count], meas[:, :count]]).T
-        return np.concatenate([x0, startvalues.controller_state(ctrl.A, ctrl.B, ctrl.C, ctrl.D, y,
-                                                                forces[:, :count].T)])
+        forced, free = controller_responses(ctrl, np.vstack([refs[:, :count], meas[:, :count]]))
+        rows = free.transpose(1, 0, 2).reshape(-1, ctrl.n_states)          # sample-major, as the outputs
+        z0 = np.linalg.lstsq(rows, (forces[:, :count] - forced).T.ravel(), rcond=1e-10)[0]
+        return np.concatenate([x0, z0])
     y0 = np.concatenate([refs[:, 0], meas[:, 0]])
     target = forces[:, 0] - ctrl.D @ y0
     z0 = np.linalg.pinv(ctrl.C) @ np.atleast_1d(target)

@@ -211,21 +211,3 @@ def check_free_run(q_sim: np.ndarray, q_meas: np.ndarray, time: np.ndarray, what
     reached = "not finite" if not np.isfinite(q_sim[k]) else f"{q_sim[k]:.3g}"
     raise DivergenceError(f"{what} diverges: the simulated position is {reached} at t = {time[k]:.4g} s (the "
                           f"recording spans {span:.3g}) with {shown}. {hint}")
-
-
-def controller_state(A: np.ndarray, B: np.ndarray, C: np.ndarray, D: np.ndarray, y: np.ndarray,
-                     u: np.ndarray) -> np.ndarray:
-    """Initial state z_0 of a sampled controller z+ = A z + B y, u = C z + D y from its recorded inputs
-    ``y`` (samples x inputs) and outputs ``u`` (samples, or samples x outputs) over the first samples: least squares of
-    u_k = C A^k z_0 + (response to y_0..y_k from z = 0), minimum norm in directions the samples do not see.
-    A loop that is already moving at t = 0 has integrator and filter states that the first output alone
-    (u_0 = C z_0 + D y_0) does not determine."""
-    nz = A.shape[0]
-    rows, rhs = [], []
-    z_known, power = np.zeros(nz), np.eye(nz)
-    for k in range(y.shape[0]):          # one row per controller output (several for a multi-axis loop)
-        rows.append(np.atleast_2d(C @ power))
-        rhs.append(np.atleast_1d(u[k]) - (C @ z_known + D @ y[k]))
-        z_known = A @ z_known + B @ y[k]
-        power = A @ power
-    return np.linalg.lstsq(np.vstack(rows), np.concatenate(rhs), rcond=1e-10)[0]
