@@ -13,7 +13,7 @@ from scipy.optimize import least_squares
 
 from motiontwin.harness.recording import Recording
 from motiontwin.ident import plant_states, startvalues
-from motiontwin.ident.channels import controller_responses
+from motiontwin.ident.channels import controller_responses, lifted
 from motiontwin.ident.oeloop import Loop, Signals, _output_gain, _state_for_output, default_bounds, output_state
 
 def _column(rec: Recording, name: str, optional: bool = False) -> np.ndarray:
@@ -296,9 +296,8 @@ def state_indices(loop: Loop, names: list[str] | tuple[str, ...]) -> list[int]:
 
 def controller_states(loop: Loop) -> list[int]:
     """Indices of the controller states in the loop state (empty in open loop, for a controller without
-    states, a multi-axis loop and a controller faster than the recording, whose start states stay the
-    first-samples estimate)."""
-    if not loop.closed or not loop.controller.n_states or loop.axes or loop.controller.ticks != 1:
+    states and a multi-axis loop, whose start states stay the first-samples estimate)."""
+    if not loop.closed or not loop.controller.n_states or loop.axes:
         return []
     nx = loop.model.x.numel()
     return list(range(nx, nx + loop.controller.n_states))
@@ -329,7 +328,7 @@ def relation_prior(loop: Loop, rec: Recording, values: dict[str, float],
         if len(_RELATIONS) > 8:
             _RELATIONS.clear()
         relation, rows = controller_relation(loop, rec, z0)
-        level = noise_level(relation - rows @ np.linalg.lstsq(rows, relation, rcond=1e-10)[0], ctrl.Ts)
+        level = noise_level(relation - rows @ np.linalg.lstsq(rows, relation, rcond=1e-10)[0], ctrl.sample_time)
         _RELATIONS[key] = (relation, rows, level)
     relation, rows, level = _RELATIONS[key]
     return relation, rows, max(level, 1e-3 * float(np.max(weights.sigma_u)))
@@ -364,7 +363,8 @@ def controller_shift(loop: Loop, rec: Recording, values: dict[str, float], weigh
 
     ctrl = loop.controller
     # a step that moves the controller's output by about its noise level within its first samples
-    gain = np.max([np.max(np.abs(ctrl.C @ np.linalg.matrix_power(ctrl.A, j)), axis=0) for j in range(4)], axis=0)
+    a_sample = lifted(ctrl)[0]     # the controller over one recorded sample (ticks updates)
+    gain = np.max([np.max(np.abs(ctrl.C @ np.linalg.matrix_power(a_sample, j)), axis=0) for j in range(4)], axis=0)
     step = float(np.max(weights.sigma_u)) / np.maximum(gain, 1e-300)
     shift = np.zeros(len(idx))
     r = res(shift)
