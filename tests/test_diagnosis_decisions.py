@@ -30,7 +30,8 @@ from motiontwin.ident import outputerror
 from motiontwin.ident.benchmarks import single_axis as bench
 from motiontwin.ident.diagnosis.plant_roles import PlantRoles
 from motiontwin.ident.diagnosis import effects as effect_models
-from motiontwin.ident.diagnosis import pipeline
+from motiontwin.ident.diagnosis import evidence, pipeline
+from motiontwin.ident.diagnosis.axis_units import AxisUnits
 from motiontwin.ident.diagnosis.bundle import read_bundle
 
 CASES = {"params_only_a": [], "gravity_offset": ["gravity_offset"], "coulomb_friction": ["coulomb_friction"],
@@ -95,6 +96,24 @@ def test_validation_rule_rejects_a_significant_candidate(tmp_path):
     assert rejected and rejected[0]["cost_reduction"] > rejected[0]["null_threshold"], result["log"]
     assert rejected[0]["validation_rms_after"] > pipeline.VALIDATION_GAIN * rejected[0]["validation_rms_before"]
     assert "gravity_offset" not in [e.name for e in result["final"].effects]
+
+
+def test_validation_rule_takes_the_force_an_integrating_loop_leaves():
+    """The figures of the independent simulator's tuning LuGre bundle (seed 7006): its PID's integral action
+    holds the position at 1.02x the floor, so LuGre lowers the position's validation RMS by 6 % only, the
+    recorded force's by 47 % (0.997 -> 0.527 N): kept, and the report says why. The force alone never keeps an
+    effect that raises the position's RMS; without a force channel (unknown controller: NaN) the position
+    decides."""
+    assert evidence.validation_accepts(1.223e-7, 1.147e-7, 0.9965, 0.5271)
+    assert not evidence.validation_accepts(1.223e-7, 1.25e-7, 0.9965, 0.5271)
+    assert not evidence.validation_accepts(1.223e-7, 1.147e-7, 0.9965, 0.95)
+    assert not evidence.validation_accepts(1.223e-7, 1.147e-7, math.nan, math.nan)
+    assert evidence.validation_accepts(1.223e-7, 1.0e-7, 0.9965, 1.2)
+    units = AxisUnits(rotary=False)
+    info = dict(zip(evidence.VALIDATION_FIELDS, (1.223e-7, 1.147e-7, 0.9965, 0.5271)))
+    assert "recorded force (which the loop's rejection leaves) from 0.997 to 0.527 N" in evidence.validation_text(info, units)
+    info = dict(zip(evidence.VALIDATION_FIELDS, (1.223e-7, 1.0e-7, 0.9965, 0.9)))
+    assert "force" not in evidence.validation_text(info, units)
 
 
 def test_model_mismatch_left_above_the_floor_is_unexplained(diagnoses):

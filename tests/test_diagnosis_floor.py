@@ -100,6 +100,22 @@ def test_verdict_above_the_floor_is_unexplained_never_none() -> None:
     assert pipeline.above_floor(bundle, kept, q_final, floor, 1e-7) is kept
 
 
+def test_verdict_reads_the_recorded_force_too() -> None:
+    """The position within the margin (0.9 x 1.5 times its floor) but the recorded force 3.4x its own floor (the
+    tuning LuGre case: the loop's integral action holds the position, the force it applies shows the friction):
+    "unexplained, no term validated", the force's figures in the entry and the reason; the force within its
+    margin leaves the verdict as it was."""
+    bundle, q_final, floor = _stub(0.9 * pipeline.FLOOR_MARGIN)
+    kept = {"status": empirical.NONE, "reason": "x"}
+    check = pipeline.above_floor(bundle, kept, q_final, floor, 1e-7, force=pipeline.ForceCheck(3.4, 1.0))
+    assert check["status"] == empirical.NOT_VALIDATED
+    assert check["validation_force_rms"] == 3.4 and check["force_floor_rms"] == 1.0
+    assert "recorded force 3.4 is 3.4 times what a correct model reaches there" in check["reason"]
+    with_spread = pipeline.ForceCheck(3.4, 1.0, 2.5)      # the estimation error in the force counts as in q
+    assert pipeline.above_floor(bundle, kept, q_final, floor, 1e-7, force=with_spread) is kept
+    assert pipeline.above_floor(bundle, kept, q_final, floor, 1e-7, force=pipeline.ForceCheck(1.4, 1.0)) is kept
+
+
 def test_verdict_counts_the_parameters_estimation_error() -> None:
     """3x the noise floor, but a correct model fitted on this training recording would leave 2.5x the floor
     from its parameters' estimation error alone: within the margin of their sum, so no "unexplained"."""
@@ -138,11 +154,13 @@ def test_estimation_error_matches_converged_refits(control_bundle, tmp_path) -> 
     values = {"plant." + k: v for k, v in nominal.fit.values.items()}
     val_loop, _ = build_structure(b, [], values, tmp_path / "v", b.validation.time.size, with_jacobian=False)
     count = 4
-    spread = structure.estimation_rms(nominal.loop, b.train, nominal.fit, nominal.bounds, val_loop, b.validation,
-                                      values, weights, b.process_noise, count)
-    converged = structure.estimation_rms(nominal.loop, b.train, nominal.fit, nominal.bounds, val_loop,
-                                         b.validation, values, weights, b.process_noise, count, max_nfev=60)
+    spread, force_spread = structure.estimation_rms(nominal.loop, b.train, nominal.fit, nominal.bounds, val_loop,
+                                                    b.validation, values, weights, b.process_noise, count)
+    converged, force_converged = structure.estimation_rms(nominal.loop, b.train, nominal.fit, nominal.bounds,
+                                                          val_loop, b.validation, values, weights, b.process_noise,
+                                                          count, max_nfev=60)
     assert spread == pytest.approx(converged, rel=0.25)
+    assert force_spread == pytest.approx(force_converged, rel=0.25)
     assert spread > 0.01 * structure.validation_floor(val_loop, b, values, weights.sigma_q, process=b.process_noise)
 
 
@@ -153,9 +171,12 @@ def test_coloured_noise_control_gives_no_effect_and_no_false_unexplained(coloure
 
 def test_floor_matches_the_truth_floor_of_an_independent_simulation(coloured_control) -> None:
     """The diagnosis' floor against the simulator's own: its recording against its truth re-simulated without
-    noise (encoder-only, the floor was 5x too low on this bundle)."""
+    noise (encoder-only, the floor was 5x too low on this bundle), in the position and in the recorded force
+    (the controller's answer to both noises; the force carries no measurement noise here, and its estimate is
+    below 1e-6 of the floor)."""
     doc, truth = coloured_control
     assert doc["validation"]["noise_floor_rms"] == pytest.approx(truth["floor_rms"], rel=0.3)
+    assert doc["validation"]["force_floor_rms"] == pytest.approx(truth["force_floor_rms"], rel=0.3)
     found, true = doc["noise"]["process"], truth["noise"]
     rng = np.random.default_rng(1)
     estimated = noise.ProcessNoise(found["white_std"], found["coloured_std"], found["coloured_tau_s"])

@@ -24,7 +24,8 @@ from motiontwin.harness.recording import make_recording, write_recording
 from motiontwin.ident.benchmarks.independent_laws import make_law
 from motiontwin.ident.benchmarks.independent_sim import Axis, Loop, simulate
 from motiontwin.ident.benchmarks.truth import PLANT_FORMS, controller_json, reference, with_preroll
-from motiontwin.ident.diagnosis import pipeline
+from motiontwin.ident import outputerror
+from motiontwin.ident.diagnosis import noise, pipeline
 from motiontwin.ident.diagnosis.bundle import Controller, read_bundle
 from motiontwin.ident.diagnosis.nominal import fit_nominal, nominal_start
 
@@ -113,3 +114,15 @@ def test_start_of_a_controller_faster_than_the_recording_is_estimated_too(tmp_pa
     assert nominal.fit.shift is not None and nominal.fit.shift.size == 2
     assert nominal.fit.values["m"] == pytest.approx(MASS, rel=0.01)
     assert nominal.fit.values["d"] == pytest.approx(DAMPING, rel=0.01)
+
+
+def test_force_measurement_noise_is_read_from_the_controllers_relation(tmp_path: Path):
+    """The recorded force's own measurement noise (a drive's current reading, FORCE_NOISE white here) is the
+    white part of what the controller's relation on the recorded signals leaves: within 10 % of the truth,
+    though the integrator's start (the held load) is not known to it; the floor of the force channel adds it."""
+    held_load_bundle(tmp_path)
+    bundle = read_bundle(tmp_path)
+    values = {v.name: float(v.start) for v in bundle.plant.model.parameters}
+    loop = outputerror.build_loop(bundle.plant.model, bundle.controller, bundle.plant.output_name, [], values,
+                                  bundle.validation.time.size, input_name=bundle.plant.input_name)
+    assert noise.force_measurement(loop, bundle.validation) == pytest.approx(FORCE_NOISE, rel=0.1)

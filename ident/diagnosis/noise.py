@@ -27,6 +27,7 @@ from motiontwin.ident import outputerror
 from motiontwin.ident.diagnosis import evidence
 from motiontwin.ident.diagnosis.bundle import Bundle
 from motiontwin.ident.diagnosis.plant_roles import output_map
+from motiontwin.ident.oefit import controller_relation, noise_level
 from motiontwin.ident.oeloop import Loop, Signals
 from motiontwin.ident.startvalues import mirror_derivatives
 
@@ -215,6 +216,15 @@ def of_bundle(bundle: Bundle, values: dict[str, float], sigma_q: float) -> Proce
                                               inputs.index(plant.input_name))
     return estimate(held_force(inv, input_gain, ts), inv.x, inv.v, inv.a, input_gain, sigma_q / abs(gain), ts,
                     inv.cutoff)
+
+
+def force_measurement(loop: Loop, rec: Recording) -> float:
+    """Standard deviation of the recorded force's own measurement noise [N] (a drive's current reading; zero
+    for a recorded command): the white part of what the controller's relation on the recorded signals leaves
+    (recorded force minus u_ext minus the controller's output on the recorded r and q, from a zero start; the
+    start transient is slow and outside the band the level is read in). One axis with a known controller."""
+    relation, _ = controller_relation(loop, rec, np.zeros(loop.controller.n_states))
+    return noise_level(relation, loop.controller.sample_time)
 
 
 def noisy_simulator(loop: Loop, rec: Recording, values: dict[str, float], process: ProcessNoise | None,

@@ -25,9 +25,9 @@ from motiontwin.ident.diagnosis.nominal import (_divergence_hint, check_plant_fo
                                                 nominal_free, nominal_start, plant_physics)
 from motiontwin.ident.diagnosis.remainder import EMPIRICAL_EFFECT, explain_remainder, explain_remainder_axes
 from motiontwin.ident.diagnosis.select import VALIDATION_GAIN, select, upgrade_nested, widen_search_bounds
-from motiontwin.ident.diagnosis.structure import (AUGMENTED_CLASS, LoopCache, _log, _nominal_bounds, build_axes,
-                                                  build_structure, estimation_rms, floor_rms, validate,
-                                                  validate_axes, validation_floor, validation_shift,
+from motiontwin.ident.diagnosis.structure import (AUGMENTED_CLASS, LoopCache, ModelFit, _log, _nominal_bounds,
+                                                  build_axes, build_structure, estimation_rms, floor_rms, floors,
+                                                  validate, validate_axes, validation_floor, validation_shift,
                                                   write_structure)
 
 #: the final validation RMS may exceed the estimated floor by this factor before the verdict is "unexplained"
@@ -78,47 +78,98 @@ def run(bundle: Bundle, work: Path, progress=None) -> dict:
         float(final.fit.rms_q))
     _log(progress, f"process force noise within the final model's training residual: "
                    f"{bundle.process_noise.describe()}")
-    floor = validation_floor(loop, bundle, values, weights.sigma_q, process=bundle.process_noise)
+    floor, force = validation_floors(bundle, final, loop, values, u_aug, weights.sigma_q, progress)
     spread = None      # the parameters' estimation error matters only above the noise floor's margin
-    if np.sqrt(np.mean((bundle.validation["q"] - q_aug) ** 2)) > FLOOR_MARGIN * floor:
-        spread = estimation_rms(final.loop, bundle.train, final.fit, final.bounds, loop, bundle.validation, values,
-                                weights, bundle.process_noise)
+    if (np.sqrt(np.mean((bundle.validation["q"] - q_aug) ** 2)) > FLOOR_MARGIN * floor
+            or (force is not None and force.rms > FLOOR_MARGIN * force.floor)):
+        spread, force_spread = estimation_rms(final.loop, bundle.train, final.fit, final.bounds, loop,
+                                              bundle.validation, values, weights, bundle.process_noise)
         _log(progress, f"validation floor {floor:.4g} from the noise, {spread:.4g} from the parameters' "
-                       f"estimation error")
-    remainder = above_floor(bundle, remainder, q_aug, floor, weights.sigma_q, progress, spread or 0.0)
+                       f"estimation error; force {force_spread:.4g} from it")
+        if force is not None:
+            force = ForceCheck(force.rms, force.floor, force_spread)
+    remainder = above_floor(bundle, remainder, q_aug, floor, weights.sigma_q, progress, spread or 0.0, force)
     _log(progress, f"diagnosis done in {time.perf_counter() - t0:.1f} s")
     return {"bundle": bundle, "nominal": nominal, "final": final, "weights": weights, "context": ctx,
             "log": log, "augmented_values": values, "q_augmented": q_aug, "u_augmented": u_aug,
             "remainder": remainder,
-            "augmented_model": written, "validation_floor": floor, "estimation_rms": spread,
+            "augmented_model": written, "validation_floor": floor, "estimation_rms": spread, "force": force,
             "seconds": time.perf_counter() - t0,
             "plant_physics": owned, "process_noise": bundle.process_noise}
 
 
 def above_floor(bundle: Bundle, remainder: dict, q_final: np.ndarray, floor: float, sigma_q: float,
-                progress=None, spread: float = 0.0) -> dict:
+                progress=None, spread: float = 0.0, force: ForceCheck | None = None) -> dict:
     """The last word of a single-axis diagnosis: when neither a catalogue effect nor the empirical stage
     left the final model's validation RMS within ``FLOOR_MARGIN`` times the floor a correct model fitted on
     this training recording reaches (encoder and process noise, :mod:`noise`, and ``spread``, the validation
-    RMS of its parameters' estimation error, :func:`structure.estimation_rms`), the answer is "unexplained, no
-    term validated" with where the validation residual sits, never "only parameters were off"."""
+    RMS of its parameters' estimation error, :func:`structure.estimation_rms`), in the position or, with
+    ``force``, in the recorded force (which a loop with integral action leaves where it holds the position),
+    the answer is "unexplained, no term validated" with where the validation residual sits, never "only
+    parameters were off"."""
     rec = bundle.validation
     residual = rec["q"] - q_final
     rms = float(np.sqrt(np.mean(residual ** 2)))
     reach = float(np.hypot(floor, spread))
     above = rms > FLOOR_MARGIN * reach
-    if remainder.get("status", "").startswith("unexplained") or not above:
+    force_above = force is not None and force.rms > FLOOR_MARGIN * force.reach
+    if remainder.get("status", "").startswith("unexplained") or not (above or force_above):
         return remainder
     ts = bundle.controller.sample_time
     _, v, _ = startvalues.mirror_derivatives(rec["q"], 1 / ts, startvalues.derivative_cutoff(1 / ts))
     where = empirical.locate_remainder(residual, residual, rec.time, v, rec["q"], sigma_q, ts)
     reason = (f"the validation RMS {rms:.4g} is {rms / reach:.3g} times what a correct model fitted on this training "
               f"recording reaches ({reach:.4g}: {floor:.4g} from the encoder and process noise estimated from the "
-              f"recording, {spread:.4g} from its parameters' estimation error; the margin is {FLOOR_MARGIN}); "
-              f"{remainder.get('reason', 'no catalogue effect or empirical term took it up')}")
+              f"recording, {spread:.4g} from its parameters' estimation error; the margin is {FLOOR_MARGIN})")
+    if force is not None:
+        reason += (f", that of the recorded force {force.rms:.4g} is {force.rms / force.reach:.3g} times what a "
+                   f"correct model reaches there ({force.reach:.4g}: floor {force.floor:.4g}, estimation error "
+                   f"{force.spread:.4g})")
+    reason += f"; {remainder.get('reason', 'no catalogue effect or empirical term took it up')}"
     _log(progress, f"unexplained, no term validated: {reason}")
     return {"status": empirical.NOT_VALIDATED, "axis": bundle.plant.output_name, **where,
-            "reason": reason, "validation_rms": rms, "floor_rms": floor, "estimation_rms": spread}
+            "reason": reason, "validation_rms": rms, "floor_rms": floor, "estimation_rms": spread,
+            **({"validation_force_rms": force.rms, "force_floor_rms": force.floor,
+                "force_estimation_rms": force.spread} if force is not None else {})}
+
+
+@dataclass(frozen=True)
+class ForceCheck:
+    """The final model's validation RMS of the recorded force and the floor a correct model leaves there [N]."""
+
+    rms: float
+    floor: float
+    spread: float = 0.0     # the parameters' estimation error in the force (:func:`structure.estimation_rms`)
+
+    @property
+    def reach(self) -> float:
+        """What a correct model fitted on the training recording reaches: the floor and the spread in power."""
+        return float(np.hypot(self.floor, self.spread))
+
+
+def validation_floors(bundle: Bundle, final: ModelFit, loop: outputerror.Loop, values: dict[str, float],
+                      u_final: np.ndarray, sigma_q: float, progress=None) -> tuple[float, ForceCheck | None]:
+    """The validation floor of the position [m] and the force check of the final model (``loop`` at ``values``
+    on the validation recording, whose force it simulated as ``u_final``): the floor of the recorded force from
+    the same replicates (:func:`structure.floors`, with the force's own measurement noise), bounded as the
+    process noise is (:func:`noise.within_residual`): noise cannot leave more force residual than the final model
+    leaves on its training recording, so the force floor is scaled by that residual over the training force
+    floor when it is below 1. None for an unknown controller (its observer does not simulate the force)."""
+    if bundle.observer is not None:
+        return validation_floor(loop, bundle, values, sigma_q, process=bundle.process_noise), None
+    process = bundle.process_noise
+    floor, force_floor = floors(loop, bundle.validation, values, sigma_q, process,
+                                force_noise=noise.force_measurement(loop, bundle.validation))
+    train_noise = noise.force_measurement(final.loop, bundle.train)
+    _, train_floor = floors(final.loop, bundle.train, final.fit.values, sigma_q, process, force_noise=train_noise)
+    train_force = outputerror.measured(final.loop, bundle.train, "input")
+    train_rms = float(np.sqrt(np.mean((train_force - final.fit.u_sim) ** 2)))
+    force_floor *= min(1.0, train_rms / train_floor) if train_floor > 0 else 1.0
+    measured = outputerror.measured(loop, bundle.validation, "input")
+    force = ForceCheck(float(np.sqrt(np.mean((measured - u_final) ** 2))), force_floor)
+    _log(progress, f"validation force RMS {force.rms:.4g}, {force.rms / force.floor:.3g} times its floor "
+                   f"{force.floor:.4g} (training: {train_rms:.4g} over {train_floor:.4g})")
+    return floor, force
 
 
 @dataclass

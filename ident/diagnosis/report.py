@@ -135,9 +135,7 @@ def diagnosis_document(result: dict, out: Path, fmu_path: Path | None) -> dict:
         ratio = info["cost_reduction"] / info["null_threshold"]
         text = (f"{effect.explanation} Evidence: adding it lowers the noise-weighted output-error cost by "
                 f"{info['cost_reduction']:.4g}, {ratio:.1f} times the 99.9 % level that a correct model leaves "
-                f"on the same excitation (parametric bootstrap), and the validation RMS falls from "
-                f"{info['validation_rms_before']:.3g} {units.position} to {info['validation_rms_after']:.3g} "
-                f"{units.position}.")
+                f"on the same excitation (parametric bootstrap), and {evidence.validation_text(info, units)}.")
         location = _location(result, effect.name)
         equivalents = [{**e, "parameters": effect_contract(e, ctx, final)} for e in info.get("equivalents", [])]
         effects.append({"name": effect.name, "parameters": {k: float(v) for k, v in params.items()},
@@ -148,8 +146,7 @@ def diagnosis_document(result: dict, out: Path, fmu_path: Path | None) -> dict:
                         "explanation": text,
                         "evidence": {"cost_reduction": info["cost_reduction"],
                                      "null_threshold": info["null_threshold"],
-                                     "validation_rms_before": info["validation_rms_before"],
-                                     "validation_rms_after": info["validation_rms_after"]}})
+                                     **{k: info[k] for k in evidence.VALIDATION_FIELDS if k in info}}})
     q_meas = result["bundle"].validation["q"]
     aug_rms = float(np.sqrt(np.mean((q_meas - result["q_augmented"]) ** 2)))
     remainder = result.get("remainder") or {}
@@ -159,8 +156,9 @@ def diagnosis_document(result: dict, out: Path, fmu_path: Path | None) -> dict:
         "residual_check": {k: remainder[k] for k in ("status", "reason") if k in remainder},
         "validation": {"nominal_rms": float(nominal.val_rms), "augmented_rms": aug_rms,
                        **_above_floor(float(nominal.val_rms), aug_rms, result["validation_floor"]),
-                       **({"estimation_rms": result["estimation_rms"]} if result.get("estimation_rms") is not None
-                          else {})},
+                       **({"estimation_rms": result["estimation_rms"]} if result.get("estimation_rms") is not None else {}),
+                       **({"force_rms": result["force"].rms, "force_floor_rms": result["force"].floor}
+                          if result.get("force") is not None else {})},
         "nominal_parameters": _strip(nominal.fit.values),
         "augmented_parameters": _strip({k: v for k, v in result["augmented_values"].items()}),
         "augmented_model": str(out / "augmented_model" / f"{AUGMENTED_CLASS}.mo"),
@@ -524,15 +522,13 @@ def _effect_entry(bundle: Bundle, final: ModelFit, axis: str, effect: effect_mod
     text = (f"{effect.explanation} Located on axis {axis}: its inverse-dynamics force residual is "
             f"{info['score']:.3g} times what a correct model leaves with the same encoder noise. Adding the effect "
             f"there lowers the noise-weighted output-error cost by {info['cost_reduction']:.4g}, {ratio:.1f} times "
-            f"the 99.9 % bootstrap level, and the validation RMS of {axis} falls from "
-            f"{info['validation_rms_before']:.3g} {units.position} to {info['validation_rms_after']:.3g} "
-            f"{units.position}.")
+            f"the 99.9 % bootstrap level, and {evidence.validation_text(info, units, axis)}.")
     return {"name": effect.name, "axis": axis, "parameters": {n: float(v) for n, v in params.items()},
             "units": {n: units.si(CONTRACT_UNITS.get(n, "")) for n in params},
             "location": location, "location_text": location_text(location, axis, units), "explanation": text,
             "equivalent_explanations": info.get("equivalents", []), "selection_rule": info.get("rule", ""),
-            "evidence": {n: info[n] for n in ("cost_reduction", "null_threshold", "validation_rms_before",
-                                              "validation_rms_after", "score")}}
+            "evidence": {n: info[n] for n in ("cost_reduction", "null_threshold", "score", *evidence.VALIDATION_FIELDS)
+                         if n in info}}
 
 
 def axis_plots(result: dict, staging: Path) -> list[str]:

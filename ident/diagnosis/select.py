@@ -107,12 +107,15 @@ def select(bundle: Bundle, nominal: ModelFit, weights: outputerror.Weights, ctx:
             if not current.validated:
                 validate_any(bundle, current, work / f"v{rounds}_current")
             before, after = current.axis_rms(axis), trial.axis_rms(axis)
-            ok = after < VALIDATION_GAIN * before
-            _log(progress, f"  {name}{on}: validation rms {before:.4g} -> {after:.4g} "
-                           f"({'kept' if ok else 'rejected'})")
+            force_before, force_after = current.axis_force_rms(axis), trial.axis_force_rms(axis)
+            ok = evidence.validation_accepts(before, after, force_before, force_after)
+            _log(progress, f"  {name}{on}: validation rms {before:.4g} -> {after:.4g}, force {force_before:.4g} -> "
+                           f"{force_after:.4g} ({'kept' if ok else 'rejected'})")
             for entry in log:
                 if entry["round"] == rounds and entry["effect"] == name:
                     entry["validation_rms_before"], entry["validation_rms_after"] = before, after
+                    entry["validation_force_rms_before"] = force_before
+                    entry["validation_force_rms_after"] = force_after
             if ok:
                 chosen = trial
                 break
@@ -123,6 +126,8 @@ def select(bundle: Bundle, nominal: ModelFit, weights: outputerror.Weights, ctx:
         equivalents, rule = equivalent_explanations(bundle, chosen, trials, work / f"e{rounds}", progress, axis)
         found = {"cost_reduction": gain, "null_threshold": threshold,
                  "validation_rms_before": current.axis_rms(axis), "validation_rms_after": chosen.axis_rms(axis),
+                 "validation_force_rms_before": current.axis_force_rms(axis),
+                 "validation_force_rms_after": chosen.axis_force_rms(axis),
                  "previous": current, "equivalents": equivalents, "rule": rule}
         if axis is not None:
             found.update({"axis": axis, "score": target.score, "force_residual": target.force, "context": ctx,

@@ -31,7 +31,9 @@ ESTIMATION_NFEV = 6           # free runs of each replicate's refit in estimatio
 class ModelFit:
     """One model structure fitted on the training recording: the effects added to the nominal plant (several
     axes: each renamed for the axis ``axes`` names, :func:`on_axis`), the compiled loop, the fit and its bounds,
-    and the validation free run (``val_rms`` [m] over every axis, ``val_axes`` per axis of several)."""
+    and the validation free run (``val_rms`` [m] over every axis, ``val_axes`` per axis of several; the force
+    channel's RMS, recorded minus simulated force [N], in ``val_force``, per axis of several in
+    ``val_force_axes``; NaN for an unknown controller, whose observer does not simulate the recorded force)."""
 
     effects: list[effect_models.Effect]
     loop: outputerror.Loop
@@ -44,6 +46,8 @@ class ModelFit:
     axes: list[str] = field(default_factory=list)
     val_axes: dict[str, float] = field(default_factory=dict)
     start_cost: float = math.nan   # training cost of a candidate at its vanishing point (the model it extends)
+    val_force: float = math.nan
+    val_force_axes: dict[str, float] = field(default_factory=dict)
 
     @property
     def names(self) -> list[str]:
@@ -57,6 +61,10 @@ class ModelFit:
     def axis_rms(self, axis: str | None) -> float:
         """The validation RMS that decides on ``axis`` [m] (None: the one axis)."""
         return self.val_rms if axis is None else self.val_axes[axis]
+
+    def axis_force_rms(self, axis: str | None) -> float:
+        """The validation RMS of the force channel on ``axis`` [N] (None: the one axis)."""
+        return self.val_force if axis is None else self.val_force_axes.get(axis, math.nan)
 
     @property
     def validated(self) -> bool:
@@ -164,10 +172,17 @@ def validate(bundle: Bundle, structure: ModelFit, folder: Path) -> None:
                                       structure.fit.values, rec.time.size, with_jacobian=False,
                                       min_substeps=structure.loop.substeps, input_name=bundle.plant.input_name,
                                       tracking=_moving_start(bundle))
-    q, _ = outputerror.simulate(loop, rec, structure.fit.values,
+    q, u = outputerror.simulate(loop, rec, structure.fit.values,
                                 shift=validation_shift(bundle, loop, structure.fit))
     structure.val_q = q
-    structure.val_rms = float(np.sqrt(np.mean((rec["q"] - q) ** 2))) if np.all(np.isfinite(q)) else math.inf
+    structure.val_rms = _rms(rec["q"] - q)
+    structure.val_force = (math.nan if bundle.observer is not None
+                           else _rms(outputerror.measured(loop, rec, "input") - u))
+
+
+def _rms(err: np.ndarray) -> float:
+    """RMS of ``err``; inf when the free run diverged."""
+    return float(np.sqrt(np.mean(err ** 2))) if np.all(np.isfinite(err)) else math.inf
 
 
 def validation_shift(bundle: Bundle, loop: outputerror.Loop, fit: outputerror.Fit) -> np.ndarray | None:
@@ -195,39 +210,51 @@ def floor_rms(loop: outputerror.Loop, rec: Recording, values: dict[str, float], 
     force noise ``process`` (:mod:`noise`) acting on the plant: the noise and its closed-loop echo, which no
     free-run simulation can predict. A multi-axis loop takes one noise level per axis and returns one floor
     per axis."""
-    q_free, _ = outputerror.simulate(loop, rec, values)
+    return floors(loop, rec, values, sigma_q, process, count)[0]
+
+
+def floors(loop: outputerror.Loop, rec: Recording, values: dict[str, float], sigma_q: float | np.ndarray,
+           process: ProcessNoise | None = None, count: int = FLOOR_REPLICATES,
+           force_noise: float = 0.0) -> tuple[float | np.ndarray, float | np.ndarray]:
+    """The floors of both channels from the same replicates: :func:`floor_rms`, and that of the recorded force
+    [N], the replicates' commanded force (the controller's answer to the encoder and process noise) plus white
+    measurement noise of standard deviation ``force_noise`` (:func:`noise.force_measurement`)."""
+    q_free, u_free = outputerror.simulate(loop, rec, values)
     simulate = noisy_simulator(loop, rec, values, process)
     rng = np.random.default_rng(0)
-    power = []
+    power, force = [], []
     per_axis = np.ndim(sigma_q) > 0
     for _ in range(count):
         if per_axis:
             noise = rng.normal(0.0, 1.0, (np.size(sigma_q), rec.time.size)) * np.reshape(sigma_q, (-1, 1))
         else:
             noise = rng.normal(0.0, sigma_q, rec.time.size)
-        q_noisy, _ = simulate(noise, rng)
+        q_noisy, u_noisy = simulate(noise, rng)
         power.append(np.mean((q_noisy + noise - q_free) ** 2, axis=-1))
-    return np.sqrt(np.mean(power, axis=0)) if per_axis else float(np.sqrt(np.mean(power)))
+        force.append(np.mean((u_noisy - u_free) ** 2, axis=-1) + force_noise ** 2)
+    if per_axis:
+        return np.sqrt(np.mean(power, axis=0)), np.sqrt(np.mean(force, axis=0))
+    return float(np.sqrt(np.mean(power))), float(np.sqrt(np.mean(force)))
 
 
 def estimation_rms(train_loop: outputerror.Loop, train: Recording, fit: outputerror.Fit,
                    bounds: dict[str, tuple[float, float]], val_loop: outputerror.Loop, validation: Recording,
                    val_values: dict[str, float], weights: outputerror.Weights, process: ProcessNoise | None = None,
-                   count: int = FLOOR_REPLICATES, max_nfev: int = ESTIMATION_NFEV) -> float:
+                   count: int = FLOOR_REPLICATES, max_nfev: int = ESTIMATION_NFEV) -> tuple[float, float]:
     """RMS on the validation recording of the parameter error that the training noise leaves in a correct
-    model (one axis) [m]: the fitted model re-simulated with the estimated encoder and process noise on the
-    training excitation, refitted from its values on each replicate (the same trust-region fit within the same
-    bounds, ``max_nfev`` free runs), and the validation free run of each refit against the fitted model's. A
-    parameter the training barely excites (a mass under little acceleration) is fitted to its noise; that
-    error is no missing physics, and the floor verdict counts it. A refit, not a linearised step: it keeps
-    the bounds and follows the nonlinear cost (stiff friction laws)."""
+    model (one axis), in the position [m] and in the recorded force [N]: the fitted model re-simulated with the
+    estimated encoder and process noise on the training excitation, refitted from its values on each replicate
+    (the same trust-region fit within the same bounds, ``max_nfev`` free runs), and the validation free run of
+    each refit against the fitted model's. A parameter the training barely excites (a mass under little
+    acceleration) is fitted to its noise; that error is no missing physics, and the floor verdict counts it. A
+    refit, not a linearised step: it keeps the bounds and follows the nonlinear cost (stiff friction laws)."""
     if not train_loop.free:
-        return 0.0
+        return 0.0, 0.0
     simulate = noisy_simulator(train_loop, train, fit.values, process)
     signals = train_loop.signals
-    q_val, _ = outputerror.simulate(val_loop, validation, val_values)
+    q_val, u_val = outputerror.simulate(val_loop, validation, val_values)
     rng = np.random.default_rng(1)
-    shifts = []
+    shifts, forces = [], []
     for _ in range(count):
         encoder = rng.normal(0.0, float(weights.sigma_q), train.time.size)
         q, u = simulate(encoder, rng)
@@ -235,9 +262,12 @@ def estimation_rms(train_loop: outputerror.Loop, train: Recording, fit: outputer
         replicate = Recording(train.time, {**columns, signals.output: q + encoder, signals.input: u})
         refit = outputerror.fit(train_loop, replicate, weights, bounds, start=fit.values, max_nfev=max_nfev)
         moved = {k if k in val_values else "plant." + k: v for k, v in refit.values.items()}
-        q_moved, _ = outputerror.simulate(val_loop, validation, {**val_values, **moved})
+        q_moved, u_moved = outputerror.simulate(val_loop, validation, {**val_values, **moved})
         shifts.append(float(np.mean((q_moved - q_val) ** 2)))
-    return float(np.sqrt(np.mean(shifts))) if np.all(np.isfinite(shifts)) else 0.0
+        forces.append(float(np.mean((u_moved - u_val) ** 2)))
+    if not (np.all(np.isfinite(shifts)) and np.all(np.isfinite(forces))):
+        return 0.0, 0.0
+    return float(np.sqrt(np.mean(shifts))), float(np.sqrt(np.mean(forces)))
 
 
 def _prefix(axis: str) -> str:
@@ -371,13 +401,10 @@ def build_axes(bundle: Bundle, effects: list[tuple[str, effect_models.Effect]], 
     return cache.loops[key].with_values(all_values), bounds
 
 
-def per_axis_rms(bundle: Bundle, rec: Recording, q: np.ndarray) -> dict[str, float]:
-    """RMS of measured minus simulated output per axis [m] (inf when the run diverged)."""
-    out = {}
-    for k, a in enumerate(bundle.plant.axes):
-        err = rec[a.output] - q[k]
-        out[a.output] = float(np.sqrt(np.mean(err ** 2))) if np.all(np.isfinite(err)) else math.inf
-    return out
+def per_axis_rms(bundle: Bundle, rec: Recording, q: np.ndarray, column: str = "output") -> dict[str, float]:
+    """RMS of measured minus simulated output per axis [m] (inf when the run diverged), by output name;
+    ``column`` "input": of the force channel [N], ``q`` then the simulated forces."""
+    return {a.output: _rms(rec[getattr(a, column)] - q[k]) for k, a in enumerate(bundle.plant.axes)}
 
 
 def validate_axes(bundle: Bundle, structure: ModelFit, folder: Path) -> None:
@@ -385,11 +412,11 @@ def validate_axes(bundle: Bundle, structure: ModelFit, folder: Path) -> None:
     axis in ``val_rms``."""
     loop, _ = build_axes(bundle, structure.placed, structure.fit.values, folder, bundle.validation.time.size,
                          with_jacobian=False, min_substeps=structure.loop.substeps)
-    q, _ = outputerror.simulate(loop, bundle.validation, structure.fit.values)
+    q, u = outputerror.simulate(loop, bundle.validation, structure.fit.values)
     structure.val_q = q
     structure.val_axes = per_axis_rms(bundle, bundle.validation, q)
-    err = np.array([bundle.validation[a.output] - q[k] for k, a in enumerate(bundle.plant.axes)])
-    structure.val_rms = float(np.sqrt(np.mean(err ** 2))) if np.all(np.isfinite(err)) else math.inf
+    structure.val_force_axes = per_axis_rms(bundle, bundle.validation, u, "input")
+    structure.val_rms = _rms(np.array([bundle.validation[a.output] - q[k] for k, a in enumerate(bundle.plant.axes)]))
 
 
 def validate_any(bundle: Bundle, structure: ModelFit, folder: Path) -> None:

@@ -82,6 +82,22 @@ def effect_over_floor(truth: dict) -> float | None:
                truth["force_without_effect_rms"] / truth["force_floor_rms"])
 
 
+def force_over(truth: dict, validation: dict) -> str:
+    """The final model's validation RMS of the recorded force over the achievable force floor ("-" without)."""
+    if "force_rms" not in validation or "force_floor_rms" not in truth:
+        return "-"
+    return f"{validation['force_rms'] / truth['force_floor_rms']:.2f}"
+
+
+def floor_estimates(truth: dict, validation: dict) -> str:
+    """The diagnosis' floors (position, recorded force) over the achievable ones: how well it estimates what a
+    correct model reaches ("-" where a figure is missing)."""
+    q = validation.get("noise_floor_rms")
+    u = validation.get("force_floor_rms")
+    return ",".join("-" if x is None or not ref else f"{x / ref:.2f}"
+                    for x, ref in ((q, truth["floor_rms"]), (u, truth.get("force_floor_rms"))))
+
+
 def confusion_table(rows: list[tuple[list[str], list[str]]]) -> str:
     """Rows: true answers (NONE for a control); columns: answers given; a true answer not given counts in
     column NONE (FAILED when the diagnosis stopped), an answer given that is not true in row NONE."""
@@ -117,7 +133,8 @@ def main() -> int:
     cases = [c for c in cases if (folder / c / "experiment.json").is_file()]
     print(f"{'case':18s} {'axis':14s} {'form':18s} {'expected':30s} {'named':40s} ok  "
           f"{'main parameter found/true':34s} "
-          f"{'val RMS nominal->augmented':>27s} {'aug/floor':>9s} {'effect/floor':>12s} {'wall s':>6s}")
+          f"{'val RMS nominal->augmented':>27s} {'aug/floor':>9s} {'force aug/floor':>15s} {'est/true floor q,u':>18s} "
+          f"{'effect/floor':>12s} {'wall s':>6s}")
     rows, right, worst, decidable, decided = [], 0, 0.0, 0, 0
     for case in cases:
         truth = json.loads((folder / f"{case}.truth.json").read_text())
@@ -146,8 +163,9 @@ def main() -> int:
         print(f"{case:18s} {('rot ' if axis['rotary'] else 'lin ') + format(axis['mass'], '.3g'):14s} "
               f"{truth['plant_form']:18s} {','.join(expected) or NONE:30s} {(','.join(found) or NONE) + status:40s} "
               f"{'yes' if ok else 'NO ':3s} {'; '.join(parameter_errors(truth, doc)) or '-':34s} "
-              f"{val['nominal_rms']:>12.3g}->{val['augmented_rms']:<12.3g} {over:9.2f} "
-              f"{'-' if shows is None else format(shows, '.2f'):>12s} {wall:6.0f}", flush=True)
+              f"{val['nominal_rms']:>12.3g}->{val['augmented_rms']:<12.3g} {over:9.2f} {force_over(truth, val):>15s} "
+              f"{floor_estimates(truth, val):>18s} {'-' if shows is None else format(shows, '.2f'):>12s} {wall:6.0f}",
+              flush=True)
     print("\nconfusion (rows: true answer, columns: named):")
     print(confusion_table(rows))
     stopped = sum(FAILED in found for _, found in rows)
