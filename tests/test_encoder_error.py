@@ -14,7 +14,7 @@ import pytest
 
 from motiontwin.ident.benchmarks import independent
 from motiontwin.ident.diagnosis import effects as effect_models
-from motiontwin.ident.diagnosis import structure
+from motiontwin.ident.diagnosis import sensor_effects, structure
 from motiontwin.ident.diagnosis.bundle import read_bundle
 from motiontwin.ident.diagnosis.locate import context
 from motiontwin.ident.diagnosis.nominal import fit_nominal, nominal_start
@@ -106,3 +106,23 @@ def test_encoder_error_beats_a_force_ripple_on_an_independent_truth(independent_
     found = fits["encoder_error"].effects[-1].contract(fits["encoder_error"].fit.values, ctx)
     assert found["error_amplitude"] == pytest.approx(law["main"]["value"], rel=0.05)
     assert found["period"] == pytest.approx(law["parameters"]["lam"], rel=0.01)
+
+
+@pytest.mark.parametrize("second", [0.3, 3.0])
+def test_slow_axis_error_period_is_found_in_the_output_residual(second: float):
+    """Where the axis moves too slowly for the error's force (m e'' v^2) to stand above the process noise, the
+    starts come from the output residual: a 1 mm error whose second harmonic the loop's sensitivity raised
+    above the fundamental (second = 3) or not (0.3), on a slow back-and-forth sweep with white noise; the true
+    period is among the starting periods within one scan step (0.25 periods over the span)."""
+    rng = np.random.default_rng(2)
+    t = np.arange(40000) * 5e-4
+    x = 0.017 * (1 - np.cos(2 * np.pi * t / 7.0))
+    period = 1e-3
+    residual = (np.sin(2 * np.pi * x / period + 0.4) + second * np.sin(4 * np.pi * x / period + 1.1)) * 1e-7
+    ctx = effect_models.Context(5e-4, float(x.min()), float(x.max()), 0.01, 30.0, x=x,
+                                q_residual=residual + 2e-8 * rng.standard_normal(x.size))
+    span = ctx.x_max - ctx.x_min
+    found = [p for p, amplitudes in sensor_effects.residual_periods(ctx, span, span / 500)]
+    step = 0.25 * period ** 2 / span
+    assert min(abs(p - period) for p in found) < step, found
+    assert sensor_effects.residual_periods(effect_models.Context(5e-4, 0.0, 1.0, 0.01, 30.0), 1.0, 0.002) == []

@@ -28,6 +28,7 @@ class Context:
     u: np.ndarray | None = None   # recorded applied force on the training run [N]
     duration: float = 0.0         # length of the training recording [s]
     pole_pitch: float | None = None   # motor pole pitch (plant.pole_pitch) in the plant's coordinates
+    q_residual: np.ndarray | None = None   # the nominal refit's training output residual, in state coordinates
 
 
 @dataclass

@@ -42,6 +42,7 @@ def context(bundle: Bundle, nominal: ModelFit) -> effect_models.Context:
     if inv is not None:
         ctx.x, ctx.v, ctx.a, ctx.force, ctx.udot = inv.x, inv.v, inv.a, inv.force, inv.udot
     ctx.resonance_guess = evidence.resonance_guesses(bundle.train["q"] - nominal.fit.q_sim, ts)
+    ctx.q_residual = (bundle.train["q"] - nominal.fit.q_sim) / gain
     return ctx
 
 
