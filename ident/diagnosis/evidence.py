@@ -12,7 +12,6 @@ Units: SI (s, m, N, Hz).
 from __future__ import annotations
 
 import math
-
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 

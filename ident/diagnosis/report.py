@@ -156,9 +156,10 @@ def diagnosis_document(result: dict, out: Path, fmu_path: Path | None) -> dict:
         "residual_check": {k: remainder[k] for k in ("status", "reason") if k in remainder},
         "validation": {"nominal_rms": float(nominal.val_rms), "augmented_rms": aug_rms,
                        **_above_floor(float(nominal.val_rms), aug_rms, result["validation_floor"]),
-                       **({"estimation_rms": result["estimation_rms"]} if result.get("estimation_rms") is not None else {}),
-                       **({"force_rms": result["force"].rms, "force_floor_rms": result["force"].floor}
-                          if result.get("force") is not None else {})},
+                       **({"estimation_rms": result["estimation_rms"]} if result.get("estimation_rms") is not None
+                          else {}),
+                       **({"force_rms": result["force"].rms, "force_floor_rms": result["force"].floor,
+                           "force_estimation_rms": result["force"].spread} if result.get("force") is not None else {})},
         "nominal_parameters": _strip(nominal.fit.values),
         "augmented_parameters": _strip({k: v for k, v in result["augmented_values"].items()}),
         "augmented_model": str(out / "augmented_model" / f"{AUGMENTED_CLASS}.mo"),
