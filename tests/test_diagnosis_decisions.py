@@ -103,12 +103,16 @@ def test_validation_rule_takes_the_force_an_integrating_loop_leaves():
     holds the position at 1.02x the floor, so LuGre lowers the position's validation RMS by 6 % only, the
     recorded force's by 47 % (0.997 -> 0.527 N): kept, and the report says why. The force alone never keeps an
     effect that raises the position's RMS; without a force channel (unknown controller: NaN) the position
-    decides."""
+    decides; an effect that lowers the position's RMS while raising the force's by more than the margin is
+    refused."""
     assert evidence.validation_accepts(1.223e-7, 1.147e-7, 0.9965, 0.5271)
     assert not evidence.validation_accepts(1.223e-7, 1.25e-7, 0.9965, 0.5271)
     assert not evidence.validation_accepts(1.223e-7, 1.147e-7, 0.9965, 0.95)
     assert not evidence.validation_accepts(1.223e-7, 1.147e-7, math.nan, math.nan)
-    assert evidence.validation_accepts(1.223e-7, 1.0e-7, 0.9965, 1.2)
+    assert evidence.validation_accepts(1.223e-7, 1.0e-7, 0.9965, 1.05)
+    # the held-out LuGre case's second round: a position ripple that buys 12 % of position with 2.6x the force
+    assert not evidence.validation_accepts(2.934e-7, 2.591e-7, 0.3965, 1.04)
+    assert evidence.validation_accepts(2.934e-7, 2.591e-7, math.nan, math.nan)
     units = AxisUnits(rotary=False)
     info = dict(zip(evidence.VALIDATION_FIELDS, (1.223e-7, 1.147e-7, 0.9965, 0.5271)))
     assert "recorded force (which the loop's rejection leaves) from 0.997 to 0.527 N" in evidence.validation_text(info, units)
