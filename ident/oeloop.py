@@ -397,6 +397,18 @@ def _called_sensitivity_step(model: symbolic.SymbolicModel, observed: list[str],
 DIRECTIONAL_INSTRUCTIONS = 30_000
 
 
+def _full_jacobian(model: symbolic.SymbolicModel) -> ca.Function:
+    """(x, u, p) -> (f, df/dx, df/du, df/dp) of the plant's right-hand side."""
+    return ca.Function("f_jac", [model.x, model.u, model.p],
+                       [model.dx] + [ca.jacobian(model.dx, v) for v in (model.x, model.u, model.p)])
+
+
+def directional_derivatives(model: symbolic.SymbolicModel) -> bool:
+    """Whether the loop's sensitivities take forward directional derivatives of the plant (its full Jacobian is
+    above :data:`DIRECTIONAL_INSTRUCTIONS`) rather than its full Jacobians."""
+    return _full_jacobian(model).n_instructions() > DIRECTIONAL_INSTRUCTIONS
+
+
 def _plant_derivatives(model: symbolic.SymbolicModel, observed: list[str], dp: np.ndarray
                        ) -> tuple[Callable, Callable]:
     """``slope(x, u, p, Sx, Su) -> (f, df/dx Sx + df/du Su + df/dp dp)`` and ``measure(x, u, p, Sx) -> (h, dh/dx Sx +
@@ -408,12 +420,11 @@ def _plant_derivatives(model: symbolic.SymbolicModel, observed: list[str], dp: n
     5.5 -> 1.2 MB (gcc -O1 28 -> 22 s of CPU); the CheungManipulator would run 1.6x slower so."""
     dx_expr = model.dx
     q_expr = ca.vertcat(*[_output_expression(model, name) for name in observed])
-    f_jac = ca.Function("f_jac", [model.x, model.u, model.p],
-                        [dx_expr] + [ca.jacobian(dx_expr, v) for v in (model.x, model.u, model.p)])
+    f_jac = _full_jacobian(model)
     h_jac = ca.Function("h_jac", [model.x, model.u, model.p],
                         [q_expr] + [ca.jacobian(q_expr, v) for v in (model.x, model.u, model.p)])
     dp_dm = ca.DM(dp)
-    if f_jac.n_instructions() <= DIRECTIONAL_INSTRUCTIONS:
+    if not directional_derivatives(model):
         def slope(x: ca.MX, u: ca.MX, p: ca.MX, sx: ca.MX, su: ca.MX) -> tuple[ca.MX, ca.MX]:
             k, fx, fu, fp = f_jac(x, u, p)
             return k, fx @ sx + fu @ su + fp @ dp_dm
