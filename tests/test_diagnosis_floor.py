@@ -15,7 +15,7 @@ from scipy import signal
 from motiontwin.harness.recording import Recording
 from motiontwin.ident.benchmarks import independent
 from motiontwin.ident.benchmarks.independent_laws import coloured_noise
-from motiontwin.ident.diagnosis import diagnose_bundle, empirical, noise, pipeline, structure
+from motiontwin.ident.diagnosis import diagnose_bundle, empirical, noise, pipeline, report, structure
 from motiontwin.ident.diagnosis.bundle import read_bundle
 from motiontwin.ident.diagnosis.nominal import fit_nominal, nominal_start
 from motiontwin.ident.diagnosis.structure import LoopCache, build_structure
@@ -183,3 +183,13 @@ def test_floor_matches_the_truth_floor_of_an_independent_simulation(coloured_con
     drawn = true["process_white_std"] * rng.standard_normal(40000) + coloured_noise(
         40000, true["process_coloured_std"], true["process_coloured_tau"], TS, rng)
     assert _band_power(estimated.sample(40000, TS, rng)) == pytest.approx(_band_power(drawn), rel=0.35)
+
+
+def test_report_never_says_only_parameters_were_off_beside_unexplained() -> None:
+    """No catalogue effect named: the report says "only its parameters were off" when nothing is unexplained,
+    and never beside an "unexplained" verdict (the nominal structure is kept, what it leaves is more than
+    noise)."""
+    plain = "\n".join(report.no_effect_lines({"unexplained": None}, "improved the fit"))
+    assert "only its parameters were off" in plain
+    above = "\n".join(report.no_effect_lines({"unexplained": {"status": empirical.NOT_VALIDATED}}, "improved the fit"))
+    assert "parameters were off" not in above and "more than noise" in above

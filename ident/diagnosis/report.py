@@ -328,9 +328,8 @@ def _markdown(doc: dict, plots: list[str], result: dict, clipped: dict[str, int]
                                  f"{q['fitted_parameters']} | {q['aic']:.6g} |")
                 lines += ["", f"Rule that picked {e['name']}: {e['selection_rule']}.", ""]
     else:
-        lines += ["## No missing physics", "", "After refitting the nominal parameters, no candidate effect "
-                  "improved the fit beyond what a correct model leaves on the same excitation, or none improved "
-                  "the validation fit: the nominal structure is kept, only its parameters were off.", ""]
+        lines += no_effect_lines(doc, "improved the fit beyond what a correct model leaves on the same excitation, "
+                                      "or none improved the validation fit")
     lines += _unexplained_markdown(doc, axis) + at_bound_markdown(doc["at_bound"], doc.get("bounds_widened"))
     m = axis.position
     lines += ["## Fit", "", f"| model | validation RMS [{m}] |", "|---|---|",
@@ -361,6 +360,17 @@ def _markdown(doc: dict, plots: list[str], result: dict, clipped: dict[str, int]
         lines += [f"![{p}]({p})", f"{p}{note}", ""]
     lines += [f"Augmented model: `{doc['augmented_model']}`; FMU: `{doc['augmented_fmu']}`.", ""]
     return "\n".join(lines)
+
+
+def no_effect_lines(doc: dict, why: str) -> list[str]:
+    """The report section of a diagnosis that named no catalogue effect: "only the nominal parameters were off"
+    only when nothing is unexplained; otherwise the nominal structure is kept and the unexplained section says
+    what it leaves (never both)."""
+    if doc.get("unexplained"):
+        return ["## No catalogue effect", "", f"After refitting the nominal parameters, no candidate effect {why}: "
+                "the nominal structure is kept, but what it leaves is more than noise (below).", ""]
+    return ["## No missing physics", "", f"After refitting the nominal parameters, no candidate effect {why}: the "
+            "nominal structure is kept, only its parameters were off.", ""]
 
 
 def _unexplained_markdown(doc: dict, units: AxisUnits = AxisUnits()) -> list[str]:
@@ -563,9 +573,9 @@ def report_markdown(doc: dict, bundle: Bundle, plots: list[str] = ()) -> str:
             lines += ["", f"### {e['name']} on axis {e['axis']}", "", f"Parameters: {params}.", "",
                       e["explanation"], "", e["location_text"]]
     else:
-        lines += ["## No effect found", "", "Only the nominal parameters were off: no candidate effect on the "
-                  "located axes beat the bootstrap null reference and improved validation."]
-    lines += [""] + _unexplained_markdown(doc) + at_bound_markdown(doc["at_bound"], doc.get("bounds_widened"))
+        lines += no_effect_lines(doc, "on the located axes beat the bootstrap null reference and improved "
+                                      "validation")
+    lines += _unexplained_markdown(doc) + at_bound_markdown(doc["at_bound"], doc.get("bounds_widened"))
     lines += ["## Validation RMS per axis", "", "| axis | nominal | augmented | noise floor | unit |",
               "|---|---|---|---|---|"]
     for axis, v in doc["validation"]["per_axis"].items():
