@@ -172,11 +172,13 @@ def _mass_range(v: dict[str, float], c: Context) -> dict[str, float]:
 
 
 def time_delay(ctx: Context) -> Effect:
-    """Pade(2,2) delay of the commanded force, exactly the library's DelayedInputJoint for T >= T0 = Ts/10.
+    """Pade(2,2) delay of the commanded force, exactly the library's DelayedInputJoint for T >= T0 = Ts/4.
     Below T0 the applied force interpolates linearly between the undelayed force and its T0 delay (a
     fractional delay), so the effect vanishes exactly at T = 0 and the Pade states never get stiffer than at
-    T0. A fitted delay below Ts/4, which the sampled loop does not resolve, is not reported as a delay."""
-    t0 = ctx.ts / 10
+    T0: |lambda| = sqrt(12)/T0, 14 RK4 substeps per sample (35 with T0 = Ts/10, which made the delay's
+    screening the slowest of all). A fitted delay below T0, which the sampled loop does not resolve, is not
+    reported as a delay."""
+    t0 = ctx.ts / 4
 
     def init(c: Context) -> list[dict[str, float]]:
         if c.force is None or c.udot is None:
@@ -197,7 +199,7 @@ def time_delay(ctx: Context) -> Effect:
                   "delay), realised as the Pade(2,2) approximant of MotionTwin.Effects.DelayedInputJoint: "
                   "the residual grows with the rate of change of the force and reduces the phase margin.",
                   delays_input=True, tracks_force=["delay_p1"],
-                  unphysical=lambda v: "" if v["delay_T"] >= ctx.ts / 4 else "a delay below Ts/4, which the sampled "
+                  unphysical=lambda v: "" if v["delay_T"] >= t0 else "a delay below Ts/4, which the sampled "
                   "loop does not resolve (the search starts at 0 only so that it cannot end worse)")
 
 
