@@ -403,10 +403,10 @@ def _full_jacobian(model: symbolic.SymbolicModel) -> ca.Function:
                        [model.dx] + [ca.jacobian(model.dx, v) for v in (model.x, model.u, model.p)])
 
 
-def directional_derivatives(model: symbolic.SymbolicModel) -> bool:
-    """Whether the loop's sensitivities take forward directional derivatives of the plant (its full Jacobian is
-    above :data:`DIRECTIONAL_INSTRUCTIONS`) rather than its full Jacobians."""
-    return _full_jacobian(model).n_instructions() > DIRECTIONAL_INSTRUCTIONS
+def directional_derivatives(model: symbolic.SymbolicModel, f_jac: ca.Function | None = None) -> bool:
+    """Whether the loop's sensitivities take forward directional derivatives of the plant (its full Jacobian,
+    ``f_jac`` when already built, is above :data:`DIRECTIONAL_INSTRUCTIONS`) rather than its full Jacobians."""
+    return (f_jac if f_jac is not None else _full_jacobian(model)).n_instructions() > DIRECTIONAL_INSTRUCTIONS
 
 
 def _plant_derivatives(model: symbolic.SymbolicModel, observed: list[str], dp: np.ndarray
@@ -424,7 +424,7 @@ def _plant_derivatives(model: symbolic.SymbolicModel, observed: list[str], dp: n
     h_jac = ca.Function("h_jac", [model.x, model.u, model.p],
                         [q_expr] + [ca.jacobian(q_expr, v) for v in (model.x, model.u, model.p)])
     dp_dm = ca.DM(dp)
-    if not directional_derivatives(model):
+    if not directional_derivatives(model, f_jac):
         def slope(x: ca.MX, u: ca.MX, p: ca.MX, sx: ca.MX, su: ca.MX) -> tuple[ca.MX, ca.MX]:
             k, fx, fu, fp = f_jac(x, u, p)
             return k, fx @ sx + fu @ su + fp @ dp_dm
