@@ -21,9 +21,15 @@ def test_forked_workers_of_a_subcommand_leave_ctrl_c_to_it_and_die_quietly_on_si
             os._exit(0 if ok else 1)
         return os.waitpid(pid, 0)[1]
 
-    with handle_termination():
-        assert child_dispositions() == 0
-    assert child_dispositions() != 0   # outside a subcommand, forks keep Python's handlers
+    # SIGINT as Python installs it at start-up (a process launched in the background by a non-interactive shell
+    # inherits SIGINT ignored, and Python then keeps it so: the check below would see the parent's SIG_IGN)
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        with handle_termination():
+            assert child_dispositions() == 0
+        assert child_dispositions() != 0   # outside a subcommand, forks keep Python's handlers
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
 
 def test_sigterm_on_diagnose_removes_its_temporary_folder_and_exits_143(tmp_path: Path) -> None:
