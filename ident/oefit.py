@@ -550,24 +550,25 @@ def fit(loop: Loop, rec: Recording, weights: Weights, bounds: dict[str, tuple[fl
     else:
         xs = x_start
         success = True
-    theta, x_init = split(xs)
-    final = {**values, **dict(zip(names, map(float, theta)))}
-    initial = dict(zip(estimate_initial, map(float, x_init[:n_x])))
-    shift = x_init[n_x:] if ctrl_idx else None
-    r, q, u = residuals(loop, rec, final, weights, q_meas=qm, u_meas=um, initial={**known, **initial}, shift=shift)
-    j = jac(xs) / scale if xs.size else np.zeros((r.size, 0))
-    cost = float(r @ r) if np.all(np.isfinite(r)) else math.inf
+
+    def outcome(theta: np.ndarray, x_init: np.ndarray, j: np.ndarray | None) -> Fit:
+        """The fit at ``theta`` and the estimated initial states ``x_init`` (``j``: its Jacobian; None: no
+        free parameters)."""
+        final = {**values, **dict(zip(names, map(float, theta)))}
+        initial = dict(zip(estimate_initial, map(float, x_init[:n_x])))
+        shift = x_init[n_x:] if ctrl_idx else None
+        r, q, u = residuals(loop, rec, final, weights, q_meas=qm, u_meas=um, initial={**known, **initial},
+                            shift=shift)
+        cost = float(r @ r) if np.all(np.isfinite(r)) else math.inf
+        rms = float(np.sqrt(np.mean((qm - q) ** 2))) if np.all(np.isfinite(q)) else math.inf
+        j = np.zeros((r.size, 0)) if j is None else j
+        return Fit(final, cost, rms, q, u, j, success, nfev, initial, r, shift, weights)
+
+    result = outcome(*split(xs), jac(xs) / scale if xs.size else None)
     theta_start = loop.theta(values)
     if x_start.size and np.all((lo <= theta_start) & (theta_start <= hi)):
         r0 = res_at(theta_start, x_init0)
-        if float(r0 @ r0) < cost:   # the solver traded recording cost for the controller prior (or for the
-            # interior start): the recording's cost never ends above the start's, so the start is the result
-            theta, x_init, final = theta_start, x_init0, values
-            initial = dict(zip(estimate_initial, map(float, x_init[:n_x])))
-            shift = x_init[n_x:] if ctrl_idx else None
-            r, q, u = residuals(loop, rec, final, weights, q_meas=qm, u_meas=um, initial={**known, **initial},
-                                shift=shift)
-            j = solver_jacobian(jac_at(theta, x_init)) / scale
-            cost = float(r @ r) if np.all(np.isfinite(r)) else math.inf
-    rms = float(np.sqrt(np.mean((qm - q) ** 2))) if np.all(np.isfinite(q)) else math.inf
-    return Fit(final, cost, rms, q, u, j, success, nfev, initial, r, shift, weights)
+        if float(r0 @ r0) < result.cost:   # the solver traded recording cost for the controller prior (or for
+            # the interior start): the recording's cost never ends above the start's, so the start is the result
+            result = outcome(theta_start, x_init0, solver_jacobian(jac_at(theta_start, x_init0)) / scale)
+    return result
