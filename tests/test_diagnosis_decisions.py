@@ -308,13 +308,13 @@ def test_asymmetric_friction_is_also_coulomb_plus_offset():
 def test_robust_residual_limits_keep_the_friction_step():
     """+-20 N friction step with 1 N noise, and 150 samples of +-1600 N at the record end: the step stays inside
     the plot limits, the end effects are clipped and counted."""
-    from motiontwin.ident.diagnosis import report
+    from motiontwin.ident.diagnosis import report_plots
 
     rng = np.random.default_rng(0)
     n = 25000
     force = 20 * np.sign(np.sin(np.arange(n) / 500)) + rng.normal(0, 1, n)
     force[-150:] = 1600 * np.sin(np.arange(150) + 0.5)
-    lo, hi, count = report.robust_limits(force)
+    lo, hi, count = report_plots.robust_limits(force)
     assert lo < -24 and hi > 24 and lo > -100 and hi < 100
     assert count == int(np.sum(np.abs(force[-150:]) > hi))
     assert count > 140

@@ -193,3 +193,18 @@ def test_report_never_says_only_parameters_were_off_beside_unexplained() -> None
     assert "only its parameters were off" in plain
     above = "\n".join(report.no_effect_lines({"unexplained": {"status": empirical.NOT_VALIDATED}}, "improved the fit"))
     assert "parameters were off" not in above and "more than noise" in above
+
+
+def test_the_bound_holds_a_correct_model_whose_error_is_one_weakly_excited_parameter() -> None:
+    """A correct model whose validation error is the noise floor plus one parameter's estimation error (one
+    direction: a weakly excited mass), whose RMS is estimated from ``FLOOR_REPLICATES`` noise replicates as
+    ``structure.estimation_rms`` does: the bound calls at most 5 % of such fits "unexplained" (the 97.5 % quantile
+    of Student's t, two-sided). A margin of 1.5 on the floor and the estimation error's RMS together called 13 %
+    of them "unexplained" (the held-out Coulomb case: 2.0x the estimated RMS). Reference: the draw's own law."""
+    rng = np.random.default_rng(3)
+    floor, spread, draws = 1.0, 3.0, 20000
+    actual = np.hypot(floor, spread * rng.standard_normal(draws))
+    estimated = spread * np.sqrt(rng.chisquare(structure.FLOOR_REPLICATES, draws) / structure.FLOOR_REPLICATES)
+    bound = np.array([pipeline.floor_bound(floor, s) for s in estimated])
+    assert 0.02 < np.mean(actual > bound) <= 0.05
+    assert np.mean(actual > pipeline.FLOOR_MARGIN * np.hypot(floor, estimated)) > 0.1

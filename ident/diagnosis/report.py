@@ -7,23 +7,20 @@ import math
 import shutil
 from pathlib import Path
 
-import matplotlib
+import numpy as np
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-
-from motiontwin.fmus import frontend, symbolic  # noqa: E402
-from motiontwin.fmus.build import MODELICA_DIR, build_fmu  # noqa: E402
-from motiontwin.ident.diagnosis.axis_units import AxisUnits, bundle_units  # noqa: E402
-from motiontwin.ident.diagnosis.bounds import at_bound_markdown, bounds_widened, structure_at_bound  # noqa: E402
-from motiontwin.ident.diagnosis import evidence  # noqa: E402
-from motiontwin.ident.diagnosis.bundle import Bundle, PlantInfo  # noqa: E402
-from motiontwin.ident.diagnosis.empirical import POWER_SHARE  # noqa: E402
-from motiontwin.ident.diagnosis.effects import AUGMENTED_CLASS  # noqa: E402
-from motiontwin.ident.diagnosis.empirical import EMPIRICAL as EMPIRICAL_EFFECT  # noqa: E402
-from motiontwin.ident.diagnosis.evidence import VALIDATION_GAIN  # noqa: E402
-from motiontwin.ident.diagnosis.structure import ModelFit, write_axes_structure  # noqa: E402
+from motiontwin.fmus import frontend, symbolic
+from motiontwin.fmus.build import MODELICA_DIR, build_fmu
+from motiontwin.ident.diagnosis.axis_units import AxisUnits, bundle_units
+from motiontwin.ident.diagnosis.bounds import at_bound_markdown, bounds_widened, structure_at_bound
+from motiontwin.ident.diagnosis import evidence
+from motiontwin.ident.diagnosis.report_plots import CLIP_WIDEN, diagnosis_plots
+from motiontwin.ident.diagnosis.bundle import Bundle, PlantInfo
+from motiontwin.ident.diagnosis.empirical import POWER_SHARE
+from motiontwin.ident.diagnosis.effects import AUGMENTED_CLASS, VOCABULARY, Effect
+from motiontwin.ident.diagnosis.empirical import EMPIRICAL as EMPIRICAL_EFFECT
+from motiontwin.ident.diagnosis.evidence import VALIDATION_GAIN
+from motiontwin.ident.diagnosis.structure import ModelFit, write_axes_structure
 
 
 #: units of the effects' parameters as the report states them (the contract's names)
@@ -32,7 +29,6 @@ CONTRACT_UNITS = {"F0": "N", "Fc": "N", "Fs": "N", "vs": "m/s", "Fc_pos": "N", "
                   "Fc_equivalent": "N", "offset_while_moving": "N", "A1": "N", "A2": "N", "n": "1", "b": "m",
                   "gap": "m", "z0": "m", "sigma0": "N/m", "Fmax": "N", "Fc0": "N", "mu": "1", "Fc_start": "N",
                   "dFc": "N", "tau": "s", "error_amplitude": "m", "error_amplitude_2": "m"}
-CLIP_WIDEN = 0.5     # residual plots: the 1-99 % range widened by this share of its width; beyond: clipped, counted
 
 
 def _unit(name: str, units: dict[str, str]) -> str:
@@ -86,19 +82,6 @@ def equivalent_forms(name: str, params: dict[str, float]) -> dict[str, float]:
         return {"Fc_equivalent": 0.5 * (params["Fc_pos"] + params["Fc_neg"]),
                 "offset_while_moving": 0.5 * (params["Fc_pos"] - params["Fc_neg"])}
     return {}
-
-
-def robust_limits(values: np.ndarray) -> tuple[float, float, int]:
-    """Plot limits: the 1-99 % percentile range widened by half its width on each side, and how many points
-    lie outside (clipped to the edge): a few filter end effects of +-1600 N no longer squash a +-20 N
-    friction step, which stays whole however many samples it has."""
-    finite = values[np.isfinite(values)]
-    if not finite.size:
-        return -1.0, 1.0, 0
-    q_lo, q_hi = (float(v) for v in np.percentile(finite, [1, 99]))
-    span = (q_hi - q_lo) or float(np.max(np.abs(finite))) or 1.0
-    lo, hi = q_lo - CLIP_WIDEN * span, q_hi + CLIP_WIDEN * span
-    return lo, hi, int(np.sum((finite < lo) | (finite > hi)))
 
 
 def _strip(values: dict[str, float]) -> dict[str, float]:
@@ -204,9 +187,7 @@ def unexplained_text(entry: dict) -> str:
 
 def effect_contract(entry: dict, ctx, final) -> dict[str, float]:
     """An equivalent structure's effect parameters in the contract's terms (as for the chosen effect)."""
-    from motiontwin.ident.diagnosis import effects as effect_models
-
-    effect = effect_models.VOCABULARY[entry["name"]](ctx)
+    effect = VOCABULARY[entry["name"]](ctx)
     values = {**final.fit.values, **entry["parameters"]}
     return {k: float(v) for k, v in effect.contract(values, ctx).items()}
 
@@ -220,78 +201,6 @@ def _above_floor(nominal_rms: float, augmented_rms: float, floor: float) -> dict
     ratio = augmented_excess / nominal_excess if nominal_excess > 0 else math.nan
     return {"noise_floor_rms": floor, "nominal_excess_rms": nominal_excess,
             "augmented_excess_rms": augmented_excess, "excess_ratio": ratio}
-
-
-def _plots(result: dict, staging: Path) -> tuple[list[str], dict[str, int]]:
-    """The PNG plots and, per plot, how many residual points were clipped to its robust limits."""
-    bundle, nominal, final = result["bundle"], result["nominal"], result["final"]
-    train, val = bundle.train, bundle.validation
-    ts = bundle.controller.sample_time
-    sigma = result["weights"].sigma_q
-    res_nom = train["q"] - nominal.fit.q_sim
-    res_aug = train["q"] - final.fit.q_sim
-    names = []
-    clipped: dict[str, int] = {}
-    units = bundle_units(bundle)
-    k_res, res_unit = units.shown_residual
-    k_pos, pos_unit = units.shown_position
-    k_vel, vel_unit = units.shown_velocity
-
-    fig, ax = plt.subplots(figsize=(9, 3.5))
-    ax.plot(train.time, res_nom * k_res, lw=0.6, label="nominal (refitted)")
-    ax.plot(train.time, res_aug * k_res, lw=0.6, label="augmented")
-    for a, b in evidence.flagged_windows(res_nom, train.time, sigma, ts):
-        ax.axvspan(a, b, color="red", alpha=0.12)
-    ax.set_xlabel("time [s]"), ax.set_ylabel(f"q residual [{res_unit}]"), ax.legend(), ax.grid(alpha=0.3)
-    ax.set_title("Training residual; red: windows above 3 noise levels")
-    names.append(_save(fig, staging, "residual_time.png"))
-
-    ctx = result["context"]
-    fig, axes = plt.subplots(1, 2, figsize=(10, 3.5))
-    if ctx.force is not None:
-        shown, v, x, label = ctx.force, ctx.v, ctx.x, f"force residual of the nominal model [{units.force}]"
-    else:
-        shown, v, x, label = res_nom * k_res, np.gradient(train["q"], ts), train["q"], f"q residual [{res_unit}]"
-    lo, hi, count = robust_limits(shown)
-    for a, axis in zip(axes, (v * k_vel, x * k_pos)):
-        a.plot(axis, np.clip(shown, lo, hi), ".", ms=1)
-        a.set_ylim(lo - 0.05 * (hi - lo), hi + 0.05 * (hi - lo))
-        a.grid(alpha=0.3)
-    axes[0].set_ylabel(label)
-    axes[0].set_xlabel(f"velocity [{vel_unit}]"), axes[1].set_xlabel(f"position [{pos_unit}]")
-    fig.suptitle(f"Inverse-dynamics residual against velocity and position; {count} of {shown.size} outliers "
-                 f"clipped", fontsize=10)
-    clipped["residual_velocity_position.png"] = count
-    names.append(_save(fig, staging, "residual_velocity_position.png"))
-
-    fig, ax = plt.subplots(figsize=(9, 3.5))
-    for res, label in ((res_nom, "nominal"), (res_aug, "augmented")):
-        f, asd = evidence.spectrum(res, ts)
-        ax.loglog(f[1:], asd[1:], lw=0.8, label=label)
-    ax.set_xlabel("frequency [Hz]"), ax.set_ylabel(f"residual ASD [{units.position}/sqrt(Hz)]"), ax.legend()
-    ax.grid(alpha=0.3)
-    names.append(_save(fig, staging, "residual_spectrum.png"))
-
-    fig, axes = plt.subplots(2, 1, figsize=(9, 5), sharex=True)
-    axes[0].plot(val.time, val["q"] * k_pos, lw=0.8, label="measured")
-    axes[0].plot(val.time, nominal.val_q * k_pos, lw=0.8, label="nominal")
-    axes[0].plot(val.time, result["q_augmented"] * k_pos, lw=0.8, ls="--", label="augmented")
-    axes[0].set_ylabel(f"q [{pos_unit}]"), axes[0].legend()
-    axes[1].plot(val.time, (val["q"] - nominal.val_q) * k_res, lw=0.6, label="nominal")
-    axes[1].plot(val.time, (val["q"] - result["q_augmented"]) * k_res, lw=0.6, label="augmented")
-    axes[1].set_ylabel(f"error [{res_unit}]"), axes[1].set_xlabel("time [s]"), axes[1].legend()
-    for a in axes:
-        a.grid(alpha=0.3)
-    fig.suptitle("Validation: fit before and after")
-    names.append(_save(fig, staging, "validation_fit.png"))
-    return names, clipped
-
-
-def _save(fig, staging: Path, name: str) -> str:
-    fig.tight_layout()
-    fig.savefig(staging / name, dpi=90)
-    plt.close(fig)
-    return name
 
 
 def _markdown(doc: dict, plots: list[str], result: dict, clipped: dict[str, int]) -> str:
@@ -336,7 +245,7 @@ def _markdown(doc: dict, plots: list[str], result: dict, clipped: dict[str, int]
               f"| nominal, refitted | {val['nominal_rms']:.4g} |", f"| augmented | {val['augmented_rms']:.4g} |", "",
               f"Noise floor (RMS that the fitted model leaves when re-simulated with the estimated encoder noise "
               f"fed back): {val['noise_floor_rms']:.4g} {m}. Model error above it: {val['nominal_excess_rms']:.4g} "
-              f"{m} (nominal) -> {val['augmented_excess_rms']:.4g} {m} (augmented).", "",
+              f"{m} (nominal) -> {val['augmented_excess_rms']:.4g} {m} (augmented).{_estimation_text(doc, m)}", "",
               "## Parameters", "", "| parameter | unit | start | nominal, refitted | augmented, refitted |",
               "|---|---|---|---|---|"]
     start = result["bundle"].start
@@ -360,6 +269,18 @@ def _markdown(doc: dict, plots: list[str], result: dict, clipped: dict[str, int]
         lines += [f"![{p}]({p})", f"{p}{note}", ""]
     lines += [f"Augmented model: `{doc['augmented_model']}`; FMU: `{doc['augmented_fmu']}`.", ""]
     return "\n".join(lines)
+
+
+def _estimation_text(doc: dict, m: str) -> str:
+    """Where the parameters' estimation error takes up the model error above the floor, say so: the training
+    run determines some parameter weakly, which a richer excitation would pin (no missing physics)."""
+    val = doc["validation"]
+    spread = val.get("estimation_rms")
+    if not spread or doc.get("unexplained") or val["augmented_excess_rms"] < val["noise_floor_rms"]:
+        return ""
+    return (f" The parameters' estimation error on this training recording (its noise replicates refitted) moves "
+            f"the validation run by {spread:.4g} {m} RMS, which takes up that error: the training run determines "
+            f"some parameter weakly (see the Parameters table); a training run that excites it more would pin it.")
 
 
 def no_effect_lines(doc: dict, why: str) -> list[str]:
@@ -480,7 +401,7 @@ def write_all(result: dict, staging: Path, out: Path) -> dict:
     table = np.column_stack([val.time, val["q"], result["nominal"].val_q, result["q_augmented"]])
     np.savetxt(staging / "validation_prediction.csv", table, delimiter=",", fmt="%.17g",
                header="time,q_measured,q_nominal,q_augmented", comments="")
-    plots, clipped = _plots(result, staging)
+    plots, clipped = diagnosis_plots(result, staging)
     doc["plots_clipped_points"] = clipped
     (staging / "diagnosis.json").write_text(json.dumps(_jsonable(doc), indent=2), encoding="utf-8")
     markdown = _markdown(doc, plots, result, clipped)
@@ -505,8 +426,6 @@ def write_product(plant: PlantInfo, final: "ModelFit", staging: Path) -> Path:
     """Write the final augmented model into ``staging/augmented_model`` with the MotionTwin library copied
     beside it (self-contained: it loads without the project's library path), and its FMI 2.0 FMU (ME + CS)
     with the fitted start values into ``staging/fmu``; returns the FMU's path relative to ``staging``."""
-    from motiontwin.fmus.build import build_fmu
-
     folder = staging / "augmented_model"
     write_axes_structure(plant, final.placed, final.fit.values, folder)
     shutil.copytree(MODELICA_DIR / "MotionTwin", folder / "MotionTwin", ignore=shutil.ignore_patterns("__pycache__"))
@@ -517,7 +436,7 @@ def write_product(plant: PlantInfo, final: "ModelFit", staging: Path) -> Path:
     return built.path.relative_to(staging)
 
 
-def _effect_entry(bundle: Bundle, final: ModelFit, axis: str, effect: effect_models.Effect) -> dict:
+def _effect_entry(bundle: Bundle, final: ModelFit, axis: str, effect: Effect) -> dict:
     info = final.evidence[f"{effect.name}@{axis}"]
     ctx = info["context"]
     params = effect.contract(final.fit.values, ctx)
@@ -540,27 +459,6 @@ def _effect_entry(bundle: Bundle, final: ModelFit, axis: str, effect: effect_mod
             "equivalent_explanations": info.get("equivalents", []), "selection_rule": info.get("rule", ""),
             "evidence": {n: info[n] for n in ("cost_reduction", "null_threshold", "score", *evidence.VALIDATION_FIELDS)
                          if n in info}}
-
-
-def axis_plots(result: dict, staging: Path) -> list[str]:
-    """The PNG plots of a multi-axis diagnosis, one panel per axis: the training residual of the refitted
-    nominal and of the augmented model, and the validation error of both."""
-    bundle, nominal, final = result["bundle"], result["nominal"], result["final"]
-    axes = [a.output for a in bundle.plant.axes]
-    names = []
-    for rec, (q_nominal, q_final), name, title in (
-            (bundle.train, (nominal.fit.q_sim, final.fit.q_sim), "residual_time.png", "Training residual"),
-            (bundle.validation, (nominal.val_q, final.val_q), "validation_fit.png", "Validation error")):
-        fig, panels = plt.subplots(len(axes), 1, figsize=(9, 1.8 * len(axes) + 1.2), sharex=True, squeeze=False)
-        for k, (axis, ax) in enumerate(zip(axes, panels[:, 0])):
-            scale, unit = bundle_units(bundle, axis).shown_residual
-            ax.plot(rec.time, (rec[axis] - q_nominal[k]) * scale, lw=0.6, label="nominal (refitted)")
-            ax.plot(rec.time, (rec[axis] - q_final[k]) * scale, lw=0.6, label="augmented")
-            ax.set_ylabel(f"{axis} [{unit}]"), ax.grid(alpha=0.3)
-        panels[0, 0].legend(), panels[-1, 0].set_xlabel("time [s]")
-        fig.suptitle(f"{title} per axis: nominal and augmented model")
-        names.append(_save(fig, staging, name))
-    return names
 
 
 def report_markdown(doc: dict, bundle: Bundle, plots: list[str] = ()) -> str:
