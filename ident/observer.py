@@ -34,7 +34,6 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import signal as sps
 
 from motiontwin.fmus import symbolic
 from motiontwin.harness.recording import Recording
@@ -75,8 +74,10 @@ class Observer:
     def controller(self) -> Controller:
         """L as a sampled controller on y = [r; q] (r = the measured position): PD with a first-order filtered
         derivative, Kp + Kd s / (tau s + 1), Tustin at ``ts``."""
+        from scipy.signal import cont2discrete   # here: scipy.signal takes 0.3-0.7 s to import
+
         tau = 1 / (2 * math.pi * self.bandwidth_hz * FILTER_RATIO)
-        a, b, c, d, _ = sps.cont2discrete((np.array([[-1 / tau]]), np.array([[1.0]]), np.array([[-self.kd / tau ** 2]]),
+        a, b, c, d, _ = cont2discrete((np.array([[-1 / tau]]), np.array([[1.0]]), np.array([[-self.kd / tau ** 2]]),
                                            np.array([[self.kp + self.kd / tau]])), self.ts, method="bilinear")
         b, d = float(np.ravel(b)[0]), float(np.ravel(d)[0])
         return Controller(self.ts, np.atleast_2d(a), np.array([[b, -b]]), np.atleast_2d(c), np.array([[d, -d]]))

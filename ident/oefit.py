@@ -8,7 +8,6 @@ from dataclasses import dataclass, field
 
 import casadi as ca
 import numpy as np
-import scipy.signal as sps
 from scipy.optimize import least_squares
 
 from motiontwin.harness.recording import Recording
@@ -384,8 +383,10 @@ def controller_shift(loop: Loop, rec: Recording, values: dict[str, float], weigh
 def noise_level(residual: np.ndarray, ts: float) -> float:
     """Standard deviation of the white part of ``residual``: median PSD over the upper half band (as the
     diagnosis' :func:`ident.diagnosis.evidence.noise_level`)."""
+    from scipy.signal import welch   # here: scipy.signal takes 0.3-0.7 s to import, and open-loop fits never call this
+
     x = np.asarray(residual, float) - np.mean(residual)
-    f, pxx = sps.welch(x, fs=1 / ts, nperseg=min(1024, x.size))
+    f, pxx = welch(x, fs=1 / ts, nperseg=min(1024, x.size))
     band = pxx[f >= 0.25 / ts]
     level = float(np.median(band)) if band.size else float(np.var(x)) * 2 * ts
     return float(np.sqrt(max(level, 1e-300) / (2 * ts)))

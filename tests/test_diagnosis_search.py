@@ -9,9 +9,11 @@ above that cost.
 """
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
 from motiontwin.ident.benchmarks import single_axis as bench
+from motiontwin.ident.diagnosis import effect_base, empirical
 from motiontwin.ident.diagnosis import effects as effect_models
 from motiontwin.ident.diagnosis.bundle import read_bundle
 from motiontwin.ident.diagnosis.locate import context
@@ -49,3 +51,18 @@ def test_defect_line_names_what_went_wrong():
     assert "ended above its start" in screening_defect(100.0, 100.0, 150.0)
     assert "does not reproduce" in screening_defect(100.0, 130.0, 120.0)
     assert "+50" in screening_defect(100.0, 100.0, 150.0) and "--" not in screening_defect(100.0, 100.0, 150.0)
+
+
+def test_empirical_term_search_never_above_the_current_model(nominal):
+    """The unexplained stage's empirical term starts at its vanishing point too (every coefficient 0): a
+    regression coefficient that destabilises the loop (here a negative damping of 50x the refitted one) cannot
+    leave a cost above the current model's (the held-out friction bump printed a cost reduction of -1.1e18)."""
+    bundle, current, weights, ctx, work = nominal
+    term = next(t for t in empirical.residual_library() if t.name == "v")
+    damping = current.fit.values["d"]
+    law = empirical.EmpiricalForce([term], np.array([-50 * damping]), 0.1, 0.0, 1.0, 1e-3)
+    effect = empirical.as_effect(law, ctx)
+    assert effect_base.vanishing_start(effect, effect.initial(ctx)) == {"empirical_c1": 0.0}
+    trial = fit_structure(bundle, current, effect, ctx, weights, work / "empirical", SCREEN_NFEV)
+    assert trial.start_cost == pytest.approx(current.fit.cost, rel=VANISHING_RTOL)
+    assert trial.fit.cost <= current.fit.cost * (1 + VANISHING_RTOL)

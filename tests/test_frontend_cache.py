@@ -157,7 +157,9 @@ def test_a_subset_that_does_not_flatten_falls_back_to_every_file(monkeypatch):
 
 
 def test_a_warm_identify_oe_imports_neither_pymoca_nor_fmpy_nor_scipy_io(tmp_path, empty_cache):
-    """identify oe on a warm cache loads no parser, no FMU library, no MATLAB reader, no plotting."""
+    """identify oe on a warm cache loads no parser, no FMU library, no MATLAB reader, no plotting, and no
+    scipy.signal (0.3-0.7 s of import: only a closed loop's controller relation and the unknown controller's
+    observer use it, and import it there)."""
     from motiontwin.harness.recording import make_recording, write_recording
 
     ts, m, d = 1e-3, 2.0, 10.0
@@ -170,7 +172,8 @@ def test_a_warm_identify_oe_imports_neither_pymoca_nor_fmpy_nor_scipy_io(tmp_pat
     code = ("import sys\nfrom motiontwin.cli import main\n"
             f"rc = main(['identify', 'oe', {str(tmp_path / 'rec.csv')!r}, '--class', "
             "'MotionTwin.Plants.LinearMotorJoint', '--free', 'm,d'])\n"
-            "print(rc, sorted(m for m in ('pymoca', 'fmpy', 'scipy.io', 'matplotlib.pyplot') if m in sys.modules))\n")
+            "print(rc, sorted(m for m in ('pymoca', 'fmpy', 'scipy.io', 'scipy.signal', 'matplotlib.pyplot')\n"
+            "                 if m in sys.modules))\n")
     env = {"XDG_CACHE_HOME": str(empty_cache.parents[1]), "PATH": "/usr/bin:/bin"}
     runs = [subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=300)
             for _ in range(2)]

@@ -274,10 +274,11 @@ def refitted(law: EmpiricalForce, values: dict[str, float], signals: dict[str, n
 def as_effect(law: EmpiricalForce, ctx: effect_models.Context) -> effect_models.Effect:
     """The sparse law (its terms as given: drop :data:`PARAMETER_TERMS` first with
     :func:`without_parameter_terms`) as an effect of the augmented model, labelled empirical: one Modelica parameter
-    ``empirical_c<k>`` per selected term (started at the regression's coefficient, refitted by output error
-    with the rest), the sign functions' velocity scale ``empirical_v_eps`` (fitted too, when a sign term is
-    selected), and the force ``empirical_F`` in the plant's position ``$x``, velocity ``$v``, acceleration
-    ``der($v)`` and the commanded force ``u``. Not part of the catalogue (``effects.VOCABULARY``)."""
+    ``empirical_c<k>`` per selected term (started at the regression's coefficient and at 0, the vanishing point
+    where the augmented model is the current one, refitted by output error with the rest), the sign functions'
+    velocity scale ``empirical_v_eps`` (fitted too, when a sign term is selected), and the force ``empirical_F``
+    in the plant's position ``$x``, velocity ``$v``, acceleration ``der($v)`` and the commanded force ``u``. Not
+    part of the catalogue (``effects.VOCABULARY``)."""
     if not law.terms:
         raise ValueError("the empirical law has no term to add")
     params = []
@@ -285,7 +286,7 @@ def as_effect(law: EmpiricalForce, ctx: effect_models.Context) -> effect_models.
         span = max(20 * abs(float(c)), 1e-9)
         params.append(effect_models.Param(f"empirical_c{k}", TERM_UNITS.get(term.name, ""),
                                           f"empirical coefficient of {term.name} (sparse regression, not a "
-                                          f"physical law)", (-span, span)))
+                                          f"physical law)", (-span, span), zero=0.0))
     uses_sign = any("{v_eps}" in t.modelica for t in law.terms)
     if uses_sign:
         lo, hi = effect_models._eps_bounds(ctx)

@@ -6,8 +6,7 @@ with white measurement noise of the estimated level fed back through the control
 improvement of the weighted cost is read the same way it is on the data, linearised at the candidate's
 optimum (projection of the bootstrap residual onto the candidate's and the current model's Jacobians).
 A candidate is significant when its improvement exceeds the 99.9 % quantile of that null distribution; it is
-kept when it passes the validation rule too (:func:`validation_accepts`: position, or recorded force) and, where
-its force can be read from the motion, holds over the whole stroke (:func:`stroke_gains`).
+kept when it passes the validation rule too (:func:`validation_accepts`: position, or recorded force).
 Units: SI (s, m, N, Hz).
 """
 from __future__ import annotations
@@ -31,8 +30,6 @@ if TYPE_CHECKING:
 
 NULL_QUANTILE = 0.999
 VALIDATION_GAIN = 0.9        # an effect must reduce the validation RMS by at least 10 %
-STROKE_PARTS = 4             # the stroke is cut into this many parts of equal sample counts (quantiles of x)
-STROKE_Z = 3.0               # a part whose force residual the effect raises by this many standard errors refutes it
 #: standard deviation of the white part of a residual (median PSD over the upper half band)
 noise_level = oefit.noise_level
 
@@ -229,49 +226,3 @@ def validation_text(info: dict, units: AxisUnits, axis: str | None = None) -> st
         text += (f", that of the recorded force (which the loop's rejection leaves) from {f0:.3g} to {f1:.3g} "
                  f"{units.force}")
     return text
-
-
-@dataclass
-class StrokeGains:
-    """How much an effect lowers the inverse-dynamics force residual in each part of the stroke: ``gains``
-    [N^2] (sum over the part's samples of the current model's squared residual minus the extended model's),
-    ``z`` (each gain over its standard error) and the parts' position ``edges`` [m] (ascending in the plant's
-    position state, mapped to the recorded position by :func:`locate.stroke_check`)."""
-
-    gains: np.ndarray
-    z: np.ndarray
-    edges: np.ndarray
-
-    @property
-    def refuting_part(self) -> int | None:
-        """The part where the effect makes the force residual significantly worse (None: none)."""
-        worst = int(np.argmin(self.z))
-        return worst if self.z[worst] < -STROKE_Z else None
-
-
-def stroke_gains(x: np.ndarray, before: np.ndarray, after: np.ndarray, block: int,
-                 parts: int = STROKE_PARTS) -> StrokeGains | None:
-    """Where along the stroke an effect's gain comes from: ``before`` and ``after`` are the inverse-dynamics
-    force residuals [N] of the current model and of the model with the effect, ``x`` the filtered position.
-    Why: a law the data hold everywhere lowers the residual in every part of the stroke it acts in, while a law
-    fitted to a force at one place (a friction bump on a worn spot taken as Coulomb friction) lowers it there
-    and raises it elsewhere, and can still pass the validation rule on the whole run. The standard error of a
-    part's gain treats contiguous blocks of ``block`` samples as independent (the residual is coloured by the
-    process noise and the derivative filter); a part needs 5 blocks to be judged. None when none can be."""
-    d = np.asarray(before, float) ** 2 - np.asarray(after, float) ** 2
-    if not np.all(np.isfinite(d)) or block < 1:
-        return None
-    edges = np.quantile(x, np.linspace(0, 1, parts + 1))
-    part = np.clip(np.searchsorted(edges, x, side="right") - 1, 0, parts - 1)
-    gains, z = np.zeros(parts), np.full(parts, np.nan)
-    blocks = np.arange(d.size) // block
-    for k in range(parts):
-        mine = part == k
-        sums = np.bincount(blocks[mine], weights=d[mine])[np.unique(blocks[mine])]
-        gains[k] = float(sums.sum())
-        if sums.size >= 5:
-            se = math.sqrt(sums.size / (sums.size - 1) * float(np.sum((sums - sums.mean()) ** 2)))
-            z[k] = gains[k] / se if se > 0 else math.copysign(math.inf, gains[k]) if gains[k] else 0.0
-    if np.all(np.isnan(z)):
-        return None
-    return StrokeGains(gains, np.where(np.isnan(z), 0.0, z), edges)

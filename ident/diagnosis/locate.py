@@ -3,7 +3,6 @@ force residual in the plant's state coordinates (:class:`effects.Context`) that 
 Units: SI (s, m, N)."""
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 
@@ -194,47 +193,3 @@ def axis_context(bundle: Bundle, current: ModelFit, k: int, force: np.ndarray) -
     q_sim = current.fit.q_sim[k]
     ctx.resonance_guess = evidence.resonance_guesses(bundle.train[roles.output] - q_sim, ts)
     return ctx
-
-
-def _plant_values(bundle: Bundle, structure: ModelFit) -> tuple[str, dict[str, float]]:
-    """The prefix of the plant's names in ``structure`` ("plant." in an augmented model) and the plant's
-    parameter values there."""
-    prefix = "plant." if structure.effects or structure.folder is not None else ""
-    values = structure.fit.values
-    return prefix, {v.name: values.get(prefix + v.name, bundle.start.get(v.name, v.start))
-                    for v in bundle.plant.model.parameters}
-
-
-def force_residual(bundle: Bundle, structure: ModelFit) -> evidence.InverseDynamics | None:
-    """The inverse-dynamics force residual of a fitted one-axis structure on the training recording: the
-    recorded force minus the force the structure needs for the measured motion [N], positions in the plant's
-    state coordinates. None where that force cannot be read from the motion: an effect with states of its own
-    (delay, bristle, load) or a sensor effect (the measured position is not the plant's)."""
-    if bundle.multi_axis or any(e.sensor for e in structure.effects):
-        return None
-    prefix, plant = _plant_values(bundle, structure)
-    gain, offset = output_map(bundle.plant.model, bundle.plant.roles, plant)
-    model = structure.loop.model
-    inputs = [v.name for v in model.inputs]
-    if bundle.plant.input_name not in inputs:
-        return None
-    return evidence.inverse_dynamics(_in_state_coordinates(bundle.train, gain, offset), model, structure.fit.values,
-                                     prefix + bundle.plant.position_state, prefix + bundle.plant.velocity_state,
-                                     bundle.controller.sample_time, inputs.index(bundle.plant.input_name))
-
-
-def stroke_check(bundle: Bundle, current: ModelFit, trial: ModelFit) -> evidence.StrokeGains | None:
-    """:func:`evidence.stroke_gains` of ``trial`` (``current`` plus one effect) on the training recording,
-    the parts' edges in the recorded position's units; None where either model's force cannot be read from
-    the motion (:func:`force_residual`). The blocks of the standard error span five time constants of the
-    coloured process noise and of the derivative filter."""
-    before, after = force_residual(bundle, current), force_residual(bundle, trial)
-    if before is None or after is None:
-        return None
-    ts = bundle.controller.sample_time
-    tau = bundle.process_noise.tau if bundle.process_noise is not None else 0.0
-    gains = evidence.stroke_gains(before.x, before.force, after.force, math.ceil(5 * max(tau, 1 / before.cutoff) / ts))
-    if gains is not None:
-        gain, offset = output_map(bundle.plant.model, bundle.plant.roles, _plant_values(bundle, current)[1])
-        gains.edges = gain * gains.edges + offset
-    return gains

@@ -16,7 +16,7 @@ from motiontwin.ident.diagnosis import effects as effect_models
 from motiontwin.ident.diagnosis import evidence, noise
 from motiontwin.ident.diagnosis.bounds import WIDEN_ROUNDS, widened_effects
 from motiontwin.ident.diagnosis.bundle import Bundle
-from motiontwin.ident.diagnosis.locate import AxisEvidence, locate, stroke_check
+from motiontwin.ident.diagnosis.locate import AxisEvidence, locate
 from motiontwin.ident.diagnosis.screen import (MAX_NFEV, fit_structure, SCREEN_NFEV, _close_richer, candidates,
                                                fit_candidate, placed_structure, ranked_with_nested, refine, screen)
 from motiontwin.ident.diagnosis.structure import ModelFit, _log, build_structure, compiled, validate_any
@@ -112,23 +112,13 @@ def select(bundle: Bundle, nominal: ModelFit, weights: outputerror.Weights, ctx:
             before, after = current.axis_rms(axis), trial.axis_rms(axis)
             force_before, force_after = current.axis_force_rms(axis), trial.axis_force_rms(axis)
             ok = evidence.validation_accepts(before, after, force_before, force_after)
-            stroke = stroke_check(bundle, current, trial) if ok else None
-            refuted = stroke is not None and stroke.refuting_part is not None
             _log(progress, f"  {name}{on}: validation rms {before:.4g} -> {after:.4g}, force {force_before:.4g} -> "
-                           f"{force_after:.4g} ({'kept' if ok and not refuted else 'rejected'})")
-            if refuted:
-                k = stroke.refuting_part
-                lo, hi = sorted(stroke.edges[k:k + 2])
-                _log(progress, f"  {name}{on}: not a law of the whole stroke: it raises the force residual where "
-                               f"the position is {lo:.4g} to {hi:.4g} ({-stroke.z[k]:.1f} standard errors)")
-            ok = ok and not refuted
+                           f"{force_after:.4g} ({'kept' if ok else 'rejected'})")
             for entry in log:
                 if entry["round"] == rounds and entry["effect"] == name:
                     entry["validation_rms_before"], entry["validation_rms_after"] = before, after
                     entry["validation_force_rms_before"] = force_before
                     entry["validation_force_rms_after"] = force_after
-                    if stroke is not None:
-                        entry["stroke_gain_z"] = [round(float(z), 2) for z in stroke.z]
             if ok:
                 chosen = trial
                 break

@@ -31,13 +31,14 @@ def loop_controller(value: str | None, rec: object, output: str, input_name: str
     observer or None); ``rec`` needs the columns the choice uses (a known controller: ``reference`` too)."""
     from pathlib import Path
 
-    from motiontwin.fmus.limits import load_json
-    from motiontwin.ident import observer
-    from motiontwin.ident.controller import ControllerError, load_controller
     from motiontwin.ident.oeloop import Signals
 
     if value is None:
         return None, Signals(output=output, input=input_name, reference=reference), None
+    from motiontwin.fmus.limits import load_json
+    from motiontwin.ident import observer
+    from motiontwin.ident.controller import ControllerError, load_controller
+
     doc = None if value == observer.UNKNOWN_KIND else load_json(Path(value), ControllerError)
     inner = doc.get("controller", doc) if isinstance(doc, dict) and "kind" not in doc else doc
     if value == observer.UNKNOWN_KIND or (isinstance(inner, dict) and inner.get("kind") == observer.UNKNOWN_KIND):
