@@ -12,6 +12,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from motiontwin.ident import outputerror
+from motiontwin.ident.benchmarks import independent
 from motiontwin.ident.benchmarks import single_axis as bench
 from motiontwin.ident.diagnosis import effect_base, empirical
 from motiontwin.ident.diagnosis import effects as effect_models
@@ -66,3 +68,29 @@ def test_empirical_term_search_never_above_the_current_model(nominal):
     trial = fit_structure(bundle, current, effect, ctx, weights, work / "empirical", SCREEN_NFEV)
     assert trial.start_cost == pytest.approx(current.fit.cost, rel=VANISHING_RTOL)
     assert trial.fit.cost <= current.fit.cost * (1 + VANISHING_RTOL)
+
+
+@pytest.fixture(scope="module")
+def stiff_nominal(tmp_path_factory):
+    """The independent simulator's held-out LuGre bundle: without the friction the nominal refit moves to a mass
+    60x below the truth's and a damping 300x above, dynamics that need 3 RK4 substeps where its start needed 1."""
+    root = tmp_path_factory.mktemp("stiff")
+    independent.generate(root, "heldout", only=["lugre"])
+    bundle = read_bundle(root / "heldout" / "lugre")
+    bundle.cache = LoopCache()
+    bundle.start = nominal_start(bundle)
+    fit, weights = fit_nominal(bundle)
+    return bundle, fit, weights, context(bundle, fit), root / "work"
+
+
+def test_nominal_refit_is_integrated_as_finely_as_its_values_need(stiff_nominal):
+    """Reference: the substeps the refitted values need (the linearised plant's fastest mode) and the cost of a
+    structure at its vanishing point, which is built at those substeps (it was 2e-4 of the cost above the
+    nominal's, integrated with 1 substep, for every candidate)."""
+    bundle, current, weights, ctx, work = stiff_nominal
+    ts = bundle.controller.sample_time
+    assert current.loop.substeps >= outputerror.stable_substeps(current.loop.model, current.loop.values, ts) > 1
+    trial = fit_structure(bundle, current, effect_models.VOCABULARY["gravity_offset"](ctx), ctx, weights,
+                          work / "offset", SCREEN_NFEV)
+    assert trial.loop.substeps == current.loop.substeps
+    assert trial.start_cost == pytest.approx(current.fit.cost, rel=VANISHING_RTOL)
