@@ -28,9 +28,8 @@ from motiontwin.ident.diagnosis.remainder import EMPIRICAL_EFFECT, explain_remai
 from motiontwin.ident.diagnosis.select import VALIDATION_GAIN, select, upgrade_nested, widen_search_bounds
 from motiontwin.ident.diagnosis.structure import (AUGMENTED_CLASS, FLOOR_REPLICATES, LoopCache, ModelFit, _log,
                                                   _nominal_bounds, build_axes, build_structure, estimation_rms,
-                                                  floor_rms, floors,
-                                                  validate, validate_axes, validation_floor, validation_shift,
-                                                  write_structure)
+                                                  floor_rms, floors, validate, validate_axes, validation_floor,
+                                                  validation_shift, write_structure)
 
 #: the final validation RMS may exceed the estimated noise floor by this factor before the verdict is "unexplained"
 FLOOR_MARGIN = 1.5
