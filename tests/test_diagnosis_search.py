@@ -52,6 +52,9 @@ def test_screened_cost_never_above_the_current_model(nominal, name):
 def test_defect_line_names_what_went_wrong():
     assert "ended above its start" in screening_defect(100.0, 100.0, 150.0)
     assert "does not reproduce" in screening_defect(100.0, 130.0, 120.0)
+    assert "0.3 of it" in screening_defect(100.0, 130.0, 120.0)
+    assert "with 14 RK4 substeps per sample, the model with 3" in screening_defect(100.0, 130.0, 120.0, (3, 14))
+    assert "substeps" not in screening_defect(100.0, 130.0, 120.0, (3, 3))
     assert "+50" in screening_defect(100.0, 100.0, 150.0) and "--" not in screening_defect(100.0, 100.0, 150.0)
 
 

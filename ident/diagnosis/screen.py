@@ -182,7 +182,7 @@ def screen(bundle: Bundle, current: ModelFit, names: list[str], ctx: effect_mode
             continue
         out[name] = (result, substeps)
         _log(progress, f"  screen {name}: cost {result.cost - current.fit.cost:+.4g} ({seconds:.1f} s)")
-        defect = screening_defect(current.fit.cost, start_cost, result.cost)
+        defect = screening_defect(current.fit.cost, start_cost, result.cost, (current.loop.substeps, substeps))
         if defect:
             _log(progress, f"  defect: {name} {defect}")
     return out
@@ -191,14 +191,20 @@ def screen(bundle: Bundle, current: ModelFit, names: list[str], ctx: effect_mode
 VANISHING_RTOL = 1e-6   # a candidate at its vanishing point reproduces the current cost within this (RK4 substeps)
 
 
-def screening_defect(current: float, start: float, end: float) -> str:
+def screening_defect(current: float, start: float, end: float, substeps: tuple[int, int] = (1, 1)) -> str:
     """What went wrong in one candidate's screening ("" if nothing): it ended above its vanishing start, or
-    that start does not reproduce the model it extends (``current``), so the search could end worse."""
+    that start does not reproduce the model it extends (``current``), so the search could end worse.
+    ``substeps``: the RK4 substeps per sample of the model and of the candidate; where they differ the line
+    says so, since the two free runs then differ by their integration too (the time delay's Pade states take
+    14 substeps, a model 1-3)."""
     if end > start:
         return f"ended above its start (cost {end - current:+.4g}, at its vanishing point {start - current:+.4g})"
     if not start <= current + VANISHING_RTOL * abs(current):
-        return (f"at its vanishing point does not reproduce the model it extends (cost {start - current:+.4g}), "
-                f"ended at {end - current:+.4g}")
+        share = f", {(start - current) / abs(current):.2g} of it" if current else ""
+        finer = (f"; integrated with {substeps[1]} RK4 substeps per sample, the model with {substeps[0]}"
+                 if substeps[0] != substeps[1] else "")
+        return (f"at its vanishing point does not reproduce the model it extends (cost {start - current:+.4g}"
+                f"{share}{finer}), ended at {end - current:+.4g}")
     return ""
 
 
