@@ -98,13 +98,7 @@ def fit_nominal(bundle: Bundle, progress=None) -> tuple[ModelFit, outputerror.We
                              estimate_controller=bundle.observer is None)
     weights = outputerror.Weights(evidence.noise_level(bundle.train["q"] - result.q_sim, ts),
                                   evidence.noise_level(bundle.train["u"] - result.u_sim, ts))
-    for _ in range(REFINE_SUBSTEPS):
-        finer = _as_fine_as_needed(loop, result.values, ts, lambda n: loop_at(result.values, n), progress)
-        result = outputerror.fit(finer.with_values(result.values), bundle.train, weights, bounds, max_nfev=15,
-                                 estimate_controller=bundle.observer is None, shift=result.shift)
-        if finer is loop:
-            break
-        loop = finer
+    loop, result = _refit_as_fine_as_needed(bundle, loop, result, weights, bounds, loop_at, progress)
     _log(progress, f"nominal refit: {_fmt(result.values)}; rms q {result.rms_q:.3g} m")
     hit = at_bound_text(at_bound(result.values, bounds, free))
     if hit:
@@ -115,18 +109,30 @@ def fit_nominal(bundle: Bundle, progress=None) -> tuple[ModelFit, outputerror.We
 REFINE_SUBSTEPS = 3     # nominal refits on a finer loop at most, when the refitted values need more RK4 substeps
 
 
-def _as_fine_as_needed(loop: outputerror.Loop, values: dict[str, float], ts: float,
-                       rebuilt: Callable[[int], outputerror.Loop], progress=None) -> outputerror.Loop:
-    """``loop``, or ``rebuilt`` with more RK4 substeps when the refitted ``values`` need them: the substeps
-    are chosen at the start values, and a refit to faster dynamics (a mass 60x lighter than the truth on the
-    held-out LuGre case) was integrated with too few, so every structure built from it (at the substeps its
-    values need) differed from it at its vanishing point (2e-4 of the cost) and the refit could use the
+def _refit_as_fine_as_needed(bundle: Bundle, loop: outputerror.Loop, result: outputerror.Fit,
+                             weights: outputerror.Weights, bounds: dict[str, tuple[float, float]],
+                             rebuilt: Callable[[dict[str, float], int], outputerror.Loop],
+                             progress=None) -> tuple[outputerror.Loop, outputerror.Fit]:
+    """The nominal's second refit (15 free runs from ``result``), on ``rebuilt(values, substeps)`` when the
+    refitted values need more RK4 substeps than ``loop`` has, up to ``REFINE_SUBSTEPS`` times. Why: the
+    substeps are chosen at the start values, and a refit to faster dynamics (a mass 60x lighter than the truth
+    on the held-out LuGre case) was integrated with too few, so every structure built from it (at the substeps
+    its values need) differed from it at its vanishing point (2e-4 of the cost) and the refit could use the
     integration error."""
-    needed = outputerror.stable_substeps(loop.model, loop.with_values(values).values, ts)
-    if needed <= loop.substeps:
-        return loop
-    _log(progress, f"nominal refit: {needed} RK4 substeps per sample at the refitted values (were {loop.substeps})")
-    return rebuilt(needed)
+    ts = bundle.controller.sample_time
+    for _ in range(REFINE_SUBSTEPS):
+        values = loop.with_values(result.values).values
+        needed = outputerror.stable_substeps(loop.model, values, ts)
+        finer = loop if needed <= loop.substeps else rebuilt(values, needed)
+        if finer is not loop:
+            _log(progress, f"nominal refit: {needed} RK4 substeps per sample at the refitted values "
+                           f"(were {loop.substeps})")
+        result = outputerror.fit(finer.with_values(result.values), bundle.train, weights, bounds, max_nfev=15,
+                                 estimate_controller=bundle.observer is None, shift=result.shift)
+        if finer is loop:
+            break
+        loop = finer
+    return loop, result
 
 
 def check_plant_form(bundle: Bundle, folder: Path) -> None:
@@ -192,11 +198,9 @@ def fit_nominal_axes(bundle: Bundle, work: Path, progress=None) -> tuple[ModelFi
     result = outputerror.fit(loop, bundle.train, weights, bounds, max_nfev=40,
                              estimate_controller=bundle.observer is None)
     weights = _noise_weights(bundle, loop, result.q_sim, result.u_sim)
-    loop = _as_fine_as_needed(loop, result.values, bundle.controller.sample_time,
-                              lambda n: build_axes(bundle, [], loop.with_values(result.values).values, work,
-                                                   bundle.train.time.size, min_substeps=n)[0], progress)
-    result = outputerror.fit(loop.with_values(result.values), bundle.train, weights, bounds, max_nfev=15,
-                             estimate_controller=bundle.observer is None, shift=result.shift)
+    loop, result = _refit_as_fine_as_needed(
+        bundle, loop, result, weights, bounds,
+        lambda values, n: build_axes(bundle, [], values, work, bundle.train.time.size, min_substeps=n)[0], progress)
     _log(progress, f"nominal refit ({', '.join(loop.free)}): "
                    f"{_fmt({k: result.values[k] for k in loop.free})}; rms q {result.rms_q:.3g} m")
     return ModelFit([], loop.with_values(result.values), result, bounds), weights
