@@ -115,7 +115,8 @@ def test_validation_rule_takes_the_force_an_integrating_loop_leaves():
     assert evidence.validation_accepts(2.934e-7, 2.591e-7, math.nan, math.nan)
     units = AxisUnits(rotary=False)
     info = dict(zip(evidence.VALIDATION_FIELDS, (1.223e-7, 1.147e-7, 0.9965, 0.5271)))
-    assert "recorded force (which the loop's rejection leaves) from 0.997 to 0.527 N" in evidence.validation_text(info, units)
+    text = evidence.validation_text(info, units)
+    assert "recorded force (which the loop's rejection leaves) from 0.997 to 0.527 N" in text
     info = dict(zip(evidence.VALIDATION_FIELDS, (1.223e-7, 1.0e-7, 0.9965, 0.9)))
     assert "force" not in evidence.validation_text(info, units)
 
