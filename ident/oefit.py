@@ -543,8 +543,10 @@ def fit(loop: Loop, rec: Recording, weights: Weights, bounds: dict[str, tuple[fl
     if x_start.size:
         if loop.jac is None:
             raise ValueError("the loop was compiled without its Jacobian (with_jacobian=False)")
-        sol = least_squares(res_all, x_start, jac=jac_all, bounds=(lo_all / scale, hi_all / scale), method="trf",
-                            x_scale="jac", max_nfev=max_nfev, xtol=1e-10, ftol=1e-10, gtol=1e-10)
+        with np.errstate(over="ignore"):     # a trial step whose loop diverges overflows the solver's sums: its
+            # cost is inf, the trust region shrinks and the step is refused, which is the answer, not a warning
+            sol = least_squares(res_all, x_start, jac=jac_all, bounds=(lo_all / scale, hi_all / scale),
+                                method="trf", x_scale="jac", max_nfev=max_nfev, xtol=1e-10, ftol=1e-10, gtol=1e-10)
         xs = sol.x
         success = bool(sol.success or sol.status == 0)
         nfev = int(sol.nfev)

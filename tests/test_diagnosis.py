@@ -316,6 +316,21 @@ def test_validate_reads_what_diagnose_writes(small_bundle, diagnosed, tmp_path, 
 ROTARY_UNITS = {'"kg"': '"kg.m2"', '"N.s/m"': '"N.m.s/rad"', '"N"': '"N.m"', '"m/s"': '"rad/s"', '"m"': '"rad"'}
 
 
+def test_rotary_units_map_every_factor_of_a_compound_unit():
+    """A rotary axis's torque is a force times a metre and its angle takes the metre's place, factor by factor
+    (the empirical term's v*|v| coefficient: N.s2/m2 -> N.m.s2/rad2); a linear axis keeps its units. A real
+    axis's large errors are shown in mrad (mm), small ones in urad (um)."""
+    from motiontwin.ident.diagnosis.axis_units import AxisUnits
+
+    rotary, linear = AxisUnits(rotary=True), AxisUnits()
+    expected = {"N": "N.m", "kg": "kg.m2", "m/s": "rad/s", "N.s/m": "N.m.s/rad", "N/m": "N.m/rad",
+                "N.s2/m2": "N.m.s2/rad2", "N.s3/m3": "N.m.s3/rad3", "N.s/m2": "N.m.s/rad2", "1": "1", "s": "s"}
+    assert {u: rotary.si(u) for u in expected} == expected
+    assert all(linear.si(u) == u for u in expected)
+    assert rotary.shown_residual(0.5) == (1e3, "mrad") and rotary.shown_residual(2e-5) == (1e6, "urad")
+    assert linear.shown_residual(0.02) == (1e3, "mm") and linear.shown_residual(float("nan")) == (1e6, "um")
+
+
 def test_rotary_axis_is_reported_in_rotary_units(small_bundle, diagnosed, tmp_path):
     """Issue 23 item 1: the same numbers declared rad and N.m (recordings and plant) give the same diagnosis,
     reported in rad, N.m, deg and deg/s (diagnosis.json, report.md, the summary line), never in m, N or mm."""

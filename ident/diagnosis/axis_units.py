@@ -7,7 +7,10 @@ plant output's Modelica unit is rad. The effects' contracts are written in linea
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass
+
+import numpy as np
 
 from typing import TYPE_CHECKING
 
@@ -16,8 +19,7 @@ from motiontwin.fmus.symbolic import SymbolicModel
 if TYPE_CHECKING:
     from motiontwin.ident.diagnosis.bundle import Bundle
 
-_LINEAR_TO_ROTARY = {"m": "rad", "N": "N.m", "m/s": "rad/s", "kg": "kg.m2", "N.s/m": "N.m.s/rad", "N/m": "N.m/rad",
-                     "m/s2": "rad/s2"}
+_ROTARY_FACTORS = {"N": "N.m", "kg": "kg.m2", "m": "rad", "m2": "rad2", "m3": "rad3"}
 
 
 @dataclass(frozen=True)
@@ -35,8 +37,11 @@ class AxisUnits:
         return "N.m" if self.rotary else "N"
 
     def si(self, linear_unit: str) -> str:
-        """``linear_unit`` (an effect contract's unit, written for a linear axis) for this axis's kind."""
-        return _LINEAR_TO_ROTARY.get(linear_unit, linear_unit) if self.rotary else linear_unit
+        """``linear_unit`` (an effect contract's unit, written for a linear axis) for this axis's kind: each
+        factor of a product or quotient mapped (N -> N.m, kg -> kg.m2, m2 -> rad2: "N.s2/m2" -> "N.m.s2/rad2")."""
+        if not self.rotary:
+            return linear_unit
+        return re.sub(r"[A-Za-z]+\d*", lambda m: _ROTARY_FACTORS.get(m.group(0), m.group(0)), linear_unit)
 
     @property
     def shown_position(self) -> tuple[float, str]:
@@ -48,9 +53,11 @@ class AxisUnits:
         factor, unit = self.shown_position
         return factor, f"{unit}/s"
 
-    @property
-    def shown_residual(self) -> tuple[float, str]:
-        """(factor, unit) position residuals are shown in: um, or urad."""
+    def shown_residual(self, peak: float = 0.0) -> tuple[float, str]:
+        """(factor, unit) position residuals whose largest magnitude is ``peak`` are shown in: um (urad), or mm
+        (mrad) from 10 mm (10 mrad) on, so that a real axis's large errors read as numbers, not 500000 um."""
+        if np.isfinite(peak) and peak >= 1e-2:
+            return 1e3, ("mrad" if self.rotary else "mm")
         return 1e6, ("urad" if self.rotary else "um")
 
     def as_dict(self) -> dict[str, str]:

@@ -20,6 +20,7 @@ import numpy as np
 
 from motiontwin.ident.diagnosis import effects as effect_models
 from motiontwin.ident.diagnosis import evidence
+from motiontwin.ident.diagnosis.axis_units import AxisUnits
 
 THRESHOLDS = tuple(np.logspace(-3, 0, 13))   # fractions of the residual RMS
 FOLDS = 5
@@ -131,10 +132,10 @@ class EmpiricalForce:
         parts = [f"({float(c):.17g})*({t.modelica.format(**names)})" for t, c in zip(self.terms, self.coefficients)]
         return " + ".join(parts)
 
-    def describe(self) -> str:
+    def describe(self, units: AxisUnits = AxisUnits()) -> str:
         law = " + ".join(f"{c:.4g}*{n}" for n, c in zip(self.names, self.coefficients)) or "none"
-        return (f"empirical force F = {law} (v_eps {self.v_eps:.3g} m/s); cross-validated residual RMS "
-                f"{self.cv_rms:.3g} N vs {self.cv_rms_zero:.3g} N without it")
+        return (f"empirical force F = {law} (v_eps {self.v_eps:.3g} {units.si('m/s')}); cross-validated residual "
+                f"RMS {self.cv_rms:.3g} {units.force} vs {self.cv_rms_zero:.3g} {units.force} without it")
 
 
 def _stlsq(theta: np.ndarray, y: np.ndarray, threshold: float) -> np.ndarray:

@@ -14,6 +14,7 @@ from motiontwin.ident import outputerror, startvalues
 from motiontwin.ident.diagnosis import effects as effect_models
 from motiontwin.ident.diagnosis import evidence
 from motiontwin.ident.diagnosis.bounds import at_bound, at_bound_text
+from motiontwin.ident.diagnosis.axis_units import bundle_units
 from motiontwin.ident.diagnosis.bundle import Bundle, BundleError
 from motiontwin.ident.diagnosis.locate import _mass_equivalent, _needed_force, _pitch_in_state_coordinates, _states_from
 from motiontwin.ident.diagnosis.plant_roles import PlantFormError, output_map
@@ -99,7 +100,7 @@ def fit_nominal(bundle: Bundle, progress=None) -> tuple[ModelFit, outputerror.We
     weights = outputerror.Weights(evidence.noise_level(bundle.train["q"] - result.q_sim, ts),
                                   evidence.noise_level(bundle.train["u"] - result.u_sim, ts))
     loop, result = _refit_as_fine_as_needed(bundle, loop, result, weights, bounds, loop_at, progress)
-    _log(progress, f"nominal refit: {_fmt(result.values)}; rms q {result.rms_q:.3g} m")
+    _log(progress, f"nominal refit: {_fmt(result.values)}; rms q {result.rms_q:.3g} {bundle_units(bundle).position}")
     hit = at_bound_text(at_bound(result.values, bounds, free))
     if hit:
         _log(progress, f"nominal refit: at bound: {hit}")
@@ -202,7 +203,8 @@ def fit_nominal_axes(bundle: Bundle, work: Path, progress=None) -> tuple[ModelFi
         bundle, loop, result, weights, bounds,
         lambda values, n: build_axes(bundle, [], values, work, bundle.train.time.size, min_substeps=n)[0], progress)
     _log(progress, f"nominal refit ({', '.join(loop.free)}): "
-                   f"{_fmt({k: result.values[k] for k in loop.free})}; rms q {result.rms_q:.3g} m")
+                   f"{_fmt({k: result.values[k] for k in loop.free})}; rms q {result.rms_q:.3g} "
+                   f"(each axis in its unit)")
     return ModelFit([], loop.with_values(result.values), result, bounds), weights
 
 

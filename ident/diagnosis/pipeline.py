@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 import os
 import shutil
+import math
 import tempfile
 import time
 from dataclasses import dataclass, field
@@ -85,33 +86,44 @@ def run(bundle: Bundle, work: Path, progress=None) -> dict:
                    f"{bundle.process_noise.describe()}")
     floor, force = validation_floors(bundle, final, loop, values, u_aug, weights.sigma_q, progress)
     spread = None      # the parameters' estimation error matters only above the noise floor's margin
+    unknown_spread = False
     if (np.sqrt(np.mean((bundle.validation["q"] - q_aug) ** 2)) > FLOOR_MARGIN * floor
             or (force is not None and force.rms > FLOOR_MARGIN * force.floor)):
         spread, force_spread = estimation_rms(final.loop, bundle.train, final.fit, final.bounds, loop,
                                               bundle.validation, values, weights, bundle.process_noise)
-        _log(progress, f"validation floor {floor:.4g} from the noise, {spread:.4g} from the parameters' "
-                       f"estimation error; force {force_spread:.4g} from it")
+        if math.isnan(spread):
+            _log(progress, f"validation floor {floor:.4g} from the noise; the parameters' estimation error is not "
+                           f"known: no refit of a noise replicate moved from the fitted values (the cost is too "
+                           f"rough there), so the bound counts the noise alone")
+            spread, force_spread = 0.0, 0.0
+            unknown_spread = True
+        else:
+            _log(progress, f"validation floor {floor:.4g} from the noise, {spread:.4g} from the parameters' "
+                           f"estimation error; force {force_spread:.4g} from it")
         if force is not None:
             force = ForceCheck(force.rms, force.floor, force_spread)
-    remainder = above_floor(bundle, remainder, q_aug, floor, weights.sigma_q, progress, spread or 0.0, force)
+    remainder = above_floor(bundle, remainder, q_aug, floor, weights.sigma_q, progress, spread or 0.0, force,
+                            unknown_spread)
     _log(progress, f"diagnosis done in {time.perf_counter() - t0:.1f} s")
     return {"bundle": bundle, "nominal": nominal, "final": final, "weights": weights, "context": ctx,
             "log": log, "augmented_values": values, "q_augmented": q_aug, "u_augmented": u_aug,
             "remainder": remainder,
-            "augmented_model": written, "validation_floor": floor, "estimation_rms": spread, "force": force,
+            "augmented_model": written, "validation_floor": floor,
+            "estimation_rms": None if unknown_spread else spread, "force": force,
             "seconds": time.perf_counter() - t0,
             "plant_physics": owned, "process_noise": bundle.process_noise}
 
 
 def above_floor(bundle: Bundle, remainder: dict, q_final: np.ndarray, floor: float, sigma_q: float,
-                progress=None, spread: float = 0.0, force: ForceCheck | None = None) -> dict:
+                progress=None, spread: float = 0.0, force: ForceCheck | None = None,
+                unknown_spread: bool = False) -> dict:
     """The last word of a single-axis diagnosis: when neither a catalogue effect nor the empirical stage
     left the final model's validation RMS within what a correct model fitted on this training recording
     leaves (:func:`floor_bound` of the floor from encoder and process noise, :mod:`noise`, and ``spread``, the
     validation RMS of its parameters' estimation error, :func:`structure.estimation_rms`), in the position or, with
     ``force``, in the recorded force (which a loop with integral action leaves where it holds the position),
     the answer is "unexplained, no term validated" with where the validation residual sits, never "only
-    parameters were off"."""
+    parameters were off". ``unknown_spread``: the estimation error could not be estimated (counted as 0, said so)."""
     rec = bundle.validation
     residual = rec["q"] - q_final
     rms = float(np.sqrt(np.mean(residual ** 2)))
@@ -125,18 +137,21 @@ def above_floor(bundle: Bundle, remainder: dict, q_final: np.ndarray, floor: flo
     where = empirical.locate_remainder(residual, residual, rec.time, v, rec["q"], sigma_q, ts)
     reason = (f"the validation RMS {rms:.4g} is {rms / reach:.3g} times what a correct model fitted on this training "
               f"recording reaches ({reach:.4g}: {floor:.4g} from the encoder and process noise estimated from the "
-              f"recording, {spread:.4g} from its parameters' estimation error; the bound allows {FLOOR_MARGIN} times "
-              f"the first and {ESTIMATION_QUANTILE:.3g} times the second)")
+              + (f"recording; its parameters' estimation error not known (no replicate refit moved), the bound allows "
+                 f"{FLOOR_MARGIN} times the noise)" if unknown_spread else
+                 f"recording, {spread:.4g} from its parameters' estimation error; the bound allows {FLOOR_MARGIN} "
+                 f"times the first and {ESTIMATION_QUANTILE:.3g} times the second)"))
     if force is not None:
         reason += (f", that of the recorded force {force.rms:.4g} is {force.rms / force.reach:.3g} times what a "
                    f"correct model reaches there ({force.reach:.4g}: floor {force.floor:.4g}, estimation error "
-                   f"{force.spread:.4g})")
+                   f"{'not known' if unknown_spread else format(force.spread, '.4g')})")
     reason += f"; {remainder.get('reason', 'no catalogue effect or empirical term took it up')}"
     _log(progress, f"unexplained, no term validated: {reason}")
     return {"status": empirical.NOT_VALIDATED, "axis": bundle.plant.output_name, **where,
-            "reason": reason, "validation_rms": rms, "floor_rms": floor, "estimation_rms": spread,
+            "reason": reason, "validation_rms": rms, "floor_rms": floor,
+            "estimation_rms": None if unknown_spread else spread,
             **({"validation_force_rms": force.rms, "force_floor_rms": force.floor,
-                "force_estimation_rms": force.spread} if force is not None else {})}
+                "force_estimation_rms": None if unknown_spread else force.spread} if force is not None else {})}
 
 
 def floor_bound(floor: float, spread: float) -> float:

@@ -13,6 +13,7 @@ from motiontwin.ident import outputerror
 from motiontwin.ident.diagnosis import effects as effect_models
 from motiontwin.ident.diagnosis import empirical
 from motiontwin.ident.diagnosis import evidence, noise
+from motiontwin.ident.diagnosis.axis_units import bundle_units
 from motiontwin.ident.diagnosis.bundle import Bundle
 from motiontwin.ident.diagnosis.locate import _in_state_coordinates, locate
 from motiontwin.ident.diagnosis.plant_roles import output_map
@@ -60,7 +61,7 @@ def explain_remainder(bundle: Bundle, final: ModelFit, weights: outputerror.Weig
         return final, {"status": "not tested", "reason": reason}
     law = empirical.fit_empirical_force({"x": inv.x, "v": inv.v, "a": inv.a, "u": inv.u}, inv.force,
                                         library=empirical.residual_library())
-    _log(progress, f"remaining force residual: {law.describe()}")
+    _log(progress, f"remaining force residual: {law.describe(bundle_units(bundle))}")
     law = empirical.without_parameter_terms(law)
     if not law.terms:
         return final, {"status": empirical.NONE, "reason": "no library function beyond the nominal parameters' own "
@@ -121,7 +122,8 @@ def explain_remainder(bundle: Bundle, final: ModelFit, weights: outputerror.Weig
         if not reduced.val_rms <= (2 - VALIDATION_GAIN) * trial.val_rms:
             continue
         _log(progress, f"  {named.name} is carried by the empirical term: without it cost +{extra:.4g}, "
-                       f"validation {trial.val_rms:.4g} -> {reduced.val_rms:.4g} m (dropped)")
+                       f"validation {trial.val_rms:.4g} -> {reduced.val_rms:.4g} "
+                       f"{bundle_units(bundle).position} (dropped)")
         reduced.evidence = {k: v for k, v in trial.evidence.items() if k != named.name}
         absorbed.append(named.name)
         trial = reduced
@@ -129,7 +131,7 @@ def explain_remainder(bundle: Bundle, final: ModelFit, weights: outputerror.Weig
                                        bundle.train.time, inv.v * gain, bundle.train["q"], weights.sigma_q,
                                        bundle.controller.sample_time)
     term = {"terms": law.names, "coefficients": effect.contract(trial.fit.values, ctx),
-            "units": {name: empirical.TERM_UNITS.get(name, "") for name in law.names},
+            "units": {name: bundle_units(bundle).si(empirical.TERM_UNITS.get(name, "")) for name in law.names},
             "v_eps": (None if "empirical_v_eps" not in trial.fit.values
                       else trial.fit.values["empirical_v_eps"] * abs(gain)),
             "regression": {"terms": regression.names, "coefficients": [float(c) for c in regression.coefficients],
@@ -190,7 +192,7 @@ def explain_remainder_axes(bundle: Bundle, final: ModelFit, weights: outputerror
         return final, {"status": empirical.NONE, "reason": reason}
     signals = {"x": ctx.x, "v": ctx.v, "a": ctx.a, "u": ctx.u}
     law = empirical.fit_empirical_force(signals, target.force, library=empirical.residual_library())
-    _log(progress, f"remaining force residual on {axis}: {law.describe()}")
+    _log(progress, f"remaining force residual on {axis}: {law.describe(bundle_units(bundle, axis))}")
     law = empirical.without_parameter_terms(law)
     if not law.terms:
         return final, {"status": empirical.NONE, "reason": f"no library function beyond the nominal parameters' "
@@ -224,7 +226,7 @@ def explain_remainder_axes(bundle: Bundle, final: ModelFit, weights: outputerror
                                        float(np.atleast_1d(weights.sigma_q)[k]), bundle.controller.sample_time)
     placed = trial.effects[-1]
     term = {"terms": law.names, "coefficients": placed.contract(trial.fit.values, ctx),
-            "units": {name: empirical.TERM_UNITS.get(name, "") for name in law.names},
+            "units": {name: bundle_units(bundle, axis).si(empirical.TERM_UNITS.get(name, "")) for name in law.names},
             "modelica": placed.equations[0], "validation_rms_before": before, "validation_rms_after": after,
             "validation_gain": after / before, "cost_reduction": reduction, "null_threshold": threshold,
             "fitted_parameters": dof}

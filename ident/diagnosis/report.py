@@ -142,7 +142,8 @@ def diagnosis_document(result: dict, out: Path, fmu_path: Path | None) -> dict:
                        **({"estimation_rms": result["estimation_rms"]} if result.get("estimation_rms") is not None
                           else {}),
                        **({"force_rms": result["force"].rms, "force_floor_rms": result["force"].floor,
-                           "force_estimation_rms": result["force"].spread} if result.get("force") is not None else {})},
+                           "force_estimation_rms": result["force"].spread if result.get("estimation_rms") is not None
+                           else None} if result.get("force") is not None else {})},
         "nominal_parameters": _strip(nominal.fit.values),
         "augmented_parameters": _strip({k: v for k, v in result["augmented_values"].items()}),
         "augmented_model": str(out / "augmented_model" / f"{AUGMENTED_CLASS}.mo"),
@@ -177,7 +178,7 @@ def unexplained_text(entry: dict) -> str:
     term = entry.get("empirical_term") or entry.get("rejected_term")
     if term is None:
         return (f"{entry['status']} (on axis {entry['axis']}: validation RMS {entry['validation_rms']:.3g}, "
-                f"{entry['validation_rms'] / math.hypot(entry['floor_rms'], entry.get('estimation_rms', 0.0)):.3g} "
+                f"{entry['validation_rms'] / math.hypot(entry['floor_rms'], entry.get('estimation_rms') or 0.0):.3g} "
                 f"times what a correct model reaches on this data)")
     law = " + ".join(f"{c:.4g}*{name}" for name, c in term.get("coefficients", {}).items())
     label = "empirical term" if "empirical_term" in entry else "rejected term"

@@ -41,7 +41,8 @@ def diagnosis_plots(result: dict, staging: Path) -> tuple[list[str], dict[str, i
     names = []
     clipped: dict[str, int] = {}
     units = bundle_units(bundle)
-    k_res, res_unit = units.shown_residual
+    k_res, res_unit = units.shown_residual(float(np.max(np.abs(np.concatenate(
+        [res_nom, res_aug, val["q"] - nominal.val_q, val["q"] - result["q_augmented"]])))))
     k_pos, pos_unit = units.shown_position
     k_vel, vel_unit = units.shown_velocity
 
@@ -113,7 +114,8 @@ def axis_plots(result: dict, staging: Path) -> list[str]:
             (bundle.validation, (nominal.val_q, final.val_q), "validation_fit.png", "Validation error")):
         fig, panels = plt.subplots(len(axes), 1, figsize=(9, 1.8 * len(axes) + 1.2), sharex=True, squeeze=False)
         for k, (axis, ax) in enumerate(zip(axes, panels[:, 0])):
-            scale, unit = bundle_units(bundle, axis).shown_residual
+            scale, unit = bundle_units(bundle, axis).shown_residual(float(np.max(np.abs(np.concatenate(
+                [rec[axis] - q_nominal[k], rec[axis] - q_final[k]])))))
             ax.plot(rec.time, (rec[axis] - q_nominal[k]) * scale, lw=0.6, label="nominal (refitted)")
             ax.plot(rec.time, (rec[axis] - q_final[k]) * scale, lw=0.6, label="augmented")
             ax.set_ylabel(f"{axis} [{unit}]"), ax.grid(alpha=0.3)

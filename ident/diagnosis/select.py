@@ -15,6 +15,7 @@ from motiontwin.ident import outputerror
 from motiontwin.ident.diagnosis import effects as effect_models
 from motiontwin.ident.diagnosis import evidence, noise
 from motiontwin.ident.diagnosis.bounds import WIDEN_ROUNDS, widened_effects
+from motiontwin.ident.diagnosis.axis_units import bundle_units
 from motiontwin.ident.diagnosis.bundle import Bundle
 from motiontwin.ident.diagnosis.locate import AxisEvidence, locate
 from motiontwin.ident.diagnosis.screen import (MAX_NFEV, fit_structure, SCREEN_NFEV, _close_richer, candidates,
@@ -342,7 +343,7 @@ def equivalent_explanations(bundle: Bundle, chosen: ModelFit, trials: dict, work
                       "aic": trial.fit.cost + 2 * k, "chosen_aic": aic_chosen})
         _log(progress, f"  {other} explains the data as well as {name} (train cost {trial.fit.cost:.4g} vs "
                        f"{chosen.fit.cost:.4g}, validation {trial.axis_rms(axis):.4g} vs "
-                       f"{chosen.axis_rms(axis):.4g} m)")
+                       f"{chosen.axis_rms(axis):.4g} {bundle_units(bundle, axis).position})")
     if not found:
         return [], ""
     fewer = all(e["fitted_parameters"] > k_chosen for e in found)

@@ -247,26 +247,36 @@ def estimation_rms(train_loop: outputerror.Loop, train: Recording, fit: outputer
     (the same trust-region fit within the same bounds, ``max_nfev`` free runs), and the validation free run of
     each refit against the fitted model's. A parameter the training barely excites (a mass under little
     acceleration) is fitted to its noise; that error is no missing physics, and the floor verdict counts it. A
-    refit, not a linearised step: it keeps the bounds and follows the nonlinear cost (stiff friction laws)."""
+    refit, not a linearised step: it keeps the bounds and follows the nonlinear cost (stiff friction laws).
+    NaN when no replicate's refit moved from the fitted values (a cost too rough there for the trust region:
+    the error is unknown, not zero)."""
     if not train_loop.free:
         return 0.0, 0.0
     simulate = noisy_simulator(train_loop, train, fit.values, process)
     signals = train_loop.signals
     q_val, u_val = outputerror.simulate(val_loop, validation, val_values)
     rng = np.random.default_rng(1)
-    shifts, forces = [], []
+    shifts, forces, moved = [], [], False
     for _ in range(count):
         encoder = rng.normal(0.0, float(weights.sigma_q), train.time.size)
         q, u = simulate(encoder, rng)
         columns = {c: train[c] for c in train.columns}
         replicate = Recording(train.time, {**columns, signals.output: q + encoder, signals.input: u})
         refit = outputerror.fit(train_loop, replicate, weights, bounds, start=fit.values, max_nfev=max_nfev)
-        moved = {k if k in val_values else "plant." + k: v for k, v in refit.values.items()}
-        q_moved, u_moved = outputerror.simulate(val_loop, validation, {**val_values, **moved})
+        moved = moved or any(refit.values[k] != fit.values[k] for k in refit.values)
+        refitted = {k if k in val_values else "plant." + k: v for k, v in refit.values.items()}
+        q_moved, u_moved = outputerror.simulate(val_loop, validation, {**val_values, **refitted})
         shifts.append(float(np.mean((q_moved - q_val) ** 2)))
         forces.append(float(np.mean((u_moved - u_val) ** 2)))
-    if not (np.all(np.isfinite(shifts)) and np.all(np.isfinite(forces))):
+    if not moved:
+        return math.nan, math.nan
+    finite = np.isfinite(shifts) & np.isfinite(forces)
+    if finite.sum() < (count + 1) // 2:      # most replicates' refits diverged: no estimate
         return 0.0, 0.0
+    # a replicate whose refit left the stable region is an estimation error beyond any bound: it is counted as
+    # the largest finite one, not dropped (dropping it would make the bound tighter the less stable the fit)
+    shifts = np.where(finite, shifts, np.max(np.asarray(shifts)[finite]))
+    forces = np.where(finite, forces, np.max(np.asarray(forces)[finite]))
     return float(np.sqrt(np.mean(shifts))), float(np.sqrt(np.mean(forces)))
 
 
