@@ -142,8 +142,8 @@ def diagnosis_document(result: dict, out: Path, fmu_path: Path | None) -> dict:
                        **({"estimation_rms": result["estimation_rms"]} if result.get("estimation_rms") is not None
                           else {}),
                        **({"force_rms": result["force"].rms, "force_floor_rms": result["force"].floor,
-                           "force_estimation_rms": result["force"].spread if result.get("estimation_rms") is not None
-                           else None} if result.get("force") is not None else {})},
+                           "force_estimation_rms": None if result.get("estimation_unknown") else result["force"].spread}
+                          if result.get("force") is not None else {})},
         "nominal_parameters": _strip(nominal.fit.values),
         "augmented_parameters": _strip({k: v for k, v in result["augmented_values"].items()}),
         "augmented_model": str(out / "augmented_model" / f"{AUGMENTED_CLASS}.mo"),
