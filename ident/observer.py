@@ -62,6 +62,7 @@ class Observer:
     mass: float
     bandwidth_hz: float
     ts: float
+    mass_from: str = "the recording's inverse dynamics"     # where the mass came from, for the report
 
     @property
     def kp(self) -> float:
@@ -88,7 +89,7 @@ class Observer:
 
     def describe(self) -> str:
         return (f"{METHOD}; observer Kp {self.kp:.4g}, Kd {self.kd:.4g} (bandwidth {self.bandwidth_hz:g} Hz, "
-                f"damping {DAMPING}, mass {self.mass:.4g} from the recording's inverse dynamics)")
+                f"damping {DAMPING}, mass {self.mass:.4g} from {self.mass_from})")
 
 
 def predictor_signals(output: str = "q", input_name: str = "u") -> Signals:
@@ -115,27 +116,46 @@ def recording_mass(q: np.ndarray, u: np.ndarray, ts: float, source: str = "recor
 
 
 def observer_for(rec: Recording, output: str = "q", input_name: str = "u", ts: float | None = None,
-                 bandwidth_hz: float | None = None, source: str = "recording") -> Observer:
-    """The observer for ``rec`` (sample period ``ts``: the median step when None)."""
+                 bandwidth_hz: float | None = None, source: str = "recording", mass: float | None = None) -> Observer:
+    """The observer for ``rec`` (sample period ``ts``: the median step when None; ``mass``: from ``rec``'s
+    inverse dynamics when None)."""
     ts = float(np.median(np.diff(rec.time))) if ts is None else float(ts)
     bandwidth = min(DEFAULT_BANDWIDTH_HZ if bandwidth_hz is None else float(bandwidth_hz),
                     MAX_BANDWIDTH_FRACTION / ts)
-    return Observer(recording_mass(rec[output], rec[input_name], ts, source), bandwidth, ts)
+    return Observer(recording_mass(rec[output], rec[input_name], ts, source) if mass is None else float(mass),
+                    bandwidth, ts)
 
 
 def observer_from_document(doc: dict, rec: Recording, where: str, source: str) -> Observer:
     """The observer of a ``{"kind": "unknown"}`` controller object: its optional ``Ts`` (default: the median
-    step of ``rec``) and ``bandwidth_hz``, the mass from ``rec``; errors name ``where`` and the field."""
-    for key in ("Ts", "bandwidth_hz"):
+    step of ``rec``), ``bandwidth_hz`` and ``mass`` (default: from ``rec``'s inverse dynamics). The object a fit
+    writes (:meth:`Observer.as_dict`, in ``identify oe --out`` and ``diagnosis.json``) is read back as it was, so
+    a validation uses the fit's own observer: its derived fields (Kp, Kd, damping, method) must agree with it.
+    Errors name ``where`` and the field."""
+    for key in ("Ts", "bandwidth_hz", "mass"):
         value = doc.get(key)
         if value is not None and (isinstance(value, bool) or not isinstance(value, (int, float))
                                   or not math.isfinite(value) or value <= 0):
             raise ObserverError(f"{where}: field 'controller.{key}' must be a positive number, got {value!r}")
-    extra = sorted(set(doc) - {"kind", "Ts", "bandwidth_hz"})
+    derived = {"Kp", "Kd", "damping", "method"}
+    extra = sorted(set(doc) - {"kind", "Ts", "bandwidth_hz", "mass"} - derived)
     if extra:
         raise ObserverError(f"{where}: field 'controller.{extra[0]}' is not used by kind {UNKNOWN_KIND!r} (it "
-                            f"takes only 'Ts' and 'bandwidth_hz')")
-    return observer_for(rec, ts=doc.get("Ts"), bandwidth_hz=doc.get("bandwidth_hz"), source=source)
+                            f"takes 'Ts', 'bandwidth_hz' and 'mass')")
+    if doc.get("mass") is None:
+        if derived & set(doc):
+            raise ObserverError(f"{where}: field 'controller.{sorted(derived & set(doc))[0]}' is derived from "
+                                f"'mass', which is missing")
+        return observer_for(rec, ts=doc.get("Ts"), bandwidth_hz=doc.get("bandwidth_hz"), source=source)
+    found = observer_for(rec, ts=doc.get("Ts"), bandwidth_hz=doc.get("bandwidth_hz"), source=source,
+                         mass=float(doc["mass"]))
+    found = Observer(found.mass, found.bandwidth_hz, found.ts, source)
+    for key, value in found.as_dict().items():
+        if key in derived & set(doc) and (doc[key] != value if isinstance(value, str)
+                                         else not math.isclose(float(doc[key]), value, rel_tol=1e-9)):
+            raise ObserverError(f"{where}: field 'controller.{key}' = {doc[key]!r} does not follow from its mass, "
+                                f"bandwidth and Ts ({value!r}); give 'mass' and 'bandwidth_hz' only")
+    return found
 
 
 @dataclass(frozen=True)

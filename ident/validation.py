@@ -68,6 +68,7 @@ class ModelSpec:
     values: dict[str, float]
     source: str          # where the values came from, for the report
     initial: str = "samples"   # start of the initial-state estimate (identify oe --initial): "samples" or "rest"
+    controller: dict | None = None   # the fit's controller object (identify oe, diagnose): its observer, if unknown
 
 
 def load_model_spec(path: Path | None, *, class_name: str | None = None, modelica: Path | None = None,
@@ -83,10 +84,13 @@ def load_model_spec(path: Path | None, *, class_name: str | None = None, modelic
 
     found: dict[str, float] = {}
     name, library, source, initial = class_name, modelica, "Modelica start values", "samples"
+    controller = None
     if path is not None:
         path = Path(path)
         if path.is_dir():
-            path, library = _diagnosis_fmu(path), library or path / "augmented_model"
+            fmu = _diagnosis_fmu(path)
+            controller = load_json(path / "diagnosis.json").get("controller")
+            path, library = fmu, library or path / "augmented_model"
         if not path.is_file():
             raise FileNotFoundError(f"{path}: model file not found")
         if path.suffix.lower() == ".fmu":
@@ -114,6 +118,7 @@ def load_model_spec(path: Path | None, *, class_name: str | None = None, modelic
             if doc.get("initial", initial) not in ("samples", "rest"):
                 raise ValueError(f"{path}: field 'initial' must be 'samples' or 'rest', got {doc['initial']!r}")
             initial = doc.get("initial", initial)
+            controller = doc.get("controller")
             name = class_name or doc.get("class")
             if library is None and doc.get("modelica"):
                 library = Path(doc["modelica"])
@@ -126,7 +131,8 @@ def load_model_spec(path: Path | None, *, class_name: str | None = None, modelic
     if not name:
         raise ValueError("name the model: a values JSON, an FMU or a diagnose output folder, or --class")
     found.update(values or {})
-    return ModelSpec(name, Path(library) if library is not None else MODELICA_DIR, found, source, initial)
+    return ModelSpec(name, Path(library) if library is not None else MODELICA_DIR, found, source, initial,
+                     controller if isinstance(controller, dict) else None)
 
 
 def _diagnosis_fmu(folder: Path) -> Path:

@@ -127,6 +127,18 @@ def test_cli_identify_and_validate_without_controller(recordings, tmp_path, caps
     assert main(["validate", str(out), str(paths["validation"]), "--controller", "unknown"]) == 0
     text = capsys.readouterr().out
     assert "prediction-error predictor" in text and "k-step-ahead" in text
+    # one truth for one fit: the validation scores with the fit's own observer (its mass sized on the training
+    # recording), not one sized on the recording validated, so its RMS is the one the fit's JSON gives
+    mass = doc["controller"]["mass"]
+    assert f"mass {mass:.4g} from the fit" in text
+    own = observer.observer_for(read_recording(paths["validation"]))
+    assert abs(own.mass / mass - 1) > 1e-6       # the recordings would size different observers
+    scored = tmp_path / "scored.json"
+    assert main(["validate", str(out), str(paths["train"]), "--controller", "unknown", "--out", str(scored)]) == 0
+    assert json.loads(scored.read_text())["rms"] == pytest.approx(doc["rms_output_error"], rel=1e-6)
+    edited = {**doc["controller"], "Kp": 2 * doc["controller"]["Kp"]}
+    with pytest.raises(observer.ObserverError, match="field 'controller.Kp'"):
+        observer.observer_from_document(edited, read_recording(paths["train"]), "fit.json", "fit.json")
 
 
 @pytest.fixture(scope="module")

@@ -24,11 +24,14 @@ def name_values(text: str, where: str) -> dict[str, float]:
     return values
 
 
-def loop_controller(value: str | None, rec: object, output: str, input_name: str, reference: str = "r") -> tuple:
+def loop_controller(value: str | None, rec: object, output: str, input_name: str, reference: str = "r",
+                    fitted: dict | None = None) -> tuple:
     """``--controller`` of ``identify oe`` and ``validate``: None (open loop), ``unknown`` or a JSON whose kind is
     ``unknown`` (the prediction-error predictor of :mod:`ident.observer`: the observer, reference = the output
     column, disturbance = the input column), else a controller JSON. Returns (controller or None, signals,
-    observer or None); ``rec`` needs the columns the choice uses (a known controller: ``reference`` too)."""
+    observer or None); ``rec`` needs the columns the choice uses (a known controller: ``reference`` too).
+    ``fitted``: the controller object of the fit being validated; with ``unknown`` its observer is used (the
+    one the fit's RMS was scored with), not one sized on ``rec``."""
     from pathlib import Path
 
     from motiontwin.ident.oeloop import Signals
@@ -40,8 +43,11 @@ def loop_controller(value: str | None, rec: object, output: str, input_name: str
     from motiontwin.ident.controller import ControllerError, load_controller
 
     doc = None if value == observer.UNKNOWN_KIND else load_json(Path(value), ControllerError)
+    source = str(value)
+    if doc is None and isinstance(fitted, dict) and fitted.get("kind") == observer.UNKNOWN_KIND:
+        doc, source = fitted, "the fit (sized on its training recording)"
     inner = doc.get("controller", doc) if isinstance(doc, dict) and "kind" not in doc else doc
-    if value == observer.UNKNOWN_KIND or (isinstance(inner, dict) and inner.get("kind") == observer.UNKNOWN_KIND):
-        found = observer.observer_from_document(inner or {}, rec, f"--controller {value}", str(value))
+    if doc is None or (isinstance(inner, dict) and inner.get("kind") == observer.UNKNOWN_KIND):
+        found = observer.observer_from_document(inner or {}, rec, f"--controller {value}", source)
         return found.controller(), observer.predictor_signals(output, input_name), found
     return load_controller(Path(value)), Signals(output=output, input=input_name, reference=reference), None

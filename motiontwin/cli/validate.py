@@ -19,7 +19,8 @@ def _validate(args: argparse.Namespace) -> int:
     spec = validation.load_model_spec(model_path, class_name=args.class_name, modelica=args.modelica, values=values)
     known = args.controller is not None and args.controller != "unknown"
     rec = read_recording(args.recording, [args.output, args.input] + ([args.reference] if known else []))
-    controller, signals, observer = loop_controller(args.controller, rec, args.output, args.input, args.reference)
+    controller, signals, observer = loop_controller(args.controller, rec, args.output, args.input, args.reference,
+                                                    fitted=spec.controller)
     model = validation.load_model(spec)
     horizon = None
     if observer is not None:
