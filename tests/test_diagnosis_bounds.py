@@ -67,6 +67,22 @@ PRISMATIC = (Path(__file__).parents[1] / "modelica" / "MotionTwin" / "Plants" / 
     .replace("within MotionTwin.Plants;\n", "")
 
 
+def test_a_fixed_default_does_not_hide_a_zero_free_parameter_from_the_start(tmp_path):
+    """plant.free lists m, d, Fc, F0; v_eps is fixed at the plant file's own default (not in plant.parameters):
+    the inverse-dynamics start estimates the zero Fc (linear in the force once v_eps is held), it does not take
+    v_eps for a parameter to guess, which made Fc look nonlinear and left it at 0."""
+    folder = tmp_path / "coulomb"
+    info = bench.write_bundle(folder, "coulomb_friction", seed=21, durations=(1.5, 0.75), engine="casadi")
+    default = '= 1e-3 "Velocity scale'
+    assert default in PRISMATIC
+    (folder / "plant.mo").write_text(PRISMATIC.replace(default, f'= {V_EPS!r} "Velocity scale'))
+    _edit(folder, **{"class": "PrismaticAxis", "input": "u", "output": "q", "free": ["m", "d", "Fc", "F0"]})
+    bundle = read_bundle(folder)
+    start = nominal_start(bundle)
+    assert start["v_eps"] == V_EPS
+    assert start["Fc"] == pytest.approx(info["truth_model"]["parameters"]["Fc"], rel=0.3)
+
+
 def test_zero_plant_friction_listed_free_is_refitted_not_added_twice(tmp_path):
     """A PrismaticAxis plant with Fc = F0 = 0 listed in plant.free on a Coulomb axis: the plant's own Fc is
     refitted to the truth's level from the inverse-dynamics start, and the catalogue's coulomb_friction and

@@ -32,14 +32,15 @@ def _divergence_hint(bundle: Bundle) -> str:
 
 def nominal_start(bundle: Bundle, progress=None) -> dict[str, float]:
     """Start values of the nominal refit: the Modelica defaults, over them ``plant.parameters`` of the bundle,
-    and for every other non-zero parameter (or zero one listed in ``plant.free``, e.g. Fc, F0 of a
-    PrismaticAxis) that enters the plant's force linearly (mass, viscous friction, ...) the inverse-dynamics
+    and for every parameter the refit moves (those listed in ``plant.free``, zero ones included, e.g. Fc, F0 of a
+    PrismaticAxis; without the list, every other non-zero one) that enters the plant's force linearly (mass,
+    viscous friction, ...) the inverse-dynamics
     least-squares estimate on the training recording (kept when it has the default's sign, or the default is
     zero), so that a 2 kg default never meets a 95 kg axis in a closed-loop free run."""
     model, plant = bundle.plant.model, bundle.plant
     values = default_start(bundle)
     listed = plant.free or []
-    guess = [n for n, v in values.items() if n not in plant.parameters and (v != 0 or n in listed)]
+    guess = [n for n, v in values.items() if n not in plant.parameters and (n in listed if listed else v != 0)]
     if alias_state(model, plant.output_name) != plant.position_state:
         _log(progress, "start values: the Modelica defaults and plant.parameters (the inverse-dynamics start "
                        "needs the output to be the position state itself)")
