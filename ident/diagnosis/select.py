@@ -113,8 +113,10 @@ def select(bundle: Bundle, nominal: ModelFit, weights: outputerror.Weights, ctx:
             before, after = current.axis_rms(axis), trial.axis_rms(axis)
             force_before, force_after = current.axis_force_rms(axis), trial.axis_force_rms(axis)
             ok = evidence.validation_accepts(before, after, force_before, force_after)
-            _log(progress, f"  {name}{on}: validation rms {before:.4g} -> {after:.4g}, force {force_before:.4g} -> "
-                           f"{force_after:.4g} ({'kept' if ok else 'rejected'})")
+            forces = ("" if math.isnan(force_before) or math.isnan(force_after)     # no force channel to score
+                      else f", force {force_before:.4g} -> {force_after:.4g}")
+            _log(progress, f"  {name}{on}: validation rms {before:.4g} -> {after:.4g}{forces} "
+                           f"({'kept' if ok else 'rejected'})")
             for entry in log:
                 if entry["round"] == rounds and entry["effect"] == name:
                     entry["validation_rms_before"], entry["validation_rms_after"] = before, after
