@@ -213,17 +213,29 @@ class JitterReport:
                 "rms_deviation": self.rms_deviation, "relative": self.relative, "steps": self.steps}
 
 
+#: relative rounding of a step stored in single precision (0.004 s -> 0.0039999999): a clock this close to
+#: the median step is the same clock, even when the steps do not scatter at all
+SINGLE_PRECISION = 2.0 ** -24
+
+
+def _within(jitter: JitterReport, step: float) -> float:
+    """How far a clock may be from the median step and still be its clock: the jitter or single-precision
+    rounding of the step, whichever is larger."""
+    return max(jitter.max_deviation, SINGLE_PRECISION * step)
+
+
 def clock_step(jitter: JitterReport) -> float:
     """The clock period the median step stands for: the shortest decimal (1 to 6 significant digits) within the
-    jitter (the largest step deviation) of the median step, e.g. 0.000999984 -> 0.001 when the steps scatter by
-    more than 1.6e-8 s; the median step itself when none is, or when the steps are not uniform (relative jitter
-    beyond ``recording.SAMPLE_TIME_TOLERANCE``: no clock can be told from them)."""
+    jitter (the largest step deviation) or the single-precision rounding of the median step, e.g. 0.000999984 ->
+    0.001 when the steps scatter by more than 1.6e-8 s, 0.0039999999 -> 0.004 (a float32 time column); the median
+    step itself when none is, or when the steps are not uniform (relative jitter beyond
+    ``recording.SAMPLE_TIME_TOLERANCE``: no clock can be told from them)."""
     ts = jitter.sample_time
     if jitter.relative > recording.SAMPLE_TIME_TOLERANCE:
         return ts
     for digits in range(6):
         clock = float(f"{ts:.{digits}e}")
-        if abs(clock - ts) <= jitter.max_deviation:
+        if abs(clock - ts) <= _within(jitter, ts):
             return clock
     return ts
 
@@ -236,15 +248,15 @@ def _clock(jitter: JitterReport, sample_time: float | None, resample: bool, note
         if not sample_time > 0:
             raise ValueError(f"sample time must be > 0 s, got {sample_time}")
         off = abs(sample_time - median)
-        if not resample and off > max(jitter.max_deviation, 1e-12 * sample_time):
+        if not resample and off > _within(jitter, sample_time):
             raise ValueError(f"sample time {sample_time:.9g} s differs from the median step {median:.9g} s by "
-                             f"{off:.3g} s, more than the jitter ({jitter.max_deviation:.3g} s); add --resample "
-                             "to interpolate onto it")
+                             f"{off:.3g} s, more than the jitter ({jitter.max_deviation:.3g} s) and single-precision "
+                             "rounding; add --resample to interpolate onto it")
         return sample_time, "given"
     clock = clock_step(jitter)
     if abs(clock - median) > 1e-9 * clock:
         notes.append(f"sample time snapped to the clock {clock:.9g} s: the median step {median:.9g} s is within the "
-                     f"jitter ({jitter.max_deviation:.3g} s) of it")
+                     f"jitter ({jitter.max_deviation:.3g} s) or single-precision rounding of it")
         return clock, "median step snapped to the clock"
     return clock, "median step"
 

@@ -236,13 +236,29 @@ def test_a_median_step_within_the_jitter_snaps_to_the_clock(tmp_path, capsys):
     assert json.loads((tmp_path / "rec.json").read_text())["sample_time"] == 0.001
 
 
+def test_a_single_precision_time_column_is_on_its_clock(tmp_path):
+    """A time column k * float32(0.004) = k * 0.0039999999 s (a MATLAB single, as in the KUKA recordings of
+    tests/data/kuka_axis1): its steps do not scatter at all, yet it is the 4 ms clock; given as 0.004 s it is
+    accepted without --resample. A clock 1e-6 away (0.0040001 s) is still refused."""
+    step = float(np.float32(0.004))
+    assert step != 0.004
+    time = np.arange(2500) * step
+    path = tmp_path / "single.csv"
+    path.write_text("t,q\n" + "".join(f"{a:.17g},{np.sin(a):.17g}\n" for a in time))
+    assert labdata.import_lab_file(path).recording.sample_time == 0.004
+    assert labdata.import_lab_file(path, sample_time=0.004).recording.sample_time == 0.004
+    with pytest.raises(ValueError, match="differs from the median step"):
+        labdata.import_lab_file(path, sample_time=0.0040001)
+
+
 def test_a_given_sample_time_off_the_steps_needs_resample(tmp_path, capsys):
     time, pos_mm, cmd_v = _lab_arrays()
     path = tmp_path / "lab.mat"
     scipy.io.savemat(path, {"t": time, "pos_enc": pos_mm})
     assert labdata.import_lab_file(path, sample_time=1e-3).recording.sample_time == 1e-3
     with pytest.raises(ValueError, match=r"sample time 0.00125 s differs from the median step 0.001 s by 0.00025 s, "
-                                         r"more than the jitter \(2e-08 s\); add --resample"):
+                                         r"more than the jitter \(2e-08 s\) and single-precision rounding; "
+                                         r"add --resample"):
         labdata.import_lab_file(path, sample_time=1.25e-3)
     out = tmp_path / "rec.csv"
     assert main(["import", str(path), "--sample-time", "0", "--resample", "--out", str(out)]) == 1
