@@ -6,7 +6,8 @@ before the header are skipped), and writes ``NAME.csv`` + ``NAME.json`` through 
 
 * **columns**: ``mapping`` recording name -> source name (``{"q": "pos_enc"}``); struct fields of a .mat and
   datasets in HDF5 groups are named by their path (``run1.pos``, ``/group/pos``), matrix columns by a 1-based
-  MATLAB index (``data(:,2)``). Without a mapping every vector of the time's length is imported, under its name
+  MATLAB index (``data(:,2)``; a wide matrix's rows, e.g. six axes in a 6 x N matrix: ``pos(2,:)``). Without a
+  mapping every vector of the time's length is imported, under its name
   made CSV-safe (``data(:,2)`` -> ``data_2``, ``/group/pos`` -> ``group_pos``).
 * **units and gains**: ``units`` gives the recorded unit of a source column (``{"u": "V"}``), ``gains`` a
   factor with its unit (``{"u": "40 N/V"}``): the column is multiplied by the gain and gets the gain's
@@ -75,7 +76,9 @@ class LabSource:
 
 
 def _flatten(value: Any, name: str, out: dict[str, np.ndarray], matlab_order: bool) -> None:
-    """Numeric vectors of a loaded value into ``out``: structs/groups by dotted path, matrices by column."""
+    """Numeric vectors of a loaded value into ``out``: structs/groups by dotted path, a matrix's signals along its
+    longer dimension, named by MATLAB's index: ``data(:,2)`` the 2nd column of a tall matrix, ``data(2,:)`` the 2nd
+    row of a wide one (a 6 x N matrix of six axes)."""
     if isinstance(value, dict):
         for key, item in value.items():
             _flatten(item, f"{name}.{key}" if name else key, out, matlab_order)
@@ -89,10 +92,10 @@ def _flatten(value: Any, name: str, out: dict[str, np.ndarray], matlab_order: bo
     elif array.ndim == 2:
         if matlab_order:           # HDF5 of MATLAB v7.3 stores the transpose
             array = array.T
-        if array.shape[0] < array.shape[1]:
-            array = array.T
-        for j in range(array.shape[1]):
-            out[f"{name}(:,{j + 1})"] = array[:, j].astype(float)
+        wide = array.shape[0] < array.shape[1]
+        for j in range(array.shape[0] if wide else array.shape[1]):
+            signal = array[j] if wide else array[:, j]
+            out[f"{name}({j + 1},:)" if wide else f"{name}(:,{j + 1})"] = signal.astype(float)
 
 
 def _read_hdf5(path: Path, matlab: bool) -> dict[str, np.ndarray]:

@@ -236,6 +236,20 @@ def test_a_median_step_within_the_jitter_snaps_to_the_clock(tmp_path, capsys):
     assert json.loads((tmp_path / "rec.json").read_text())["sample_time"] == 0.001
 
 
+def test_a_wide_matrix_is_read_by_rows_under_matlabs_index(tmp_path):
+    """A 6 x N matrix (six axes, as the KUKA recordings store them) holds its signals in rows: its 2nd axis is
+    ``pos(2,:)``, as in MATLAB, not a transposed ``pos(:,2)``; a tall N x 2 matrix keeps ``data(:,2)``."""
+    time = np.arange(400) * 1e-3
+    wide = np.vstack([np.sin((k + 1) * time) for k in range(6)])
+    path = tmp_path / "robot.mat"
+    scipy.io.savemat(path, {"t": time, "pos": wide, "data": wide[:2].T})
+    result = labdata.import_lab_file(path, mapping={"q": "pos(2,:)", "u": "data(:,2)"}, time="t")
+    np.testing.assert_array_equal(result.recording["q"], wide[1])
+    np.testing.assert_array_equal(result.recording["u"], wide[1])
+    with pytest.raises(RecordingError, match=r"no numeric vector 'pos\(:,2\)'"):
+        labdata.import_lab_file(path, mapping={"q": "pos(:,2)"}, time="t")
+
+
 def test_a_single_precision_time_column_is_on_its_clock(tmp_path):
     """A time column k * float32(0.004) = k * 0.0039999999 s (a MATLAB single, as in the KUKA recordings of
     tests/data/kuka_axis1): its steps do not scatter at all, yet it is the 4 ms clock; given as 0.004 s it is
