@@ -55,6 +55,11 @@ def test_defect_line_names_what_went_wrong():
     assert "0.3 of it" in screening_defect(100.0, 130.0, 120.0)
     assert "with 14 RK4 substeps per sample, the model with 3" in screening_defect(100.0, 130.0, 120.0, (3, 14))
     assert "substeps" not in screening_defect(100.0, 130.0, 120.0, (3, 3))
+    # a start 7.6e-5 above the model's cost, integrated with 64 substeps against the model's 26 (a real axis's
+    # near-discontinuous friction): the integration's difference, no defect; at equal substeps it is one
+    assert screening_defect(1e8, 1e8 * (1 + 7.6e-5), 0.9e8, (26, 64)) == ""
+    assert "does not reproduce" in screening_defect(1e8, 1e8 * (1 + 7.6e-5), 0.9e8, (26, 26))
+    assert "does not reproduce" in screening_defect(1e8, 1e8 * (1 + 2e-3), 0.9e8, (26, 64))
     assert "+50" in screening_defect(100.0, 100.0, 150.0) and "--" not in screening_defect(100.0, 100.0, 150.0)
 
 
