@@ -400,7 +400,8 @@ def weighted_jacobian(loop: Loop, s0: np.ndarray, W: np.ndarray, theta: np.ndarr
     rows = loop.n_samples
 
     def scaled(block: np.ndarray, sigma: float | np.ndarray) -> np.ndarray:
-        return block / np.repeat(np.broadcast_to(np.asarray(sigma, float), (n_ax,)), rows)[:, None]
+        with np.errstate(over="ignore"):   # a trial step whose loop diverges: inf entries, which the solver refuses
+            return block / np.repeat(np.broadcast_to(np.asarray(sigma, float), (n_ax,)), rows)[:, None]
 
     j = -scaled(np.hstack([jq, jq0[:, idx]]), weights.sigma_q)
     if loop.closed:
@@ -430,7 +431,8 @@ def parameter_scale(theta0: np.ndarray, r0: np.ndarray | None = None, j0: np.nda
     j0 = np.where(np.isfinite(j0), j0, 0.0)
     r0 = np.where(np.isfinite(r0), r0, 0.0)
     for i in np.flatnonzero(zero):
-        norm2 = float(j0[:, i] @ j0[:, i])
+        with np.errstate(over="ignore"):
+            norm2 = float(j0[:, i] @ j0[:, i])
         if not (norm2 > 0 and math.isfinite(norm2)):
             scale[i] = 1.0
             continue
