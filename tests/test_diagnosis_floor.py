@@ -162,6 +162,21 @@ def test_estimation_error_matches_converged_refits(control_bundle, tmp_path) -> 
     assert spread == pytest.approx(converged, rel=0.25)
     assert force_spread == pytest.approx(force_converged, rel=0.25)
     assert spread > 0.01 * structure.validation_floor(val_loop, b, values, weights.sigma_q, process=b.process_noise)
+    # refits that cannot move (one free run each: the start only) give no estimate, not an error of zero
+    stuck = structure.estimation_rms(nominal.loop, b.train, nominal.fit, nominal.bounds, val_loop, b.validation,
+                                     values, weights, b.process_noise, 2, max_nfev=1)
+    assert all(np.isnan(stuck))
+
+
+def test_an_estimation_error_not_known_is_said_so_and_counted_as_none() -> None:
+    """3x the noise floor, the estimation error not known (no replicate refit moved, a real servo's rough cost):
+    "unexplained" against the noise alone, the reason says the error is not known, the entry holds null."""
+    bundle, q_final, floor = _stub(3.0)
+    check = pipeline.above_floor(bundle, {"status": empirical.NONE, "reason": "x"}, q_final, floor, 1e-7,
+                                 force=pipeline.ForceCheck(3.4, 1.0), unknown_spread=True)
+    assert check["status"] == empirical.NOT_VALIDATED and check["estimation_rms"] is None
+    assert check["force_estimation_rms"] is None
+    assert "estimation error not known" in check["reason"] and "from its parameters' estimation" not in check["reason"]
 
 
 def test_coloured_noise_control_gives_no_effect_and_no_false_unexplained(coloured_control) -> None:
