@@ -57,6 +57,8 @@ __all__ = ["ModelSpec", "CorrelationTest", "Validation", "load_model_spec", "loa
 CONFIDENCE = 0.99
 #: the one definition of the RMS output error that identify oe and validate print (see :func:`free_run`)
 RMS_DEFINITION = "free run over the whole recording, initial position and velocity estimated from the output alone"
+#: the same free run started at the first samples (their position and slope), as ``motiontwin diagnose`` scores
+RMS_FROM_DATA = "free run over the whole recording, initial position and velocity from the first samples"
 
 
 @dataclass
@@ -69,6 +71,9 @@ class ModelSpec:
     source: str          # where the values came from, for the report
     initial: str = "samples"   # start of the initial-state estimate (identify oe --initial): "samples" or "rest"
     controller: dict | None = None   # the fit's controller object (identify oe, diagnose): its observer, if unknown
+    min_substeps: int = 1    # RK4 substeps per sample the fit was scored with (diagnose), at least
+    estimate_initial: bool = True   # the fit's RMS estimated the initial state (identify oe), or took the first
+    # samples' position and slope (diagnose): validate scores the same way unless told otherwise
 
 
 def load_model_spec(path: Path | None, *, class_name: str | None = None, modelica: Path | None = None,
@@ -84,12 +89,15 @@ def load_model_spec(path: Path | None, *, class_name: str | None = None, modelic
 
     found: dict[str, float] = {}
     name, library, source, initial = class_name, modelica, "Modelica start values", "samples"
-    controller = None
+    controller, substeps, estimate_initial = None, 1, True
     if path is not None:
         path = Path(path)
         if path.is_dir():
             fmu = _diagnosis_fmu(path)
-            controller = load_json(path / "diagnosis.json").get("controller")
+            diagnosis = load_json(path / "diagnosis.json")
+            controller = diagnosis.get("controller")
+            substeps = (diagnosis.get("validation") or {}).get("rk4_substeps", 1)
+            estimate_initial = False     # the diagnosis' validation RMS starts at the first samples
             path, library = fmu, library or path / "augmented_model"
         if not path.is_file():
             raise FileNotFoundError(f"{path}: model file not found")
@@ -132,7 +140,8 @@ def load_model_spec(path: Path | None, *, class_name: str | None = None, modelic
         raise ValueError("name the model: a values JSON, an FMU or a diagnose output folder, or --class")
     found.update(values or {})
     return ModelSpec(name, Path(library) if library is not None else MODELICA_DIR, found, source, initial,
-                     controller if isinstance(controller, dict) else None)
+                     controller if isinstance(controller, dict) else None,
+                     substeps if isinstance(substeps, int) and substeps >= 1 else 1, estimate_initial)
 
 
 def _diagnosis_fmu(folder: Path) -> Path:
@@ -280,6 +289,7 @@ class Validation:
     input: str
     unit: str = "m"                     # the output's unit as the recording declares it (m, rad, ...)
     prediction: Any = None              # unknown controller: ident.observer.Prediction (k-step-ahead), or None
+    rms_definition: str = RMS_DEFINITION    # how the free run started (RMS_DEFINITION or RMS_FROM_DATA)
 
     @property
     def residual(self) -> np.ndarray:
@@ -288,7 +298,7 @@ class Validation:
 
 def free_run(model: symbolic.SymbolicModel, values: dict[str, float], rec: Recording, *,
              controller: Controller | None = None, signals: oe.Signals = oe.Signals(), initial: str = "samples",
-             estimate_initial: bool = True, where: str = "") -> oe.Fit:
+             estimate_initial: bool = True, where: str = "", min_substeps: int = 1) -> oe.Fit:
     """The free run that defines the RMS output error (``Fit.rms_q``) of ``identify oe`` and ``validate``:
     ``model`` at ``values`` along ``rec`` (closed loop with ``controller``, fed r and u_ext; else open loop from
     the input column), the initial position and velocity estimated by least squares on the output alone
@@ -313,7 +323,7 @@ def free_run(model: symbolic.SymbolicModel, values: dict[str, float], rec: Recor
         tracking = {model.states[i_vel].name: "dq"}
     loop = oe.build_loop(model, controller, signals.output, [], dict(values), rec.time.size, ts=ts,
                          signals=signals, tracking=tracking, input_name=signals.input if signals.input in
-                         [v.name for v in model.inputs] else None)
+                         [v.name for v in model.inputs] else None, min_substeps=min_substeps)
     estimated = oe.initial_motion_states(model, signals.output) if estimate_initial else []
     q0, u0 = oe.simulate(loop, rec)
     # the output alone decides the initial state: the force channel (closed loop) is weighted down by 1e6
@@ -367,7 +377,7 @@ def validate(model: symbolic.SymbolicModel, spec: ModelSpec, rec: Recording, *, 
         raise KeyError(f"recording has no column {', '.join(map(repr, missing))} (columns: {', '.join(rec.columns)})")
     result = free_run(model, spec.values, rec, controller=controller, signals=signals,
                       initial=initial or spec.initial, estimate_initial=estimate_initial,
-                      where=f"{spec.class_name} at {spec.source}")
+                      where=f"{spec.class_name} at {spec.source}", min_substeps=spec.min_substeps)
     measured = rec[signals.output]
     residual = measured - result.q_sim
     predictor = signals.reference == signals.output
@@ -381,7 +391,8 @@ def validate(model: symbolic.SymbolicModel, spec: ModelSpec, rec: Recording, *, 
                       result.rms_q, autocorrelation_test(residual, lags),
                       cross_correlation_test(u, residual, lags), result.initial, controller is not None,
                       signals.output, signals.input if controller is None or predictor else signals.reference,
-                      rec.units.get(signals.output) or "m", prediction)
+                      rec.units.get(signals.output) or "m", prediction,
+                      RMS_DEFINITION if estimate_initial else RMS_FROM_DATA)
 
 
 def validation_document(result: Validation, recording_path: str) -> dict[str, Any]:
@@ -390,7 +401,7 @@ def validation_document(result: Validation, recording_path: str) -> dict[str, An
                       "values": result.spec.values, "values_from": result.spec.source},
             "recording": recording_path, "loop": "closed" if result.closed_loop else "open",
             "output": result.output, "input": result.input, "samples": int(result.time.size),
-            "fit_percent": result.fit_percent, "rms": result.rms, "rms_definition": RMS_DEFINITION,
+            "fit_percent": result.fit_percent, "rms": result.rms, "rms_definition": result.rms_definition,
             "initial_states": result.initial,
             "k_step_ahead": result.prediction.as_dict() if result.prediction is not None else None,
             "confidence": CONFIDENCE, "residual_autocorrelation": result.autocorrelation.as_dict(),
