@@ -71,9 +71,6 @@ class ModelSpec:
     source: str          # where the values came from, for the report
     initial: str = "samples"   # start of the initial-state estimate (identify oe --initial): "samples" or "rest"
     controller: dict | None = None   # the fit's controller object (identify oe, diagnose): its observer, if unknown
-    min_substeps: int = 1    # RK4 substeps per sample the fit was scored with (diagnose), at least
-    estimate_initial: bool = True   # the fit's RMS estimated the initial state (identify oe), or took the first
-    # samples' position and slope (diagnose): validate scores the same way unless told otherwise
 
 
 def load_model_spec(path: Path | None, *, class_name: str | None = None, modelica: Path | None = None,
@@ -89,15 +86,13 @@ def load_model_spec(path: Path | None, *, class_name: str | None = None, modelic
 
     found: dict[str, float] = {}
     name, library, source, initial = class_name, modelica, "Modelica start values", "samples"
-    controller, substeps, estimate_initial = None, 1, True
+    controller = None
     if path is not None:
         path = Path(path)
         if path.is_dir():
             fmu = _diagnosis_fmu(path)
             diagnosis = load_json(path / "diagnosis.json")
             controller = diagnosis.get("controller")
-            substeps = (diagnosis.get("validation") or {}).get("rk4_substeps", 1)
-            estimate_initial = False     # the diagnosis' validation RMS starts at the first samples
             path, library = fmu, library or path / "augmented_model"
         if not path.is_file():
             raise FileNotFoundError(f"{path}: model file not found")
@@ -140,8 +135,7 @@ def load_model_spec(path: Path | None, *, class_name: str | None = None, modelic
         raise ValueError("name the model: a values JSON, an FMU or a diagnose output folder, or --class")
     found.update(values or {})
     return ModelSpec(name, Path(library) if library is not None else MODELICA_DIR, found, source, initial,
-                     controller if isinstance(controller, dict) else None,
-                     substeps if isinstance(substeps, int) and substeps >= 1 else 1, estimate_initial)
+                     controller if isinstance(controller, dict) else None)
 
 
 def _diagnosis_fmu(folder: Path) -> Path:
@@ -298,7 +292,7 @@ class Validation:
 
 def free_run(model: symbolic.SymbolicModel, values: dict[str, float], rec: Recording, *,
              controller: Controller | None = None, signals: oe.Signals = oe.Signals(), initial: str = "samples",
-             estimate_initial: bool = True, where: str = "", min_substeps: int = 1) -> oe.Fit:
+             estimate_initial: bool = True, where: str = "") -> oe.Fit:
     """The free run that defines the RMS output error (``Fit.rms_q``) of ``identify oe`` and ``validate``:
     ``model`` at ``values`` along ``rec`` (closed loop with ``controller``, fed r and u_ext; else open loop from
     the input column), the initial position and velocity estimated by least squares on the output alone
@@ -323,7 +317,7 @@ def free_run(model: symbolic.SymbolicModel, values: dict[str, float], rec: Recor
         tracking = {model.states[i_vel].name: "dq"}
     loop = oe.build_loop(model, controller, signals.output, [], dict(values), rec.time.size, ts=ts,
                          signals=signals, tracking=tracking, input_name=signals.input if signals.input in
-                         [v.name for v in model.inputs] else None, min_substeps=min_substeps)
+                         [v.name for v in model.inputs] else None)
     estimated = oe.initial_motion_states(model, signals.output) if estimate_initial else []
     q0, u0 = oe.simulate(loop, rec)
     # the output alone decides the initial state: the force channel (closed loop) is weighted down by 1e6
@@ -377,7 +371,7 @@ def validate(model: symbolic.SymbolicModel, spec: ModelSpec, rec: Recording, *, 
         raise KeyError(f"recording has no column {', '.join(map(repr, missing))} (columns: {', '.join(rec.columns)})")
     result = free_run(model, spec.values, rec, controller=controller, signals=signals,
                       initial=initial or spec.initial, estimate_initial=estimate_initial,
-                      where=f"{spec.class_name} at {spec.source}", min_substeps=spec.min_substeps)
+                      where=f"{spec.class_name} at {spec.source}")
     measured = rec[signals.output]
     residual = measured - result.q_sim
     predictor = signals.reference == signals.output

@@ -143,9 +143,11 @@ def test_the_robot_axis_is_diagnosed_without_its_controller_and_its_friction_mat
     np.testing.assert_allclose(ours, _robot_friction(speeds), rtol=0.15)
     val = doc["validation"]
     assert val["augmented_rms"] < 0.8 * val["nominal_rms"]
-    scored = tmp_path / "validate.json"       # validate reads the diagnosis folder and scores it the same way
+    # validate reads the diagnosis folder and scores it with the fit's observer (one sized on this recording was
+    # 68 % off): the diagnosis' figure, to the initial-state estimate (least squares against the first samples)
+    scored = tmp_path / "validate.json"
     assert main(["validate", str(tmp_path / "out"), str(bundle / "validation.csv"), "--controller", "unknown",
                  "--out", str(scored)]) == 0
-    assert json.loads(scored.read_text())["rms"] == pytest.approx(val["augmented_rms"], rel=1e-6)
+    assert json.loads(scored.read_text())["rms"] == pytest.approx(val["augmented_rms"], rel=1e-3)
     if val["augmented_rms"] > 2 * val["noise_floor_rms"]:
         assert doc["unexplained"] and doc["unexplained"]["status"].startswith("unexplained"), doc["residual_check"]

@@ -166,6 +166,8 @@ def test_identify_oe_and_validate_report_one_rms(tmp_path, capsys):
     again = validation.validate(build.load_model(CLASS), spec, read_recording(path, ["r", "u", "q"]), controller=ctrl)
     assert np.sqrt(np.mean((again.measured - again.simulated) ** 2)) == pytest.approx(oe["rms_output_error"],
                                                                                        rel=1e-9)
+    assert main(["validate", str(fitted), str(path), "--controller", str(controller), "--initial-from-data"]) == 0
+    assert f"({validation.RMS_FROM_DATA})" in capsys.readouterr().out     # the line says how the run started
 
 
 def test_parameter_on_its_bound_prints_at_bound(tmp_path, capsys):

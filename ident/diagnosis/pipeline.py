@@ -108,7 +108,7 @@ def run(bundle: Bundle, work: Path, progress=None) -> dict:
     return {"bundle": bundle, "nominal": nominal, "final": final, "weights": weights, "context": ctx,
             "log": log, "augmented_values": values, "q_augmented": q_aug, "u_augmented": u_aug,
             "remainder": remainder,
-            "augmented_model": written, "validation_floor": floor, "validation_substeps": loop.substeps,
+            "augmented_model": written, "validation_floor": floor,
             "estimation_rms": None if unknown_spread else spread, "estimation_unknown": unknown_spread, "force": force,
             "seconds": time.perf_counter() - t0,
             "plant_physics": owned, "process_noise": bundle.process_noise}

@@ -141,7 +141,6 @@ def diagnosis_document(result: dict, out: Path, fmu_path: Path | None) -> dict:
                        **_above_floor(float(nominal.val_rms), aug_rms, result["validation_floor"]),
                        **({"estimation_rms": result["estimation_rms"]} if result.get("estimation_rms") is not None
                           else {}),
-                       "rk4_substeps": int(result.get("validation_substeps", 1)),
                        **({"force_rms": result["force"].rms, "force_floor_rms": result["force"].floor,
                            "force_estimation_rms": None if result.get("estimation_unknown") else result["force"].spread}
                           if result.get("force") is not None else {})},

@@ -26,15 +26,13 @@ def _validate(args: argparse.Namespace) -> int:
     if observer is not None:
         horizon = max(1, round(args.horizon / observer.ts))
     result = validation.validate(model, spec, rec, controller=controller, signals=signals, lags=args.lags,
-                                 estimate_initial=not args.initial_from_data and spec.estimate_initial,
-                                 initial=args.initial, horizon=horizon)
+                                 estimate_initial=not args.initial_from_data, initial=args.initial, horizon=horizon)
     auto, cross = result.autocorrelation, result.cross_correlation
     ext = f" + {signals.disturbance}" if signals.disturbance in rec.columns else ""
     loop = "prediction-error predictor" if observer else "closed loop" if controller else "open loop"
     print(f"{spec.class_name} ({spec.source}) on {args.recording}, {loop}, {result.time.size} samples")
     print(f"fit {result.fit_percent:.3f} % (NRMSE), RMS output error {result.rms:.4g} "
-          f"{rec.units.get(signals.output, '')} ({result.rms_definition}"
-          + ("" if spec.estimate_initial else ", as the diagnosis scored it") + ")"
+          f"{rec.units.get(signals.output, '')} ({result.rms_definition})"
           + "".join(f", {k}(t0) = {v:.6g}" for k, v in result.initial.items()))
     if observer:
         print(f"{observer.describe()}; columns {signals.input}, {signals.output} -> {signals.output}")
@@ -109,7 +107,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "JSON's, else samples)")
     p.add_argument("--initial-from-data", action="store_true",
                    help="do not estimate the initial position and velocity: start at the first sample (velocity "
-                        "as --initial says); the default for a diagnose output folder, which scores this way")
+                        "as --initial says), as motiontwin diagnose scores its validation RMS")
     p.add_argument("--out", type=Path, default=None, help="JSON with fit %%, RMS and both tests")
     p.add_argument("--plot", type=Path, default=None, help="PNG: compare plot and the two correlation plots")
     p.set_defaults(func=_validate)
