@@ -254,18 +254,3 @@ def test_widening_that_does_not_carry_over_to_validation_is_not_kept(tmp_path, m
     assert final.fit.values == fitted.fit.values and final.bounds == fitted.bounds
     assert bounds_widened(final) == {}
     assert structure_at_bound(final)["coulomb_v_eps"]["bound"] == "upper"
-
-
-@pytest.mark.parametrize("name", ["coulomb_friction", "asymmetric_friction", "stribeck_friction",
-                                  "load_dependent_friction", "friction_drift"])
-def test_a_friction_velocity_scale_stops_at_the_recordings_velocity_resolution(name):
-    """A tanh velocity scale is searched down to a tenth of the recording's velocity resolution and that limit is
-    never widened (a real robot axis: a Coulomb scale widened to 1e-6 rad/s took 64 RK4 substeps and 5 minutes,
-    for no better fit); without a known resolution the old search range stays, widenable."""
-    ctx = effect_models.Context(ts=4e-3, x_min=0.0, x_max=0.8, v_max=0.44, mass=2000.0, velocity_resolution=4.3e-4)
-    scale = next(p for p in effect_models.VOCABULARY[name](ctx).params if p.name.endswith("_v_eps"))
-    assert scale.bounds[0] == pytest.approx(4.3e-5) and physical_sides(scale)[0]
-    assert widened_limits(scale.bounds, {"lower"}, physical_sides(scale))[0] == scale.bounds[0]
-    unknown = effect_models.Context(ts=4e-3, x_min=0.0, x_max=0.8, v_max=0.44, mass=2000.0)
-    scale = next(p for p in effect_models.VOCABULARY[name](unknown).params if p.name.endswith("_v_eps"))
-    assert scale.bounds[0] == pytest.approx(1e-5) and not physical_sides(scale)[0]

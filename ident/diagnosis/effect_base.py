@@ -29,9 +29,6 @@ class Context:
     duration: float = 0.0         # length of the training recording [s]
     pole_pitch: float | None = None   # motor pole pitch (plant.pole_pitch) in the plant's coordinates
     q_residual: np.ndarray | None = None   # the nominal refit's training output residual, in state coordinates
-    #: the smallest velocity the recording tells from standstill, sqrt(2) sigma_q / ts in state coordinates
-    #: (0: not known); a tanh velocity scale far below it is a sign function the data cannot tell from a sharper one
-    velocity_resolution: float = 0.0
 
 
 @dataclass
@@ -106,14 +103,8 @@ def _scale(ctx: Context) -> float:
     return abs(ctx.position_gain)
 
 
-#: a tanh velocity scale is searched down to this fraction of the recording's velocity resolution, not below: a
-#: sharper sign function fits no better, and it makes the loop stiff (a real robot axis's Coulomb fit at 1e-6
-#: rad/s took 64 RK4 substeps per 4 ms sample and 5 minutes)
-EPS_RESOLUTION_FRACTION = 0.1
-
-
 def _v_eps(ctx: Context) -> float:
-    return max(1e-5 / _scale(ctx), 2e-3 * ctx.v_max, 2 * EPS_RESOLUTION_FRACTION * ctx.velocity_resolution)
+    return max(1e-5 / _scale(ctx), 2e-3 * ctx.v_max)
 
 
 def _eps_grid(ctx: Context) -> list[float]:
@@ -124,15 +115,7 @@ def _eps_grid(ctx: Context) -> list[float]:
 
 
 def _eps_bounds(ctx: Context) -> tuple[float, float]:
-    low = max(1e-5 / _scale(ctx), EPS_RESOLUTION_FRACTION * ctx.velocity_resolution)
-    return low, max(2e-5 / _scale(ctx), 0.05 * ctx.v_max, 2 * low)
-
-
-def _eps_param(name: str, ctx: Context) -> Param:
-    """A friction law's tanh velocity scale: its lower limit is the recording's velocity resolution (when known),
-    a limit of the data that widening cannot pass."""
-    return _p(name, "m/s", "Velocity scale of the tanh (presliding)", *_eps_bounds(ctx),
-              physical=(ctx.velocity_resolution > 0, False))
+    return 1e-5 / _scale(ctx), max(2e-5 / _scale(ctx), 0.05 * ctx.v_max)
 
 
 def _sign(c: Context) -> np.ndarray:

@@ -23,8 +23,8 @@ import numpy as np
 
 from motiontwin.fmus import frontend, symbolic
 from motiontwin.fmus.build import MODELICA_DIR
-from motiontwin.ident.diagnosis.effect_base import (Context, Effect, Param, _decl, _eps_bounds, _eps_grid,  # noqa: F401
-                                                    _eps_param, _ls, _p, _scale, _sign, _v_eps, vanishing_start)
+from motiontwin.ident.diagnosis.effect_base import (Context, Effect, Param, _decl, _eps_bounds, _eps_grid, _ls, _p,  # noqa: F401
+                                                    _scale, _sign, _v_eps, vanishing_start)
 from motiontwin.ident.diagnosis.plant_roles import PlantFormError, PlantRoles, declaration_line
 from motiontwin.ident.diagnosis.sensor_effects import encoder_error
 
@@ -53,7 +53,8 @@ def coulomb_friction(ctx: Context) -> Effect:
         return [{"coulomb_Fc": max(abs(float(_ls([np.tanh(c.v / e), np.ones_like(c.v)], c.force)[0])), 1e-3),
                  "coulomb_v_eps": e} for e in _eps_grid(c)]
     params = [_p("coulomb_Fc", "N", "Coulomb friction level", 0.0, 1e4, zero=0.0),
-              _eps_param("coulomb_v_eps", ctx)]
+              _p("coulomb_v_eps", "m/s", "Velocity scale of the tanh (presliding)",
+                 *_eps_bounds(ctx))]
     return Effect("coulomb_friction", FRICTION, params, "",
                   "MotionTwin.Effects.CoulombFriction($v, coulomb_Fc, coulomb_v_eps)", [],
                   ["CoulombFriction.mo"], init, lambda v, c: {"Fc": v["coulomb_Fc"]},
@@ -75,7 +76,8 @@ def asymmetric_friction(ctx: Context) -> Effect:
     params = [_p("asym_Fc_pos", "N", "Coulomb level for v > 0", 0.0, 1e4, zero=0.0),
               _p("asym_Fc_neg", "N", "Coulomb level (magnitude) for v < 0", 0.0, 1e4, zero=0.0),
               _p("asym_zero", "N.s/m", "No direction-dependent viscous part", 0.0, 0.0, False),
-              _eps_param("asym_v_eps", ctx)]
+              _p("asym_v_eps", "m/s", "Velocity scale of the tanh (presliding)",
+                 *_eps_bounds(ctx))]
     return Effect("asymmetric_friction", FRICTION, params, "",
                   "MotionTwin.Effects.AsymmetricFriction($v, asym_zero, asym_zero, asym_Fc_pos, "
                   "asym_Fc_neg, asym_v_eps)", [], ["AsymmetricFriction.mo"], init,
@@ -96,7 +98,8 @@ def stribeck_friction(ctx: Context) -> Effect:
     params = [_p("stribeck_Fc", "N", "Coulomb (sliding) friction level", 0.0, 1e4, zero=0.0),
               _p("stribeck_Fs", "N", "Static (breakaway) friction level", 0.0, 1e4, zero=0.0),
               _p("stribeck_vs", "m/s", "Stribeck velocity", 1e-4 / _scale(ctx), max(ctx.v_max, 1e-3 / _scale(ctx))),
-              _eps_param("stribeck_v_eps", ctx)]
+              _p("stribeck_v_eps", "m/s", "Velocity scale of the tanh (presliding)",
+                 *_eps_bounds(ctx))]
     return Effect("stribeck_friction", FRICTION, params, "",
                   "MotionTwin.Effects.StribeckFriction($v, stribeck_Fc, stribeck_Fs, stribeck_vs, "
                   "stribeck_v_eps)", [], ["StribeckFriction.mo"], init,
@@ -416,7 +419,7 @@ def load_dependent_friction(ctx: Context) -> Effect:
         return [{"load_Fc0": max(float(fc0), 1e-3), "load_mu": max(float(mu), 1e-4), "load_v_eps": _v_eps(c)}]
     params = [_p("load_Fc0", "N", "Coulomb friction level without load", 0.0, 1e4, zero=0.0),
               _p("load_mu", "1", "Friction rise per newton of drive force", 0.0, 2.0, zero=0.0),
-              _eps_param("load_v_eps", ctx)]
+              _p("load_v_eps", "m/s", "Velocity scale of the tanh (presliding)", *_eps_bounds(ctx))]
     return Effect("load_dependent_friction", FRICTION, params, "",
                   "MotionTwin.Effects.LoadDependentFriction($v, u, load_Fc0, load_mu, load_v_eps)", [],
                   ["LoadDependentFriction.mo"], init, lambda v, c: {"Fc0": v["load_Fc0"], "mu": v["load_mu"]},
@@ -448,7 +451,7 @@ def friction_drift(ctx: Context) -> Effect:
                  zero=0.0),
               _p("drift_dFc", "N", "Change of the Coulomb level once settled", -1e4, 1e4, zero=0.0),
               _p("drift_tau", "s", "Time constant of the drift", 0.05 * duration, 10 * duration),
-              _eps_param("drift_v_eps", ctx)]
+              _p("drift_v_eps", "m/s", "Velocity scale of the tanh (presliding)", *_eps_bounds(ctx))]
     decl = '  Real drift_s(start = 0, fixed = true) "Progress of the drift, 1 - exp(-t/tau)";\n'
     return Effect("friction_drift", FRICTION, params, decl,
                   "MotionTwin.Effects.CoulombFriction($v, drift_Fc0 + drift_dFc*drift_s, drift_v_eps)",

@@ -3,7 +3,6 @@ force residual in the plant's state coordinates (:class:`effects.Context`) that 
 Units: SI (s, m, N)."""
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 
@@ -44,8 +43,6 @@ def context(bundle: Bundle, nominal: ModelFit) -> effect_models.Context:
         ctx.x, ctx.v, ctx.a, ctx.force, ctx.udot = inv.x, inv.v, inv.a, inv.force, inv.udot
     ctx.resonance_guess = evidence.resonance_guesses(bundle.train["q"] - nominal.fit.q_sim, ts)
     ctx.q_residual = (bundle.train["q"] - nominal.fit.q_sim) / gain
-    ctx.velocity_resolution = math.sqrt(2) * evidence.noise_level(bundle.train["q"] - nominal.fit.q_sim, ts) / ts \
-        / abs(gain)
     return ctx
 
 
