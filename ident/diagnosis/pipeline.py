@@ -5,9 +5,9 @@ the augmented model, its FMU and the report are written (:mod:`report`). Units: 
 from __future__ import annotations
 
 import json
+import math
 import os
 import shutil
-import math
 import tempfile
 import time
 from dataclasses import dataclass, field
