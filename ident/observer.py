@@ -31,7 +31,7 @@ the RMS at the k-th sample. Units: those of the recording (s, and the plant's fo
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -147,9 +147,8 @@ def observer_from_document(doc: dict, rec: Recording, where: str, source: str) -
             raise ObserverError(f"{where}: field 'controller.{sorted(derived & set(doc))[0]}' is derived from "
                                 f"'mass', which is missing")
         return observer_for(rec, ts=doc.get("Ts"), bandwidth_hz=doc.get("bandwidth_hz"), source=source)
-    found = observer_for(rec, ts=doc.get("Ts"), bandwidth_hz=doc.get("bandwidth_hz"), source=source,
-                         mass=float(doc["mass"]))
-    found = Observer(found.mass, found.bandwidth_hz, found.ts, source)
+    found = replace(observer_for(rec, ts=doc.get("Ts"), bandwidth_hz=doc.get("bandwidth_hz"), source=source,
+                                 mass=float(doc["mass"])), mass_from=source)
     for key, value in found.as_dict().items():
         if key in derived & set(doc) and (doc[key] != value if isinstance(value, str)
                                          else not math.isclose(float(doc[key]), value, rel_tol=1e-9)):

@@ -93,8 +93,8 @@ def run(bundle: Bundle, work: Path, progress=None) -> dict:
                                               bundle.validation, values, weights, bundle.process_noise)
         if math.isnan(spread):
             _log(progress, f"validation floor {floor:.4g} from the noise; the parameters' estimation error is not "
-                           f"known: no refit of a noise replicate moved from the fitted values (the cost is too "
-                           f"rough there), so the bound counts the noise alone")
+                           f"known: the refits of the noise replicates did not move from the fitted values (the "
+                           f"cost is too rough there) or most diverged, so the bound counts the noise alone")
             spread, force_spread = 0.0, 0.0
             unknown_spread = True
         else:
@@ -137,8 +137,8 @@ def above_floor(bundle: Bundle, remainder: dict, q_final: np.ndarray, floor: flo
     where = empirical.locate_remainder(residual, residual, rec.time, v, rec["q"], sigma_q, ts)
     reason = (f"the validation RMS {rms:.4g} is {rms / reach:.3g} times what a correct model fitted on this training "
               f"recording reaches ({reach:.4g}: {floor:.4g} from the encoder and process noise estimated from the "
-              + (f"recording; its parameters' estimation error not known (no replicate refit moved), the bound allows "
-                 f"{FLOOR_MARGIN} times the noise)" if unknown_spread else
+              + (f"recording; its parameters' estimation error not known (its noise replicates' refits did not move "
+                 f"or diverged), the bound allows {FLOOR_MARGIN} times the noise)" if unknown_spread else
                  f"recording, {spread:.4g} from its parameters' estimation error; the bound allows {FLOOR_MARGIN} "
                  f"times the first and {ESTIMATION_QUANTILE:.3g} times the second)"))
     if force is not None:

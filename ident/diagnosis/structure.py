@@ -248,8 +248,8 @@ def estimation_rms(train_loop: outputerror.Loop, train: Recording, fit: outputer
     each refit against the fitted model's. A parameter the training barely excites (a mass under little
     acceleration) is fitted to its noise; that error is no missing physics, and the floor verdict counts it. A
     refit, not a linearised step: it keeps the bounds and follows the nonlinear cost (stiff friction laws).
-    NaN when no replicate's refit moved from the fitted values (a cost too rough there for the trust region:
-    the error is unknown, not zero)."""
+    NaN when no replicate's refit moved from the fitted values (a cost too rough there for the trust region) or
+    most of them diverged: the error is unknown, not zero."""
     if not train_loop.free:
         return 0.0, 0.0
     simulate = noisy_simulator(train_loop, train, fit.values, process)
@@ -272,7 +272,7 @@ def estimation_rms(train_loop: outputerror.Loop, train: Recording, fit: outputer
         return math.nan, math.nan
     finite = np.isfinite(shifts) & np.isfinite(forces)
     if finite.sum() < (count + 1) // 2:      # most replicates' refits diverged: no estimate
-        return 0.0, 0.0
+        return math.nan, math.nan
     # a replicate whose refit left the stable region is an estimation error beyond any bound: it is counted as
     # the largest finite one, not dropped (dropping it would make the bound tighter the less stable the fit)
     shifts = np.where(finite, shifts, np.max(np.asarray(shifts)[finite]))
