@@ -160,6 +160,28 @@ V = np.array([-0.3, -0.02, -0.004, -0.001, -2e-4, 0.0, 2e-4, 0.001, 0.004, 0.02,
 X = np.linspace(-0.05, 0.13, V.size)
 
 
+def test_the_null_of_an_extension_is_chi_square_or_the_models_own_noise_power():
+    """White unit-variance null samples projected on a healthy two-column extension of a three-column model:
+    the gain difference is chi-square with 2 degrees of freedom (mean 2, the analytic reference). Under slow
+    (coloured) noise, an extension whose columns grow like exp(t) (a real servo's Coulomb fit: column norms of
+    1e100) sees only the last samples, where the smooth model's directions see the noise's power: its mean
+    difference is negative, and the null falls back to the model's own gain per direction times 2."""
+    rng = np.random.default_rng(5)
+    n, samples = 2000, 400
+    t = np.linspace(0, 1, n)
+    base = np.column_stack([np.sin(2 * np.pi * k * t) for k in (1, 2, 3)])
+    healthy = np.hstack([base, rng.standard_normal((n, 2))])
+    white = rng.standard_normal((samples, n))
+    gain = evidence.extension_null(healthy, base, white)
+    assert np.mean(gain) == pytest.approx(2.0, rel=0.1)
+    slow = sps.lfilter([1.0], [1.0, -0.999], rng.standard_normal((samples, 3 * n)), axis=1)[:, -n:]
+    growth = np.exp(np.linspace(0, 230, n))[:, None]
+    exploding = np.hstack([base, rng.standard_normal((n, 2))]) * growth
+    own = evidence.projected_gain(base, slow)
+    assert np.mean(evidence.projected_gain(exploding, slow) - own) < 0
+    np.testing.assert_allclose(evidence.extension_null(exploding, base, slow, own), np.mean(own) / 3 * 2)
+
+
 def test_coulomb_law():
     fc, eps = 0.7, 1e-3
     got = _effect_force("MotionTwin.Effects.CoulombJoint", {"Fc": fc, "v_eps": eps}, X, V)

@@ -23,6 +23,7 @@ from motiontwin.cli import main
 from motiontwin.harness.recording import read_recording
 from motiontwin.ident.channels import channel_problem, check_channels
 from motiontwin.ident.controller import read_controller
+from motiontwin.ident.diagnosis import pipeline
 
 DATA = Path(__file__).parent / "data" / "xl330"
 ROBOT = Path(__file__).parent / "data" / "kuka_axis1"
@@ -83,10 +84,13 @@ def test_the_documented_firmware_law_reproduces_the_recorded_force(imported):
 
 
 def test_the_real_servo_is_diagnosed_in_rotary_units_with_an_honest_verdict(imported, tmp_path):
-    """End to end on the real servo: rotary units throughout, and a verdict that holds against the floor
-    estimated from the data. The nominal model (inertia, viscous, gravity) leaves about 9x that floor on the held-out
-    log; whatever the catalogue adds, the answer must not be "only parameters were off" while the remainder is
-    several times the floor, and the augmented model must not predict the held-out log worse."""
+    """End to end on the real servo: rotary units throughout, evidence ratios that are statistics, and a verdict
+    that holds against what the diagnosis reports. The nominal model (inertia, viscous, gravity) leaves about 9x
+    the noise floor on the held-out log; the augmented model must not predict it worse; "unexplained" whenever
+    the remainder exceeds the bound of the floor and the parameters' estimation error the report gives.
+    The servo's fitted friction laws have sensitivities that explode along the run (Jacobian columns of 1e100);
+    their linearised null fell to its chi-square floor and gave Coulomb friction a ratio of 3e6 over it: a null
+    from the model's own per-parameter noise power keeps every ratio a plausible statistic (below 1e3)."""
     bundle = tmp_path / "bundle"
     bundle.mkdir()
     for role, path in imported.items():
@@ -104,7 +108,11 @@ def test_the_real_servo_is_diagnosed_in_rotary_units_with_an_honest_verdict(impo
     val = doc["validation"]
     assert val["nominal_rms"] > 5 * val["noise_floor_rms"]
     assert val["augmented_rms"] <= val["nominal_rms"]
-    if val["augmented_rms"] > 3 * val["noise_floor_rms"]:
+    assert max(c["evidence_ratio"] for c in doc["candidates"]) < 1e3, doc["candidates"]
+    bound = pipeline.floor_bound(val["noise_floor_rms"], val.get("estimation_rms") or 0.0)
+    force_bound = pipeline.floor_bound(val["force_floor_rms"], val.get("force_estimation_rms") or 0.0)
+    above = val["augmented_rms"] > bound or val["force_rms"] > force_bound
+    if above:
         assert doc["unexplained"] and doc["unexplained"]["status"].startswith("unexplained"), doc["residual_check"]
     report = (tmp_path / "out" / "report.md").read_text()
     assert " mm" not in report and " um" not in report and "[m]" not in report

@@ -188,6 +188,32 @@ def projected_gain(jac: np.ndarray, samples: np.ndarray) -> np.ndarray:
     return np.sum(proj ** 2, axis=1)
 
 
+def _rank(jac: np.ndarray) -> int:
+    """The number of independent columns of ``jac`` (scaled to unit norm, as :func:`projected_gain` counts)."""
+    if jac.shape[1] == 0:
+        return 0
+    scale = np.linalg.norm(jac, axis=0)
+    scale[scale == 0] = 1
+    rmat = np.linalg.qr(jac / scale, mode="r")
+    return int(np.sum(np.abs(np.diag(rmat)) > 1e-9 * np.max(np.abs(np.diag(rmat)))))
+
+
+def extension_null(trial_jac: np.ndarray, base_jac: np.ndarray, null: np.ndarray,
+                   base_gain: np.ndarray | None = None) -> np.ndarray:
+    """The null improvement of extending a model (Jacobian ``base_jac``) to ``trial_jac``: each bootstrap
+    sample's projected gain on the extension minus that on the base (``base_gain``, when computed already).
+    Where the trial's linearisation is no extension of the base's (the mean difference is not positive: its
+    sensitivity explodes along the run, column norms of 1e100 on a real servo's Coulomb fit, so the projection
+    sees the last samples only and the threshold would fall to its chi-square floor), the base's mean gain per
+    direction times the number of added directions stands in for it."""
+    base = projected_gain(base_jac, null) if base_gain is None else base_gain
+    gain = projected_gain(trial_jac, null) - base
+    if np.all(np.isfinite(gain)) and float(np.mean(gain)) > 0:
+        return gain
+    per_direction = float(np.mean(base)) / max(_rank(base_jac), 1)
+    return np.full(gain.shape, per_direction * max(trial_jac.shape[1] - base_jac.shape[1], 1))
+
+
 def null_threshold(null_gains: np.ndarray, dof: int) -> float:
     """99.9 % quantile of the null improvement: a scaled chi-square matched to the bootstrap mean, at least
     the largest bootstrap value, and at least the chi-square quantile of unit variance per parameter (the

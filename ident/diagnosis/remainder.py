@@ -115,7 +115,7 @@ def explain_remainder(bundle: Bundle, final: ModelFit, weights: outputerror.Weig
             continue
         reduced = ModelFit(rest, loop.with_values(result.values), result, bounds, work / f"without_{named.name}")
         extra = result.cost - trial.fit.cost
-        null_extra = evidence.projected_gain(trial.fit.jacobian, null) - evidence.projected_gain(result.jacobian, null)
+        null_extra = evidence.extension_null(trial.fit.jacobian, result.jacobian, null)
         if extra > evidence.null_threshold(null_extra, sum(q.fitted for q in named.params)):
             continue
         validate(bundle, reduced, work / f"v_without_{named.name}")
@@ -171,7 +171,7 @@ def _null_test(bundle: Bundle, final: ModelFit, trial: ModelFit, weights: output
                                   final.fit.shift)
     null = evidence.bootstrap_residuals(noisy, final.fit.q_sim, final.fit.u_sim, weights.sigma_q, weights.sigma_u,
                                         bundle.train.time.size, BOOTSTRAP_COUNT, seed=MAX_EFFECTS + 1)
-    null_gain = evidence.projected_gain(trial.fit.jacobian, null) - evidence.projected_gain(final.fit.jacobian, null)
+    null_gain = evidence.extension_null(trial.fit.jacobian, final.fit.jacobian, null)
     return null, final.fit.cost - trial.fit.cost, evidence.null_threshold(null_gain, dof)
 
 

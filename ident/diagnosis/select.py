@@ -88,7 +88,7 @@ def select(bundle: Bundle, nominal: ModelFit, weights: outputerror.Weights, ctx:
                                                        work / f"r{rounds}_{name}"), weights)
             candidate = trial.effects[-1]
             gain = current.fit.cost - trial.fit.cost
-            null_gain = evidence.projected_gain(trial.fit.jacobian, null) - base_gain
+            null_gain = evidence.extension_null(trial.fit.jacobian, current.fit.jacobian, null, base_gain)
             dof = sum(p.fitted for p in candidate.params)
             threshold = evidence.null_threshold(null_gain, dof)
             trials[name] = (trial, gain, threshold, null_gain)
@@ -175,7 +175,8 @@ def upgrade_nested(bundle: Bundle, final: ModelFit, weights: outputerror.Weights
                 continue
             extra = current.fit.cost - trial.fit.cost
             dof = sum(p.fitted for p in rich.params) - sum(p.fitted for p in simple.params)
-            threshold = evidence.null_threshold(evidence.projected_gain(trial.fit.jacobian, null) - base_gain, dof)
+            threshold = evidence.null_threshold(
+                evidence.extension_null(trial.fit.jacobian, current.fit.jacobian, null, base_gain), dof)
             _log(progress, f"  {rich.name} in place of {simple.name}: extra {-extra:+.4g}, null {threshold:.4g}")
             if extra > threshold and not _unphysical(trial, progress, rich) and \
                     (best is None or extra > best[1]):
@@ -296,8 +297,7 @@ def _simplest(name: str, trials: dict, null: np.ndarray, bundle: Bundle, work: P
         return name
     rich, small = trials[name], trials[simple]
     extra = rich[1] - small[1]
-    null_extra = (evidence.projected_gain(rich[0].fit.jacobian, null)
-                  - evidence.projected_gain(small[0].fit.jacobian, null))
+    null_extra = evidence.extension_null(rich[0].fit.jacobian, small[0].fit.jacobian, null)
     dof = sum(p.fitted for p in rich[0].effects[-1].params) - sum(p.fitted for p in small[0].effects[-1].params)
     threshold = evidence.null_threshold(null_extra, dof)
     if extra <= threshold:
