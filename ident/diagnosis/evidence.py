@@ -176,26 +176,19 @@ def bootstrap_residuals(simulate_noisy, q_model: np.ndarray, u_model: np.ndarray
     return np.array(out)
 
 
-def projected_gain(jac: np.ndarray, samples: np.ndarray) -> np.ndarray:
-    """Squared norm of each sample's projection onto the column space of ``jac``."""
+def _basis(jac: np.ndarray) -> np.ndarray:
+    """An orthonormal basis of the column space of ``jac`` (columns scaled to unit norm; dependent ones dropped)."""
     if jac.shape[1] == 0:
-        return np.zeros(samples.shape[0])
+        return np.zeros((jac.shape[0], 0))
     scale = np.linalg.norm(jac, axis=0)
     scale[scale == 0] = 1
     qmat, rmat = np.linalg.qr(jac / scale)
-    keep = np.abs(np.diag(rmat)) > 1e-9 * np.max(np.abs(np.diag(rmat)))
-    proj = samples @ qmat[:, keep]
-    return np.sum(proj ** 2, axis=1)
+    return qmat[:, np.abs(np.diag(rmat)) > 1e-9 * np.max(np.abs(np.diag(rmat)))]
 
 
-def _rank(jac: np.ndarray) -> int:
-    """The number of independent columns of ``jac`` (scaled to unit norm, as :func:`projected_gain` counts)."""
-    if jac.shape[1] == 0:
-        return 0
-    scale = np.linalg.norm(jac, axis=0)
-    scale[scale == 0] = 1
-    rmat = np.linalg.qr(jac / scale, mode="r")
-    return int(np.sum(np.abs(np.diag(rmat)) > 1e-9 * np.max(np.abs(np.diag(rmat)))))
+def projected_gain(jac: np.ndarray, samples: np.ndarray) -> np.ndarray:
+    """Squared norm of each sample's projection onto the column space of ``jac``."""
+    return np.sum((samples @ _basis(jac)) ** 2, axis=1)
 
 
 def extension_null(trial_jac: np.ndarray, base_jac: np.ndarray, null: np.ndarray,
@@ -210,7 +203,7 @@ def extension_null(trial_jac: np.ndarray, base_jac: np.ndarray, null: np.ndarray
     gain = projected_gain(trial_jac, null) - base
     if np.all(np.isfinite(gain)) and float(np.mean(gain)) > 0:
         return gain
-    per_direction = float(np.mean(base)) / max(_rank(base_jac), 1)
+    per_direction = float(np.mean(base)) / max(_basis(base_jac).shape[1], 1)
     return np.full(gain.shape, per_direction * max(trial_jac.shape[1] - base_jac.shape[1], 1))
 
 

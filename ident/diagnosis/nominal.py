@@ -13,8 +13,8 @@ import numpy as np
 from motiontwin.ident import outputerror, startvalues
 from motiontwin.ident.diagnosis import effects as effect_models
 from motiontwin.ident.diagnosis import evidence
-from motiontwin.ident.diagnosis.bounds import at_bound, at_bound_text
 from motiontwin.ident.diagnosis.axis_units import bundle_units
+from motiontwin.ident.diagnosis.bounds import at_bound, at_bound_text
 from motiontwin.ident.diagnosis.bundle import Bundle, BundleError
 from motiontwin.ident.diagnosis.locate import _mass_equivalent, _needed_force, _pitch_in_state_coordinates, _states_from
 from motiontwin.ident.diagnosis.plant_roles import PlantFormError, output_map
