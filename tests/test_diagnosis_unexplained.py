@@ -212,3 +212,18 @@ def test_coefficients_are_reported_in_the_measured_output_units():
     measured_law = empirical.EmpiricalForce(law.terms, np.array([reported[n] for n in names]), 0.1, 1.0, 2.0,
                                             gain * v_eps)
     np.testing.assert_allclose(measured_law.evaluate(measured), law.evaluate(s), rtol=1e-12)
+
+
+def test_verdict_line_of_a_term_whose_validation_run_diverged():
+    """A rejected term whose validation free run diverged is stored with ``validation_gain`` null (JSON has no
+    inf); the CLI's verdict line says so instead of failing to format None (seen on the held-out friction bump)."""
+    entry = json.loads(json.dumps({
+        "status": "unexplained, no term validated", "axis": "q", "time_windows": [[0.0, 8.0]],
+        "velocity_range": [-0.019, -0.016], "position_range": [0.055, 0.069], "frequency_peak_hz": 0.98,
+        "frequency_band_hz": [0.98, 26.4], "rejected_term": {"coefficients": {"v*|v|": 102.0}, "units": {"v*|v|": "N.s2/m2"}, "cost_reduction": 2.0,
+                          "null_threshold": 1.0, "validation_rms_before": 8.8e-07, "validation_rms_after": None,
+                          "validation_gain": None}}))
+    assert report.unexplained_text(entry) == ("unexplained, no term validated (rejected term F = 102*v*|v| on axis q, "
+                                              "its validation free run diverged)")
+    text = "\n".join(report._unexplained_markdown({"unexplained": entry}))
+    assert "the validation free run with the term diverges (RMS 8.8e-07 m without it)" in text, text

@@ -182,8 +182,20 @@ def unexplained_text(entry: dict) -> str:
                 f"times what a correct model reaches on this data)")
     law = " + ".join(f"{c:.4g}*{name}" for name, c in term.get("coefficients", {}).items())
     label = "empirical term" if "empirical_term" in entry else "rejected term"
-    return (f"{entry['status']} ({label} F = {law} on axis {entry['axis']}, validation RMS x"
-            f"{term.get('validation_gain', math.nan):.3g})")
+    gain = term.get("validation_gain")
+    outcome = (f"validation RMS x{gain:.3g}" if gain is not None and math.isfinite(gain)
+               else "its validation free run diverged")
+    return f"{entry['status']} ({label} F = {law} on axis {entry['axis']}, {outcome})"
+
+
+def _validation_change(term: dict, unit: str) -> str:
+    """How an empirical term changes the validation RMS; a diverged free run (inf, null in JSON) says so."""
+    after, gain = term.get("validation_rms_after"), term.get("validation_gain")
+    if after is None or gain is None or not math.isfinite(after):
+        return (f"the validation free run with the term diverges (RMS {term['validation_rms_before']:.3g} {unit} "
+                "without it)")
+    return (f"the validation RMS goes {term['validation_rms_before']:.3g} {unit} -> {after:.3g} {unit} "
+            f"(x{gain:.3g})")
 
 
 def effect_contract(entry: dict, ctx, final) -> dict[str, float]:
@@ -313,10 +325,8 @@ def _unexplained_markdown(doc: dict, units: AxisUnits = AxisUnits()) -> list[str
              f"residual still holds significant structure: the sparse regression (PySINDy STLSQ over functions of "
              f"position, velocity, acceleration and force) found the terms below; refitted by output error with "
              f"every parameter, they lower the noise-weighted cost by {term['cost_reduction']:.4g}, "
-             f"{term['cost_reduction'] / term['null_threshold']:.1f} times the 99.9 % null level, and the "
-             f"validation RMS goes {term['validation_rms_before']:.3g} {units.position} -> "
-             f"{term['validation_rms_after']:.3g} {units.position} "
-             f"(x{term['validation_gain']:.3g}; kept below x{VALIDATION_GAIN:g}).", ""]
+             f"{term['cost_reduction'] / term['null_threshold']:.1f} times the 99.9 % null level, and "
+             f"{_validation_change(term, units.position)} (a term is kept below x{VALIDATION_GAIN:g}).", ""]
     lines += ["| term | coefficient | unit |", "|---|---|---|"]
     lines += [f"| {name} | {value:.6g} | {term['units'].get(name, '')} |"
               for name, value in term["coefficients"].items()]
