@@ -48,6 +48,7 @@ class ModelFit:
     start_cost: float = math.nan   # training cost of a candidate at its vanishing point (the model it extends)
     val_force: float = math.nan
     val_force_axes: dict[str, float] = field(default_factory=dict)
+    val_force_error: np.ndarray | None = None   # recorded minus simulated force on validation [N], (n_axes, N)
 
     @property
     def names(self) -> list[str]:
@@ -176,8 +177,9 @@ def validate(bundle: Bundle, structure: ModelFit, folder: Path) -> None:
                                 shift=validation_shift(bundle, loop, structure.fit))
     structure.val_q = q
     structure.val_rms = _rms(rec["q"] - q)
-    structure.val_force = (math.nan if bundle.observer is not None
-                           else _rms(outputerror.measured(loop, rec, "input") - u))
+    if bundle.observer is None:     # an unknown controller's observer does not simulate the recorded force
+        error = outputerror.measured(loop, rec, "input") - u
+        structure.val_force_error, structure.val_force = np.atleast_2d(error), _rms(error)
 
 
 def _rms(err: np.ndarray) -> float:
@@ -426,6 +428,7 @@ def validate_axes(bundle: Bundle, structure: ModelFit, folder: Path) -> None:
     structure.val_q = q
     structure.val_axes = per_axis_rms(bundle, bundle.validation, q)
     structure.val_force_axes = per_axis_rms(bundle, bundle.validation, u, "input")
+    structure.val_force_error = np.array([bundle.validation[a.input] - u[k] for k, a in enumerate(bundle.plant.axes)])
     structure.val_rms = _rms(np.array([bundle.validation[a.output] - q[k] for k, a in enumerate(bundle.plant.axes)]))
 
 

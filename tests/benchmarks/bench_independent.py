@@ -122,6 +122,7 @@ def main() -> int:
     parser.add_argument("--set", default="heldout", choices=sorted(independent.SET_SEEDS))
     parser.add_argument("--case", action="append", default=None)
     parser.add_argument("--smoke", action="store_true", help="two short bundles: only proves the path runs")
+    parser.add_argument("--log", type=Path, help="write each case's diagnosis progress lines to LOG/CASE.log")
     args = parser.parse_args()
     folder = args.bench / args.set
     smoke_dir = smoke_bundles(SMOKE_CASES) if args.smoke else None
@@ -139,13 +140,18 @@ def main() -> int:
     for case in cases:
         truth = json.loads((folder / f"{case}.truth.json").read_text())
         t0 = time.perf_counter()
+        lines: list[str] = []
         try:
             with tempfile.TemporaryDirectory() as tmp:
-                doc = diagnose_bundle(folder / case, Path(tmp) / "out")
+                doc = diagnose_bundle(folder / case, Path(tmp) / "out", lines.append if args.log else None)
         except Exception as exc:    # a diagnosis that stops is a result of the benchmark, not its end
             print(f"{case:18s} diagnosis stopped: {type(exc).__name__}: {str(exc)[:300]}", flush=True)
             rows.append((truth["expected"], [FAILED]))
             continue
+        finally:
+            if args.log:
+                args.log.mkdir(parents=True, exist_ok=True)
+                (args.log / f"{case}.log").write_text("\n".join(lines) + "\n")
         wall = time.perf_counter() - t0
         expected, found = truth["expected"], answers(doc)
         ok = set(found) == set(expected)
