@@ -1,8 +1,9 @@
 """A force acting on one stretch of the stroke is not a global law (issue 22 item 5): a friction bump on one
 place of the rail, simulated by the independent truth simulator (its own integrator and force law, process
 noise), lowers the cost of every friction candidate, and a Coulomb friction fitted to it even lowers the
-validation RMS by 26 %; but it raises the recorded force's residual 6x in the quarter of the stroke where the
-rail has no bump. The diagnosis does not report it as friction and answers "unexplained".
+validation RMS by 26 %; but it raises the recorded force's residual 6x in the quarter of the recording where
+the axis rests at the end of the stroke, away from the bump. The diagnosis does not report it as friction and
+answers "unexplained" (before: Coulomb friction + "unexplained").
 
 References: the truth's own law list (no Coulomb friction in it) and, for :func:`evidence.stroke_ratios`, a
 residual built by hand whose bin ratios are known exactly."""

@@ -115,22 +115,25 @@ def select(bundle: Bundle, nominal: ModelFit, weights: outputerror.Weights, ctx:
             ok = evidence.validation_accepts(before, after, force_before, force_after)
             forces = ("" if math.isnan(force_before) or math.isnan(force_after)     # no force channel to score
                       else f", force {force_before:.4g} -> {force_after:.4g}")
-            stroke = _stroke_worst(bundle, current, trial, axis)
+            quarters = _stroke_quarters(bundle, current, trial, axis)
+            stroke = max(quarters, key=lambda b: b[2]) if quarters else None
             _log(progress, f"  {name}{on}: validation rms {before:.4g} -> {after:.4g}{forces} "
                            f"({'kept' if ok else 'rejected'})")
             if ok and stroke is not None and stroke[2] > evidence.STROKE_RATIO:
                 ok = False
-                where = f"{stroke[0]:.4g} and {stroke[1]:.4g} {bundle_units(bundle, axis).position}"
-                _log(progress, f"  {name}{on}: not reported as this physics, it raises the validation force "
-                               f"residual's mean square x{stroke[2]:.3g} between {where} (a quarter of the "
-                               f"recording) while lowering it overall: a force acting on part of the stroke only")
+                unit = bundle_units(bundle, axis).position
+                _log(progress, f"  {name}{on}: not reported as this physics, it lowers the validation force "
+                               f"residual overall but raises its mean square x{stroke[2]:.3g} in the quarter of the "
+                               f"recording between {stroke[0]:.4g} and {stroke[1]:.4g} {unit}: its law does not "
+                               f"hold along the whole stroke")
             for entry in log:
                 if entry["round"] == rounds and entry["effect"] == name:
                     entry["validation_rms_before"], entry["validation_rms_after"] = before, after
                     entry["validation_force_rms_before"] = force_before
                     entry["validation_force_rms_after"] = force_after
-                    if stroke is not None:
-                        entry["stroke_force_ratio"] = {"ratio": stroke[2], "position_range": list(stroke[:2])}
+                    if quarters:
+                        entry["stroke_force_ratio"] = {"ratio": stroke[2], "position_range": list(stroke[:2]),
+                                                       "quarters": [list(b) for b in quarters]}
             if ok:
                 chosen = trial
                 break
@@ -244,16 +247,15 @@ def widen_search_bounds(bundle: Bundle, final: ModelFit, weights: outputerror.We
     return current
 
 
-def _stroke_worst(bundle: Bundle, before: ModelFit, after: ModelFit, axis: str | None
-                  ) -> tuple[float, float, float] | None:
-    """The part of the stroke where ``after`` raises the validation force residual of ``axis`` most over
-    ``before`` (:func:`evidence.stroke_ratios`); None without a simulated force channel."""
+def _stroke_quarters(bundle: Bundle, before: ModelFit, after: ModelFit, axis: str | None
+                     ) -> list[tuple[float, float, float]]:
+    """Per quarter of the validation recording by position on ``axis``: how ``after`` changes the force
+    residual over ``before`` (:func:`evidence.stroke_ratios`); empty without a simulated force channel."""
     if before.val_force_error is None or after.val_force_error is None:
-        return None
+        return []
     k = 0 if axis is None else [a.output for a in bundle.plant.axes].index(axis)
     position = bundle.validation["q" if axis is None else axis]
-    return max(evidence.stroke_ratios(position, before.val_force_error[k], after.val_force_error[k]),
-               key=lambda b: b[2])
+    return evidence.stroke_ratios(position, before.val_force_error[k], after.val_force_error[k])
 
 
 def _unphysical(trial: ModelFit, progress, effect: effect_models.Effect | None = None) -> bool:
