@@ -33,7 +33,8 @@ def bump(tmp_path_factory) -> tuple[dict, dict]:
     root = tmp_path_factory.mktemp("bump")
     independent.generate(root, "heldout", only=["friction_bump"])
     truth = json.loads((root / "heldout" / "friction_bump.truth.json").read_text())
-    return diagnose_bundle(root / "heldout" / "friction_bump", root / "out"), truth
+    doc = diagnose_bundle(root / "heldout" / "friction_bump", root / "out")
+    return {**doc, "report.md": (root / "out" / "report.md").read_text()}, truth
 
 
 def test_friction_bump_is_unexplained_not_a_coulomb_friction(bump) -> None:
@@ -43,4 +44,7 @@ def test_friction_bump_is_unexplained_not_a_coulomb_friction(bump) -> None:
     assert doc["unexplained"] is not None and doc["unexplained"]["status"].startswith("unexplained")
     coulomb = [c for c in doc["candidates"] if c["effect"] == "coulomb_friction" and "stroke_force_ratio" in c]
     assert coulomb and coulomb[0]["validation_rms_after"] < coulomb[0]["validation_rms_before"]
-    assert coulomb[0]["stroke_force_ratio"]["ratio"] > evidence.STROKE_RATIO
+    worst = coulomb[0]["stroke_force_ratio"]["ratio"]
+    assert worst > evidence.STROKE_RATIO
+    row = next(line for line in doc["report.md"].splitlines() if line.startswith("| 1 | coulomb_friction |"))
+    assert row.split("|")[8].strip() == f"{worst:.3g}", row

@@ -268,13 +268,19 @@ def _markdown(doc: dict, plots: list[str], result: dict, clipped: dict[str, int]
                      f"{'' if name not in start else f'{start[name]:.6g}'} | "
                      f"{'' if nominal is None else f'{nominal:.6g}'} | {value:.6g} |")
     lines += ["", "## Candidates tested", "",
-              "| round | effect | cost reduction [-] | null 99.9 % [-] | ratio [-] | seconds [s] |",
-              "|---|---|---|---|---|---|"]
+              "| round | effect | cost reduction [-] | null 99.9 % [-] | ratio [-] | validation RMS, after/before [-] "
+              "| force, after/before [-] | worst quarter, force [-] | seconds [s] |",
+              "|---|---|---|---|---|---|---|---|---|"]
     for c in doc["candidates"]:
         lines.append(f"| {c['round']} | {c['effect']} | {c['cost_reduction']:.4g} | {c['null_threshold']:.4g} | "
-                     f"{c['evidence_ratio']:.2f} | {c['seconds']} |")
+                     f"{c['evidence_ratio']:.2f} | {_ratio_cell(c, 'validation_rms')} | "
+                     f"{_ratio_cell(c, 'validation_force_rms')} | "
+                     f"{_number_cell((c.get('stroke_force_ratio') or {}).get('ratio'))} | {c['seconds']} |")
     lines += ["", "Costs are noise-weighted sums of squares (dimensionless); an effect is kept when its cost "
-              "reduction exceeds the 99.9 % null level and it lowers the validation RMS by at least 10 %.", "",
+              "reduction exceeds the 99.9 % null level, it lowers the validation RMS of the position or of the "
+              "recorded force by at least 10 % without raising the other's by more, and it does not raise the "
+              f"recorded force's mean square more than {evidence.STROKE_RATIO:g}x in any quarter of the validation recording "
+              "by position (worst quarter). Blank: not validated (not significant, or a simpler form decided).", "",
               "## Plots", ""]
     for p in plots:
         note = (f" ({clipped[p]} outliers beyond the 1-99 % range widened by {CLIP_WIDEN:g} of its width on each "
@@ -282,6 +288,18 @@ def _markdown(doc: dict, plots: list[str], result: dict, clipped: dict[str, int]
         lines += [f"![{p}]({p})", f"{p}{note}", ""]
     lines += [f"Augmented model: `{doc['augmented_model']}`; FMU: `{doc['augmented_fmu']}`.", ""]
     return "\n".join(lines)
+
+
+def _number_cell(value: float | None) -> str:
+    return "" if value is None else f"{value:.3g}"
+
+
+def _ratio_cell(candidate: dict, field: str) -> str:
+    """A candidate's validation figure after over before ("" when it was not validated or has no such channel)."""
+    before, after = candidate.get(f"{field}_before"), candidate.get(f"{field}_after")
+    if before is None or after is None or not before > 0 or math.isnan(after / before):
+        return ""
+    return "inf (diverged)" if math.isinf(after) else _number_cell(after / before)
 
 
 def _estimation_text(doc: dict, m: str) -> str:
