@@ -158,13 +158,13 @@ def test_augmented_fmu_reproduces_casadi_model(diagnosed):
     """The written FMU (fmpy, its own solver) and the CasADi model of the written Modelica agree open loop."""
     import fmpy
 
-    from motiontwin.ident.diagnosis import effects as effect_models
+    from motiontwin.ident.diagnosis import augmented
     from motiontwin.ident.controller import Controller
 
     out, exit_code = diagnosed
     assert exit_code == 0
     doc = json.loads((out / "diagnosis.json").read_text())
-    model = effect_models.load_augmented(Path(doc["augmented_model"]).parent, "Augmented")
+    model = augmented.load_augmented(Path(doc["augmented_model"]).parent, "Augmented")
     n, ts = 400, 5e-4
     t = np.arange(n) * ts
     k_step = 200

@@ -17,6 +17,7 @@ from motiontwin.harness.recording import make_recording
 from motiontwin.ident import oefit, oeloop, startvalues
 from motiontwin.ident.benchmarks import multi_axis_truth as truth
 from motiontwin.ident.diagnosis import axis_kinematics, structure
+from motiontwin.ident.diagnosis import augmented
 from motiontwin.ident.diagnosis import effects as effect_models
 from motiontwin.ident.diagnosis.bundle import BundleError, read_axes_controller, read_axes_plant
 
@@ -50,7 +51,7 @@ def test_hexapod_legs_are_expression_axes(hexapod) -> None:
 def test_generated_leg_functions_match_inverse_kinematics(hexapod, tmp_path: Path) -> None:
     """The Modelica functions an effect on leg 3 is written with, through the front end: the leg length is
     the numpy inverse kinematics, the leg velocity its finite-difference rate along the motion."""
-    structure.write_axes_structure(hexapod, [], {}, tmp_path)
+    augmented.write_axes_structure(hexapod, [], {}, tmp_path)
     calls = axis_kinematics.substitutions(hexapod.model, hexapod.axes[2])
     inputs = "".join(f"  plant.tau{j} = 0;\n" for j in range(1, 7))
     (tmp_path / "Probe.mo").write_text(f"model Probe\n  {hexapod.class_name} plant;\n  output Real pos;\n"
@@ -75,9 +76,9 @@ def test_effect_on_a_leg_is_a_force_along_it(hexapod, tmp_path: Path) -> None:
     actuator force (J^T F in pose coordinates), with the leg's finite-difference velocity."""
     ctx = effect_models.Context(1e-3, 0.7, 0.9, 0.1, 10.0)
     effect = structure.on_axis(effect_models.VOCABULARY["coulomb_friction"](ctx), hexapod.axes[2], hexapod.model)
-    structure.write_axes_structure(hexapod, [("L3", effect)], {q.name: float(np.mean(q.bounds)) for q in effect.params},
+    augmented.write_axes_structure(hexapod, [("L3", effect)], {q.name: float(np.mean(q.bounds)) for q in effect.params},
                                    tmp_path)
-    model = structure.load_structure(tmp_path)
+    model = augmented.load_structure(tmp_path)
     params = [v.name for v in model.parameters]
     p = np.array([float(v.start) for v in model.parameters])
     p[params.index("L3_coulomb_Fc")], p[params.index("L3_coulomb_v_eps")] = 2.0, 0.05
@@ -130,9 +131,9 @@ def test_acceleration_term_on_a_leg_is_the_leg_acceleration(hexapod, tmp_path: P
     ctx = effect_models.Context(1e-3, 0.7, 0.9, 0.1, 10.0)
     effect = structure.on_axis(effect_models.VOCABULARY["position_dependent_inertia"](ctx), hexapod.axes[2],
                                hexapod.model)
-    structure.write_axes_structure(hexapod, [("L3", effect)], {q.name: float(np.mean(q.bounds)) for q in effect.params},
+    augmented.write_axes_structure(hexapod, [("L3", effect)], {q.name: float(np.mean(q.bounds)) for q in effect.params},
                                    tmp_path)
-    model = structure.load_structure(tmp_path)
+    model = augmented.load_structure(tmp_path)
     params = [v.name for v in model.parameters]
     p = np.array([float(v.start) for v in model.parameters])
     slope, centre = 3.0, 0.8

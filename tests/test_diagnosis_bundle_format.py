@@ -14,6 +14,7 @@ import jsonschema
 import pytest
 
 from motiontwin.cli import main as cli_main
+from motiontwin.ident.diagnosis import augmented
 from motiontwin.ident.diagnosis import effects as effect_models
 from motiontwin.ident.benchmarks import single_axis as bench
 from motiontwin.ident.diagnosis.bundle import SCHEMA_PATH, BundleError, read_bundle
@@ -80,9 +81,9 @@ def test_plant_by_library_class_name(bundle, tmp_path):
     assert (b.plant.position_state, b.plant.velocity_state, b.plant.parameters) == ("x", "v", {"m": 2.5})
     # the augmented model the diagnosis writes around it loads through the front end
     ctx = effect_models.Context(bench.TS, 0.0, 0.1, 0.2, 2.0)
-    effect_models.write_model(tmp_path / "aug", b.plant.text, b.plant.class_name, [effect_models.gravity_offset(ctx)],
+    augmented.write_model(tmp_path / "aug", b.plant.text, b.plant.class_name, [effect_models.gravity_offset(ctx)],
                               {"gravity_F0": 1.0}, {"m": 2.5}, "Augmented", b.plant.roles)
-    model = effect_models.load_augmented(tmp_path / "aug", "Augmented")
+    model = augmented.load_augmented(tmp_path / "aug", "Augmented")
     assert {"plant.m", "plant.d", "gravity_F0"} <= {p.name for p in model.parameters}
     for name, needle in (("MotionTwin.Plants.NoSuchJoint", "not a class of the MotionTwin library"),
                          ("MotionTwin.Effects.CoulombJoint", "uses other library classes")):

@@ -29,6 +29,7 @@ from motiontwin.harness.recording import make_recording
 from motiontwin.ident import outputerror
 from motiontwin.ident.benchmarks import single_axis as bench
 from motiontwin.ident.diagnosis.plant_roles import PlantRoles
+from motiontwin.ident.diagnosis import augmented
 from motiontwin.ident.diagnosis import effects as effect_models
 from motiontwin.ident.diagnosis import evidence, pipeline
 from motiontwin.ident.diagnosis.axis_units import AxisUnits
@@ -244,9 +245,9 @@ def test_augmented_model_uses_the_library_laws(tmp_path):
               "ripple_a": 0.3, "ripple_b": -0.2, "ripple_period": 0.016, "ripple_zero": 0.0,
               "ripple_quarter": math.pi / 2}
     m, d = 2.0, 15.0
-    effect_models.write_model(tmp_path, bench.PLANT_TEXT.format(m=m, d=d), bench.PLANT_CLASS, effects, values,
+    augmented.write_model(tmp_path, bench.PLANT_TEXT.format(m=m, d=d), bench.PLANT_CLASS, effects, values,
                               {"m": m, "d": d}, "Augmented", PlantRoles("u", "q", "x", "v"))
-    model = effect_models.load_augmented(tmp_path, "Augmented")
+    model = augmented.load_augmented(tmp_path, "Augmented")
     names = [s.name for s in model.states]
     assert names == ["plant.x", "plant.v"]
     p = np.array([values.get(v.name, v.start) for v in model.parameters], float)

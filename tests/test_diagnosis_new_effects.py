@@ -18,6 +18,7 @@ import numpy as np
 import pytest
 
 from motiontwin.ident.benchmarks import single_axis as bench
+from motiontwin.ident.diagnosis import augmented
 from motiontwin.ident.diagnosis import effects as effect_models
 from motiontwin.ident.diagnosis import pipeline
 from motiontwin.ident.diagnosis.bundle import BundleError, make_bundle, read_bundle
@@ -122,9 +123,9 @@ def _augmented(tmp_path: Path, names: list[str], values: dict[str, float]):
     ctx = effect_models.Context(bench.TS, 0.0, 0.1, 0.2, M, pole_pitch=0.032, duration=3.0)
     effects = [effect_models.VOCABULARY[n](ctx) for n in names]
     values = {p.name: float(np.mean(p.bounds)) for e in effects for p in e.params} | values
-    effect_models.write_model(tmp_path, bench.PLANT_TEXT.format(m=M, d=D), bench.PLANT_CLASS, effects, values,
+    augmented.write_model(tmp_path, bench.PLANT_TEXT.format(m=M, d=D), bench.PLANT_CLASS, effects, values,
                               {"m": M, "d": D}, "Augmented", PlantRoles("u", "q", "x", "v"))
-    model = effect_models.load_augmented(tmp_path, "Augmented")
+    model = augmented.load_augmented(tmp_path, "Augmented")
     p = np.array([values.get(v.name, v.start) for v in model.parameters], float)
     return model, ca.Function("f", [model.x, model.u, model.p], [model.dx]), p
 

@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from motiontwin.ident.benchmarks import independent
+from motiontwin.ident.diagnosis import augmented
 from motiontwin.ident.diagnosis import effects as effect_models
 from motiontwin.ident.diagnosis import sensor_effects, structure
 from motiontwin.ident.diagnosis.bundle import read_bundle
@@ -47,9 +48,9 @@ def test_measured_output_is_the_position_plus_the_periodic_error(tmp_path):
     ctx = effect_models.Context(5e-4, 0.0, 0.1, 0.2, 2.0, position_gain=2.0)
     effect = effect_models.VOCABULARY["encoder_error"](ctx)
     assert effect.sensor and not effect.force and effect.family == "encoder_error"
-    effect_models.write_model(tmp_path, GEARED, "Geared", [effect], VALUES, {}, "Augmented",
+    augmented.write_model(tmp_path, GEARED, "Geared", [effect], VALUES, {}, "Augmented",
                               PlantRoles("u", "q", "x", "v"))
-    model = effect_models.load_augmented(tmp_path, "Augmented")
+    model = augmented.load_augmented(tmp_path, "Augmented")
     states = [s.name for s in model.states]
     p = np.array([VALUES.get(v.name, v.start) for v in model.parameters], float)
     h = ca.Function("h", [model.x, model.u, model.p], [output_expression(model, "q")])

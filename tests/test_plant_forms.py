@@ -27,6 +27,7 @@ from motiontwin.harness.recording import make_recording, write_recording
 from motiontwin.ident import outputerror
 from motiontwin.ident.diagnosis import BundleError, main, read_bundle
 from motiontwin.ident.benchmarks import single_axis as bench
+from motiontwin.ident.diagnosis import augmented
 from motiontwin.ident.diagnosis import effects as effect_models
 from motiontwin.ident.diagnosis import plant_roles as pr
 
@@ -153,19 +154,19 @@ def _closed_loop_q(form: Form, folder: Path) -> np.ndarray:
     catalogue effect, at the true mass and damping: the model is the one the diagnosis' first pass builds."""
     roles = _roles(form)
     ctx = effect_models.Context(bench.TS, 0.0, 0.1 / form.gain, 0.2 / form.gain, TRUE_M * form.gain)
-    augmented = effect_models.check_buildable(folder, form.path.read_text(), form.path, form.class_name, roles, ctx,
-                                              "Augmented")
+    model = augmented.check_buildable(folder, form.path.read_text(), form.path, form.class_name, roles, ctx,
+                                      "Augmented")
     text = (folder / "all" / "Augmented.mo").read_text()
     assert "$" not in text and f"plant.{roles.position}" in text and f"plant.{roles.velocity}" in text
     assert {f"plant.{form.position}", f"plant.{form.velocity}", "resonance_x2", "delay_s", "backlash_x2",
-            "lugre_Fz", "drift_s"} <= {s.name for s in augmented.states}
+            "lugre_Fz", "drift_s"} <= {s.name for s in model.states}
     values = {**_state_values(form), **{f"plant.{k}": v for k, v in form.truth().items()}}
     n = 800
     t = np.arange(n) * bench.TS
     r = 0.012 + 0.03 * (1 - np.cos(np.pi * np.clip(t / 0.3, 0, 1))) / 2
     u_ext = 0.5 * np.sin(2 * np.pi * 40 * t)
     rec = make_recording(t, {"r": r, "u": np.zeros(n), "q": np.full(n, 0.012), "u_ext": u_ext})
-    loop = outputerror.build_loop(augmented, bench.pid_controller(), "q", [], values, n, substeps=8,
+    loop = outputerror.build_loop(model, bench.pid_controller(), "q", [], values, n, substeps=8,
                                   tracking={"resonance_x2": "q", "backlash_x2": "q", "delay_p1": "u",
                                             "lugre_Fz": "u"}, with_jacobian=False)
     q, _ = outputerror.simulate(loop, rec)
@@ -200,7 +201,7 @@ def test_unsupported_form_named_before_fitting(tmp_path):
     form = FORMS[0]
     text = form.path.read_text().replace("RigidJoint", "Augmented")
     with pytest.raises(pr.PlantFormError, match=r"line 1: the plant's top-level class name 'Augmented'"):
-        effect_models.check_buildable(tmp_path, text, form.path, "Augmented", _roles(form),
+        augmented.check_buildable(tmp_path, text, form.path, "Augmented", _roles(form),
                            effect_models.Context(bench.TS, 0.0, 0.1, 0.2, 2.0), "Augmented")
 
 

@@ -18,6 +18,7 @@ from motiontwin.harness.recording import atomic_write_texts, make_recording, wri
 from motiontwin.ident import outputerror
 from motiontwin.ident.controller import Controller
 from motiontwin.ident.benchmarks import single_axis as benchmark
+from motiontwin.ident.diagnosis import augmented
 from motiontwin.ident.diagnosis import effects as effect_models
 from motiontwin.ident.diagnosis import empirical
 from motiontwin.ident.diagnosis import structure
@@ -143,8 +144,8 @@ def write_bundle(folder: Path, plant_doc: dict, controller_doc: dict, effects: l
     rng = np.random.default_rng(seed)
     outputs = [a.output for a in plant.axes]
     with tempfile.TemporaryDirectory(prefix="mt-truth-") as tmp:
-        structure.write_axes_structure(plant, placed, values, Path(tmp))
-        model = structure.load_structure(Path(tmp))
+        augmented.write_axes_structure(plant, placed, values, Path(tmp))
+        model = augmented.load_structure(Path(tmp))
     signals = structure.axes_signals(plant)
     pre = int(round(PREROLL / ts))
     parts = {}

@@ -167,6 +167,7 @@ def verify(case: str = "coulomb_friction", seed: int = 10, duration: float = 12.
     same physics written as the diagnosis' augmented model (RK4, 32 substeps per sample), on the same
     drive including the pre-roll; returns max and RMS |q_fmu - q_casadi| [m] and the max |q| [m]."""
     from motiontwin.ident import outputerror
+    from motiontwin.ident.diagnosis import augmented
     from motiontwin.ident.diagnosis import effects as effect_models
 
     plant = truth_plant(case)
@@ -185,9 +186,9 @@ def verify(case: str = "coulomb_friction", seed: int = 10, duration: float = 12.
         values.update({p.name: float(np.mean(p.bounds)) for p in effect.params})
         values.update({k: v for k, v in true["parameters"].items() if k in {p.name for p in effect.params}})
     folder = Path(tempfile.mkdtemp(prefix="mt-verify-"))
-    effect_models.write_model(folder, PLANT_TEXT.format(m=TRUE_M, d=TRUE_D), PLANT_CLASS, effects, values,
+    augmented.write_model(folder, PLANT_TEXT.format(m=TRUE_M, d=TRUE_D), PLANT_CLASS, effects, values,
                    {"m": TRUE_M, "d": TRUE_D}, "Truth", PlantRoles("u", "q", "x", "v"))
-    model = effect_models.load_augmented(folder, "Truth")
+    model = augmented.load_augmented(folder, "Truth")
     n = rr.size
     loop = outputerror.build_loop(model, pid_controller(), "plant.x", [], values, n, substeps=32, with_jacobian=False)
     rec = make_recording(np.arange(n) * TS, {"r": rr, "u": np.zeros(n), "q": np.zeros(n), "u_ext": ue})

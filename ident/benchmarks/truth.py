@@ -491,6 +491,7 @@ def casadi_truth(plant: TruthPlant, r: np.ndarray, u_ext: np.ndarray, noise: np.
     to generate (no FMU build, no co-simulation); used by the fast decision tests. Returns r, u, q
     (measured = true + noise), u_ext and q_true on the controller grid, starting at rest at x = 0."""
     from motiontwin.ident import outputerror
+    from motiontwin.ident.diagnosis import augmented
     from motiontwin.ident.diagnosis import effects as effect_models
 
     if plant.class_name.endswith("VariableInertiaJoint"):
@@ -508,9 +509,9 @@ def casadi_truth(plant: TruthPlant, r: np.ndarray, u_ext: np.ndarray, noise: np.
         values.update({p.name: float(np.mean(p.bounds)) for p in effect.params})
         values.update({k: v for k, v in true["parameters"].items() if k in {p.name for p in effect.params}})
     with tempfile.TemporaryDirectory(prefix="mt-truth-") as folder:
-        effect_models.write_model(Path(folder), PLANT_TEXT.format(m=m, d=d), PLANT_CLASS, effects, values,
+        augmented.write_model(Path(folder), PLANT_TEXT.format(m=m, d=d), PLANT_CLASS, effects, values,
                        {"m": m, "d": d}, "Truth", PlantRoles("u", "q", "x", "v"))
-        model = effect_models.load_augmented(Path(folder), "Truth")
+        model = augmented.load_augmented(Path(folder), "Truth")
     n = r.size
     t = np.arange(n) * TS
     loop = outputerror.build_loop(model, ctrl or pid_controller(), "plant.x", [], values, n, substeps=substeps,

@@ -1,35 +1,24 @@
-"""Candidate effects (the issue-7 vocabulary) and the augmented Modelica model that adds them to a plant.
+"""Candidate effects (the issue-7 vocabulary): each a Modelica fragment with its parameters, bounds,
+data-driven starts and the contract's parameters; :mod:`ident.diagnosis.augmented` writes them into the
+augmented model.
 
-The augmented class instantiates the nominal class as ``plant`` and drives its input with
-``plant.<input> = u_applied - sum(F_effect)``, the library's sign convention ``m*der(v) = u - d*v - F_effect``
-(a positive effect force opposes positive motion). Force laws come from ``MotionTwin.Effects`` functions,
-copied next to the written model so that the folder is self-contained; structural effects (an extra
-mass, a Pade input delay, a position-dependent mass) add states or terms; a sensor effect
-(:mod:`ident.diagnosis.sensor_effects`) adds its error to the measured output, ``q = plant.<output> + e``.
-Effects write the plant's position and velocity as ``$x`` and ``$v``; they become the plant's own states
-(:class:`plant_roles.PlantRoles`), so the augmented model does not depend on how the plant names them.
-Positions, velocities and the :class:`Context` are in the plant's state coordinates (``position_gain``
-converts them to the measured output). Units: SI (m, s, N, kg, Hz).
+Force laws come from ``MotionTwin.Effects`` functions (a positive effect force opposes positive motion);
+structural effects (an extra mass, a Pade input delay, a position-dependent mass) add states or terms; a sensor
+effect (:mod:`ident.diagnosis.sensor_effects`) adds its error to the measured output. Effects write the plant's
+position and velocity as ``$x`` and ``$v``. Positions, velocities and the :class:`Context` are in the plant's
+state coordinates (``position_gain`` converts them to the measured output). Units: SI (m, s, N, kg, Hz).
 """
 from __future__ import annotations
 
 import math
-import shutil
-import string
-from pathlib import Path
 from typing import Callable
 
 import numpy as np
 
-from motiontwin.fmus import frontend, symbolic
-from motiontwin.fmus.build import MODELICA_DIR
-from motiontwin.ident.diagnosis.effect_base import (Context, Effect, Param, _decl, _eps_bounds, _eps_grid, _ls, _p,  # noqa: F401
-                                                    _scale, _sign, _v_eps, vanishing_start)
-from motiontwin.ident.diagnosis.plant_roles import PlantFormError, PlantRoles, declaration_line
+from motiontwin.ident.diagnosis.effect_base import (Context, Effect, Param, _eps_bounds, _eps_grid, _ls, _p,  # noqa: F401
+                                                    _scale, _sign, _v_eps)
 from motiontwin.ident.diagnosis.sensor_effects import encoder_error
 
-LIBRARY = MODELICA_DIR / "MotionTwin"
-AUGMENTED_CLASS = "Augmented"   # the class of the augmented model the diagnosis writes
 FRICTION = "friction"
 
 
@@ -486,112 +475,3 @@ VOCABULARY: dict[str, Callable[[Context], Effect]] = {
 NESTED = {"stribeck_friction": "coulomb_friction", "asymmetric_friction": "coulomb_friction",
           "lugre_friction": "coulomb_friction", "load_dependent_friction": "coulomb_friction",
           "friction_drift": "coulomb_friction", "backlash": "resonance"}
-
-
-def modelica_text(plant_class: str, effects: list[Effect], values: dict[str, float],
-                  plant_values: dict[str, float], class_name: str, roles: PlantRoles) -> str:
-    """Source text of the augmented class (the nominal class is instantiated as ``plant``; ``roles`` name
-    its input, output, position and velocity)."""
-    mods = ", ".join(f"{k} = {float(v)!r}" for k, v in plant_values.items())
-    names = ", ".join(e.name for e in effects) or "no effect"
-    lines = [f'model {class_name} "{plant_class} augmented by the diagnosis with: {names}"',
-             '  input Real u(unit = "N") "Commanded actuator force";',
-             f'  output Real q(unit = "m") "Measured position (plant.{roles.output})";',
-             f'  {plant_class} plant({mods}) "Nominal plant, refitted";']
-    body = "".join(_decl(e.params, values) + e.declarations for e in effects)
-    lines.append(body.rstrip("\n")) if body else None
-    lines.append("equation")
-    applied = "u - delay_a" if any(e.delays_input for e in effects) else "u"
-    forces = [f"({e.force})" for e in effects if e.force]
-    lines.append(f"  plant.{roles.input} = {applied}" + "".join(f" - {f}" for f in forces) + ";")
-    lines.extend(f"  plant.{name} = {value!r};" for name, value in roles.held_inputs.items())
-    lines.extend(f"  {eq};" for e in effects for eq in e.equations)
-    sensed = "".join(f" + ({e.sensor})" for e in effects if e.sensor)
-    lines.append(f"  q = plant.{roles.output}{sensed};")
-    lines.append(f"end {class_name};")
-    text = "\n".join(lines) + "\n"
-    return string.Template(text).substitute(x=f"plant.{roles.position}", v=f"plant.{roles.velocity}")
-
-
-def write_model(folder: Path, plant_text: str, plant_class: str, effects: list[Effect],
-                values: dict[str, float], plant_values: dict[str, float], class_name: str,
-                roles: PlantRoles) -> Path:
-    """Write a self-contained Modelica folder (nominal plant, augmented class, library functions used)."""
-    folder.mkdir(parents=True, exist_ok=True)
-    (folder / "plant.mo").write_text(plant_text, encoding="utf-8")
-    path = folder / f"{class_name}.mo"
-    path.write_text(modelica_text(plant_class, effects, values, plant_values, class_name, roles),
-                    encoding="utf-8")
-    used = sorted({f for e in effects for f in e.library})
-    if used:
-        lib = folder / "MotionTwin"
-        (lib / "Effects").mkdir(parents=True, exist_ok=True)
-        shutil.copyfile(LIBRARY / "package.mo", lib / "package.mo")
-        shutil.copyfile(LIBRARY / "Effects" / "package.mo", lib / "Effects" / "package.mo")
-        for name in used:
-            shutil.copyfile(LIBRARY / "Effects" / name, lib / "Effects" / name)
-    return path
-
-
-def check_buildable(folder: Path, plant_text: str, plant_path: Path, plant_class: str, roles: PlantRoles,
-                    ctx: Context, class_name: str) -> symbolic.SymbolicModel:
-    """Build the augmented model of every catalogue effect through the front end before any fitting, so
-    that an unsupported plant form stops the diagnosis at once with one message.
-
-    All effects go into one model (one front-end pass); only when it fails is each effect built alone to
-    name the one at fault. Raises :class:`plant_roles.PlantFormError` naming the effect, the construct and
-    the line of ``plant_path``.
-
-    Parameters
-    ----------
-    folder : empty scratch folder for the written models.
-    plant_text, plant_path, plant_class : the plant file's source, path and the class used.
-    roles : where the plant keeps its input, output, position and velocity.
-    ctx : recorded ranges (for the effects' parameter bounds).
-    class_name : name of the augmented class.
-
-    Returns
-    -------
-    SymbolicModel
-        The augmented model with every effect (written to ``folder / "all"``).
-    """
-    top = plant_class.split(".")[0]
-    if top in (class_name, LIBRARY.name):
-        raise PlantFormError(f"{plant_path}, line {declaration_line(plant_text, top)}: the plant's top-level "
-                             f"class name {top!r} clashes with the diagnosis' own {class_name!r} or "
-                             f"{LIBRARY.name!r}; rename it")
-    effects = [factory(ctx) for factory in VOCABULARY.values()]
-
-    def build(chosen: list[Effect], sub: str) -> symbolic.SymbolicModel:
-        values = {p.name: float(np.mean(p.bounds)) for e in chosen for p in e.params}
-        write_model(folder / sub, plant_text, plant_class, chosen, values, {}, class_name, roles)
-        model = load_augmented(folder / sub, class_name)
-        states = {s.name for s in model.states}
-        missing = [f"plant.{n}" for n in (roles.position, roles.velocity) if f"plant.{n}" not in states]
-        if missing:
-            raise PlantFormError(f"{', '.join(missing)} is not a state of the augmented model")
-        return model
-
-    try:
-        return build(effects, "all")
-    except (frontend.ModelicaError, PlantFormError, RuntimeError, ValueError, KeyError):
-        pass
-    for effect in effects:
-        try:
-            build([effect], effect.name)
-        except (frontend.ModelicaError, PlantFormError, RuntimeError, ValueError, KeyError) as exc:
-            source = " ".join([effect.force, effect.sensor, *effect.equations])
-            used = [roles.input] + [name for token, name in (("$x", roles.position), ("$v", roles.velocity))
-                                    if token in source]
-            construct = ", ".join(f"plant.{name}" for name in used)
-            line = declaration_line(plant_text, plant_class)
-            raise PlantFormError(f"{plant_path}, line {line}: class {plant_class}: the augmented model with "
-                                 f"effect {effect.name} (which uses {construct}) cannot be built, so this plant "
-                                 f"form is not supported: {exc}") from None
-    raise PlantFormError(f"{plant_path}, line {declaration_line(plant_text, plant_class)}: class {plant_class}: "
-                         f"the augmented model with all effects cannot be built although each effect alone can")
-
-
-def load_augmented(folder: Path, class_name: str) -> symbolic.SymbolicModel:
-    """The augmented model through the project's front end (the same expressions the FMU runs)."""
-    return symbolic.build(frontend.load(folder, class_name))

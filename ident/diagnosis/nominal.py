@@ -13,6 +13,7 @@ import numpy as np
 from motiontwin.ident import outputerror, startvalues
 from motiontwin.ident.diagnosis import effects as effect_models
 from motiontwin.ident.diagnosis import evidence
+from motiontwin.ident.diagnosis.augmented import check_buildable
 from motiontwin.ident.diagnosis.axis_units import bundle_units
 from motiontwin.ident.diagnosis.bounds import at_bound, at_bound_text
 from motiontwin.ident.diagnosis.bundle import Bundle, BundleError
@@ -148,7 +149,7 @@ def check_plant_form(bundle: Bundle, folder: Path) -> None:
         v_max = float(np.max(np.abs(np.gradient(x, ts)))) or 1e-3
         ctx = effect_models.Context(ts, float(x.min()), float(x.max()), v_max, _mass_equivalent(bundle, values),
                          position_gain=gain, pole_pitch=_pitch_in_state_coordinates(plant.pole_pitch, gain))
-        effect_models.check_buildable(folder, plant.text, plant.source, plant.class_name, plant.roles, ctx,
+        check_buildable(folder, plant.text, plant.source, plant.class_name, plant.roles, ctx,
                                       AUGMENTED_CLASS)
     except PlantFormError as exc:
         raise BundleError(str(exc)) from None

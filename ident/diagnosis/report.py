@@ -17,10 +17,11 @@ from motiontwin.ident.diagnosis import evidence
 from motiontwin.ident.diagnosis.report_plots import CLIP_WIDEN, diagnosis_plots
 from motiontwin.ident.diagnosis.bundle import Bundle, PlantInfo
 from motiontwin.ident.diagnosis.empirical import POWER_SHARE
-from motiontwin.ident.diagnosis.effects import AUGMENTED_CLASS, VOCABULARY, Effect
+from motiontwin.ident.diagnosis.augmented import AUGMENTED_CLASS, write_axes_structure
+from motiontwin.ident.diagnosis.effects import VOCABULARY, Effect
 from motiontwin.ident.diagnosis.empirical import EMPIRICAL as EMPIRICAL_EFFECT
 from motiontwin.ident.diagnosis.evidence import VALIDATION_GAIN
-from motiontwin.ident.diagnosis.structure import ModelFit, write_axes_structure
+from motiontwin.ident.diagnosis.structure import ModelFit
 
 
 #: units of the effects' parameters as the report states them (the contract's names)

@@ -18,6 +18,7 @@ import numpy as np
 from motiontwin.ident import outputerror, startvalues
 from motiontwin.ident.diagnosis import effects as effect_models
 from motiontwin.ident.diagnosis.bundle import Bundle
+from motiontwin.ident.diagnosis.effect_base import vanishing_start
 from motiontwin.ident.diagnosis.nominal import default_start
 from motiontwin.ident.plant_states import alias_state
 from motiontwin.ident.diagnosis.structure import ModelFit, _log, build_axes, build_structure, on_axis
@@ -62,7 +63,7 @@ def _starts(candidate: effect_models.Effect, ctx: effect_models.Context) -> list
     data-driven starts (the inverse-dynamics force residual projected on the effect's regressors, and several
     values of a parameter in which the cost is rough)."""
     data = candidate.initial(ctx)
-    return [effect_models.vanishing_start(candidate, data)] + data
+    return [vanishing_start(candidate, data)] + data
 
 
 def _joint_start(bundle: Bundle, loop: outputerror.Loop, candidate: effect_models.Effect,

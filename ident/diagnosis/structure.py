@@ -12,17 +12,17 @@ from pathlib import Path
 
 import numpy as np
 
-from motiontwin.fmus import frontend, symbolic
-from motiontwin.fmus.build import MODELICA_DIR
+from motiontwin.fmus import symbolic
 from motiontwin.harness.recording import Recording
 from motiontwin.ident import outputerror
 from motiontwin.ident.diagnosis import effects as effect_models
+from motiontwin.ident.diagnosis.augmented import (AUGMENTED_CLASS, axis_prefix, load_augmented, load_structure,
+                                                  write_axes_structure, write_model)
 from motiontwin.ident.diagnosis import axis_kinematics
 from motiontwin.ident.diagnosis.bundle import Bundle, PlantInfo
 from motiontwin.ident.diagnosis.noise import ProcessNoise, noisy_simulator
 from motiontwin.ident.diagnosis.plant_roles import PlantRoles
 
-AUGMENTED_CLASS = effect_models.AUGMENTED_CLASS
 FLOOR_REPLICATES = 5         # noise re-simulations for the validation noise floor
 ESTIMATION_NFEV = 6           # free runs of each replicate's refit in estimation_rms
 
@@ -115,8 +115,8 @@ def write_structure(bundle: Bundle, effects: list[effect_models.Effect], values:
                     folder: Path) -> Path:
     """Write the self-contained Modelica folder of the nominal plant + ``effects`` at ``values``."""
     plant_values = {k[len("plant."):]: v for k, v in values.items() if k.startswith("plant.")}
-    return effect_models.write_model(folder, bundle.plant.text, bundle.plant.class_name, effects, values, plant_values,
-                          AUGMENTED_CLASS, bundle.plant.roles)
+    return write_model(folder, bundle.plant.text, bundle.plant.class_name, effects, values, plant_values,
+                       AUGMENTED_CLASS, bundle.plant.roles)
 
 
 def structure_parameters(model, effects: list[effect_models.Effect], free: list[str],
@@ -147,7 +147,7 @@ def build_structure(bundle: Bundle, effects: list[effect_models.Effect], values:
     model = cache.models.get(names)
     if model is None:
         write_structure(bundle, effects, values, folder)
-        model = cache.models[names] = effect_models.load_augmented(folder, AUGMENTED_CLASS)
+        model = cache.models[names] = load_augmented(folder, AUGMENTED_CLASS)
     free, bounds, all_values = structure_parameters(model, effects, *_nominal_bounds(bundle, "plant."), values)
     tracking = {s: "q" for e in effects for s in e.tracks_position} | _moving_start(bundle, "plant.")
     tracking.update({s: "u" for e in effects for s in e.tracks_force})
@@ -282,17 +282,13 @@ def estimation_rms(train_loop: outputerror.Loop, train: Recording, fit: outputer
     return float(np.sqrt(np.mean(shifts))), float(np.sqrt(np.mean(forces)))
 
 
-def _prefix(axis: str) -> str:
-    return f"{axis}_"
-
-
 def on_axis(effect: effect_models.Effect, roles: PlantRoles,
             model: symbolic.SymbolicModel | None = None) -> effect_models.Effect:
     """``effect`` acting on the axis ``roles``: its parameters and variables prefixed by the axis output
     (``q3_coulomb_Fc``), ``$x``/``$v`` the axis's position and velocity states (an expression axis: the
     generated functions of the plant ``model``'s states, :mod:`axis_kinematics`), ``u`` (the commanded force
     in an equation) the axis's input; the initialiser and the contract keep the effect's own names."""
-    prefix = _prefix(roles.output)
+    prefix = axis_prefix(roles.output)
     names = [p.name for p in effect.params] + re.findall(r"\bReal\s+(\w+)", effect.declarations)
     pattern = re.compile(r"(?<![\w.])(" + "|".join(map(re.escape, names)) + r"|u)\b") if names else None
     if roles.expression and model is None:
@@ -320,55 +316,6 @@ def on_axis(effect: effect_models.Effect, roles: PlantRoles,
                                initial=initial, contract=contract,
                                tracks_position=[prefix + s for s in effect.tracks_position],
                                tracks_force=[prefix + s for s in effect.tracks_force])
-
-
-def modelica_text(plant: PlantInfo, effects: list[tuple[str, effect_models.Effect]], values: dict[str, float],
-                  plant_values: dict[str, float]) -> str:
-    """Source of the augmented class: the nominal class as ``plant``, one input and output per axis (the
-    plant's own names), every effect's force subtracted from its axis's input."""
-    mods = ", ".join(f"{k} = {float(v)!r}" for k, v in plant_values.items())
-    listed = ", ".join(f"{e.name} on {axis}" for axis, e in effects) or "no effect"
-    lines = [f'model {AUGMENTED_CLASS} "{plant.class_name} augmented by the diagnosis with: {listed}"']
-    lines += [f'  input Real {a.input}(unit = "N") "Commanded force of axis {a.output}";' for a in plant.axes]
-    lines += [f'  output Real {a.output}(unit = "m") "Measured position of axis {a.output}";' for a in plant.axes]
-    lines.append(f'  {plant.class_name} plant({mods}) "Nominal plant, refitted";')
-    body = "".join(effect_models._decl(e.params, values) + e.declarations for _, e in effects)
-    if body:
-        lines.append(body.rstrip("\n"))
-    lines.append("equation")
-    for a in plant.axes:
-        mine = [e for axis, e in effects if axis == a.output]
-        delay = next((e for e in mine if e.delays_input), None)
-        applied = f"{a.input} - {_prefix(a.output)}delay_a" if delay else a.input
-        forces = "".join(f" - ({e.force})" for e in mine if e.force)
-        lines.append(f"  plant.{a.input} = {applied}{forces};")
-    lines.extend(f"  plant.{name} = {value!r};" for name, value in plant.axes[0].held_inputs.items())
-    lines.extend(f"  {eq};" for _, e in effects for eq in e.equations)
-    for a in plant.axes:
-        sensed = "".join(f" + ({e.sensor})" for axis, e in effects if axis == a.output and e.sensor)
-        lines.append(f"  {a.output} = plant.{a.output}{sensed};")
-    lines.append(f"end {AUGMENTED_CLASS};")
-    return "\n".join(lines) + "\n"
-
-
-def write_axes_structure(plant: PlantInfo, effects: list[tuple[str, effect_models.Effect]],
-                         values: dict[str, float], folder: Path) -> Path:
-    """Write the plant file, the augmented class and the position/velocity functions of expression axes into
-    ``folder`` (the MotionTwin library is loaded from the project's Modelica folder, so a library plant may
-    use other library classes)."""
-    folder.mkdir(parents=True, exist_ok=True)
-    (folder / "plant.mo").write_text(plant.text, encoding="utf-8")
-    for name, text in axis_kinematics.function_files(plant.model, plant.axes).items():
-        (folder / name).write_text(text, encoding="utf-8")
-    plant_values = {k[len("plant."):]: v for k, v in values.items() if k.startswith("plant.")}
-    path = folder / f"{AUGMENTED_CLASS}.mo"
-    path.write_text(modelica_text(plant, effects, values, plant_values), encoding="utf-8")
-    return path
-
-
-def load_structure(folder: Path) -> symbolic.SymbolicModel:
-    """The augmented model written by :func:`write_structure`, through the project's front end."""
-    return symbolic.build(frontend.load(folder, AUGMENTED_CLASS, (MODELICA_DIR,)))
 
 
 def axes_signals(plant: PlantInfo) -> list[outputerror.Signals]:
