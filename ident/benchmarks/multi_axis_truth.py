@@ -140,7 +140,7 @@ def write_bundle(folder: Path, plant_doc: dict, controller_doc: dict, effects: l
         effect = structure.on_axis(factory(ctx), roles, plant.model)
         placed.append((true.axis, effect))
         values.update({p.name: float(np.mean(p.bounds)) for p in effect.params})
-        values.update({structure._prefix(true.axis) + k: float(v) for k, v in true.parameters.items()})
+        values.update({augmented.axis_prefix(true.axis) + k: float(v) for k, v in true.parameters.items()})
     rng = np.random.default_rng(seed)
     outputs = [a.output for a in plant.axes]
     with tempfile.TemporaryDirectory(prefix="mt-truth-") as tmp:
