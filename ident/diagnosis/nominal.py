@@ -13,14 +13,13 @@ import numpy as np
 from motiontwin.ident import outputerror, startvalues
 from motiontwin.ident.diagnosis import effects as effect_models
 from motiontwin.ident.diagnosis import evidence
-from motiontwin.ident.diagnosis.augmented import check_buildable
+from motiontwin.ident.diagnosis.augmented import AUGMENTED_CLASS, check_buildable
 from motiontwin.ident.diagnosis.axis_units import bundle_units
 from motiontwin.ident.diagnosis.bounds import at_bound, at_bound_text
 from motiontwin.ident.diagnosis.bundle import Bundle, BundleError
 from motiontwin.ident.diagnosis.locate import _mass_equivalent, _needed_force, _pitch_in_state_coordinates, _states_from
 from motiontwin.ident.diagnosis.plant_roles import PlantFormError, output_map
-from motiontwin.ident.diagnosis.structure import (AUGMENTED_CLASS, ModelFit, _fmt, _log, _moving_start,
-                                                  _nominal_bounds, build_axes)
+from motiontwin.ident.diagnosis.structure import ModelFit, _fmt, _log, _moving_start, _nominal_bounds, build_axes
 
 SAME_PHYSICS = 0.9    # |cosine| between a plant parameter's force and an effect's force shape: the same physics
 from motiontwin.ident.plant_states import alias_state

@@ -19,6 +19,7 @@ from scipy import stats
 from motiontwin.fmus.files import move_file
 from motiontwin.ident import outputerror, startvalues
 from motiontwin.ident.diagnosis import empirical, noise, report, report_plots
+from motiontwin.ident.diagnosis.augmented import AUGMENTED_CLASS
 from motiontwin.ident.diagnosis.bounds import bounds_widened, structure_at_bound
 from motiontwin.ident.diagnosis.axis_units import bundle_units
 from motiontwin.ident.diagnosis.bundle import Bundle
@@ -27,7 +28,7 @@ from motiontwin.ident.diagnosis.nominal import (_divergence_hint, check_plant_fo
                                                 nominal_free, nominal_start, plant_physics)
 from motiontwin.ident.diagnosis.remainder import EMPIRICAL_EFFECT, explain_remainder, explain_remainder_axes
 from motiontwin.ident.diagnosis.select import VALIDATION_GAIN, select, upgrade_nested, widen_search_bounds
-from motiontwin.ident.diagnosis.structure import (AUGMENTED_CLASS, FLOOR_REPLICATES, LoopCache, ModelFit, _log,
+from motiontwin.ident.diagnosis.structure import (FLOOR_REPLICATES, LoopCache, ModelFit, _log,
                                                   _nominal_bounds, build_axes, build_structure, estimation_rms,
                                                   floor_rms, floors, validate, validate_axes, validation_floor,
                                                   validation_shift, write_structure)
