@@ -247,8 +247,8 @@ def validation_text(info: dict, units: AxisUnits, axis: str | None = None) -> st
     return text
 
 
-#: equal-count bins of the measured validation position in which an effect whose law does not depend on the
-#: position must not make the recorded force's residual worse (:func:`stroke_ratios`)
+#: equal-count bins of the measured validation position in none of which an accepted effect may make the
+#: recorded force's residual much worse (:func:`stroke_ratios`)
 STROKE_BINS = 4
 #: an effect that raises the force residual's mean square by more than this in one bin is not reported as its
 #: physics (:func:`stroke_ratios`). Measured on the independent benchmark's tuning and held-out sets: effects

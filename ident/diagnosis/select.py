@@ -117,9 +117,10 @@ def select(bundle: Bundle, nominal: ModelFit, weights: outputerror.Weights, ctx:
                       else f", force {force_before:.4g} -> {force_after:.4g}")
             quarters = _stroke_quarters(bundle, current, trial, axis)
             stroke = max(quarters, key=lambda b: b[2]) if quarters else None
+            refused = ok and stroke is not None and stroke[2] > evidence.STROKE_RATIO
             _log(progress, f"  {name}{on}: validation rms {before:.4g} -> {after:.4g}{forces} "
-                           f"({'kept' if ok else 'rejected'})")
-            if ok and stroke is not None and stroke[2] > evidence.STROKE_RATIO:
+                           f"({'kept' if ok and not refused else 'rejected'})")
+            if refused:
                 ok = False
                 unit = bundle_units(bundle, axis).position
                 _log(progress, f"  {name}{on}: not reported as this physics, it lowers the validation force "
