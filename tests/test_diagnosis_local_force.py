@@ -3,7 +3,7 @@ place of the rail, simulated by the independent truth simulator (its own integra
 noise), lowers the cost of every friction candidate, and a Coulomb friction fitted to it even lowers the
 validation RMS by 26 %; but it raises the recorded force's residual 6x in the quarter of the recording where
 the axis rests at the end of the stroke, away from the bump. The diagnosis does not report it as friction and
-answers "unexplained" (before: Coulomb friction + "unexplained").
+answers "unexplained" (before: Coulomb friction + "unexplained"), located at the bump.
 
 References: the truth's own law list (no Coulomb friction in it) and, for :func:`evidence.stroke_ratios`, a
 residual built by hand whose bin ratios are known exactly."""
@@ -42,6 +42,8 @@ def test_friction_bump_is_unexplained_not_a_coulomb_friction(bump) -> None:
     assert [law["law"] for law in truth["laws"]] == ["friction_bump"]
     assert doc["effects"] == [], doc["effects"]
     assert doc["unexplained"] is not None and doc["unexplained"]["status"].startswith("unexplained")
+    low, high = doc["unexplained"]["position_range"]      # where the force residual is largest: at the bump
+    assert low <= truth["laws"][0]["parameters"]["x0"] <= high, (low, high)
     coulomb = [c for c in doc["candidates"] if c["effect"] == "coulomb_friction" and "stroke_force_ratio" in c]
     assert coulomb and coulomb[0]["validation_rms_after"] < coulomb[0]["validation_rms_before"]
     worst = coulomb[0]["stroke_force_ratio"]["ratio"]

@@ -127,9 +127,9 @@ def explain_remainder(bundle: Bundle, final: ModelFit, weights: outputerror.Weig
         reduced.evidence = {k: v for k, v in trial.evidence.items() if k != named.name}
         absorbed.append(named.name)
         trial = reduced
-    where = empirical.locate_remainder((trial.fit.q_sim - final.fit.q_sim), bundle.train["q"] - final.fit.q_sim,
-                                       bundle.train.time, inv.v * gain, bundle.train["q"], weights.sigma_q,
-                                       bundle.controller.sample_time)
+    where = empirical.locate_remainder(trial.fit.q_sim - final.fit.q_sim if kept else inv.force,
+                                       bundle.train["q"] - final.fit.q_sim, bundle.train.time, inv.v * gain,
+                                       bundle.train["q"], weights.sigma_q, bundle.controller.sample_time)
     term = {"terms": law.names, "coefficients": effect.contract(trial.fit.values, ctx),
             "units": {name: bundle_units(bundle).si(empirical.TERM_UNITS.get(name, "")) for name in law.names},
             "v_eps": (None if "empirical_v_eps" not in trial.fit.values
@@ -221,8 +221,9 @@ def explain_remainder_axes(bundle: Bundle, final: ModelFit, weights: outputerror
     _log(progress, f"  empirical term on {axis}: validation rms {before:.4g} -> {after:.4g} "
                    f"({'kept' if kept else 'rejected'})")
     k = [a.output for a in bundle.plant.axes].index(axis)
-    where = empirical.locate_remainder(trial.fit.q_sim[k] - final.fit.q_sim[k], bundle.train[axis] - final.fit.q_sim[k],
-                                       bundle.train.time, ctx.v * ctx.position_gain, bundle.train[axis],
+    where = empirical.locate_remainder(trial.fit.q_sim[k] - final.fit.q_sim[k] if kept else target.force,
+                                       bundle.train[axis] - final.fit.q_sim[k], bundle.train.time,
+                                       ctx.v * ctx.position_gain, bundle.train[axis],
                                        float(np.atleast_1d(weights.sigma_q)[k]), bundle.controller.sample_time)
     placed = trial.effects[-1]
     term = {"terms": law.names, "coefficients": placed.contract(trial.fit.values, ctx),

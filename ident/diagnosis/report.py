@@ -349,7 +349,8 @@ def _unexplained_markdown(doc: dict, units: AxisUnits = AxisUnits()) -> list[str
     lines += ["| term | coefficient | unit |", "|---|---|---|"]
     lines += [f"| {name} | {value:.6g} | {term['units'].get(name, '')} |"
               for name, value in term["coefficients"].items()]
-    lines += [""] + _where_lines(entry, units, "the bins where the term acts most")
+    lines += [""] + _where_lines(entry, units, "the bins where the term acts most" if validated
+                                 else "the bins where the force residual the term was fitted to is largest")
     if term.get("absorbed_effects"):
         lines += [f"Catalogue effects the empirical term carries, dropped: {', '.join(term['absorbed_effects'])} "
                   f"(without them the training cost rises by less than their own null threshold and the validation "
