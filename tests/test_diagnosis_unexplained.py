@@ -220,7 +220,8 @@ def test_verdict_line_of_a_term_whose_validation_run_diverged():
     entry = json.loads(json.dumps({
         "status": "unexplained, no term validated", "axis": "q", "time_windows": [[0.0, 8.0]],
         "velocity_range": [-0.019, -0.016], "position_range": [0.055, 0.069], "frequency_peak_hz": 0.98,
-        "frequency_band_hz": [0.98, 26.4], "rejected_term": {"coefficients": {"v*|v|": 102.0}, "units": {"v*|v|": "N.s2/m2"}, "cost_reduction": 2.0,
+        "frequency_band_hz": [0.98, 26.4],
+        "rejected_term": {"coefficients": {"v*|v|": 102.0}, "units": {"v*|v|": "N.s2/m2"}, "cost_reduction": 2.0,
                           "null_threshold": 1.0, "validation_rms_before": 8.8e-07, "validation_rms_after": None,
                           "validation_gain": None}}))
     assert report.unexplained_text(entry) == ("unexplained, no term validated (rejected term F = 102*v*|v| on axis q, "

@@ -15,7 +15,7 @@ from typing import Callable
 
 import numpy as np
 
-from motiontwin.ident.diagnosis.effect_base import (Context, Effect, Param, _eps_bounds, _eps_grid, _ls, _p,  # noqa: F401
+from motiontwin.ident.diagnosis.effect_base import (Context, Effect, Param, _eps_bounds, _eps_grid, _ls, _p,
                                                     _scale, _sign, _v_eps)
 from motiontwin.ident.diagnosis.sensor_effects import encoder_error
 

@@ -20,9 +20,9 @@ from motiontwin.ident.diagnosis.bundle import Bundle, BundleError
 from motiontwin.ident.diagnosis.locate import _mass_equivalent, _needed_force, _pitch_in_state_coordinates, _states_from
 from motiontwin.ident.diagnosis.plant_roles import PlantFormError, output_map
 from motiontwin.ident.diagnosis.structure import ModelFit, _fmt, _log, _moving_start, _nominal_bounds, build_axes
+from motiontwin.ident.plant_states import alias_state
 
 SAME_PHYSICS = 0.9    # |cosine| between a plant parameter's force and an effect's force shape: the same physics
-from motiontwin.ident.plant_states import alias_state
 
 
 def _divergence_hint(bundle: Bundle) -> str:
@@ -148,8 +148,7 @@ def check_plant_form(bundle: Bundle, folder: Path) -> None:
         v_max = float(np.max(np.abs(np.gradient(x, ts)))) or 1e-3
         ctx = effect_models.Context(ts, float(x.min()), float(x.max()), v_max, _mass_equivalent(bundle, values),
                          position_gain=gain, pole_pitch=_pitch_in_state_coordinates(plant.pole_pitch, gain))
-        check_buildable(folder, plant.text, plant.source, plant.class_name, plant.roles, ctx,
-                                      AUGMENTED_CLASS)
+        check_buildable(folder, plant.text, plant.source, plant.class_name, plant.roles, ctx, AUGMENTED_CLASS)
     except PlantFormError as exc:
         raise BundleError(str(exc)) from None
 

@@ -280,8 +280,9 @@ def _markdown(doc: dict, plots: list[str], result: dict, clipped: dict[str, int]
     lines += ["", "Costs are noise-weighted sums of squares (dimensionless); an effect is kept when its cost "
               "reduction exceeds the 99.9 % null level, it lowers the validation RMS of the position or of the "
               "recorded force by at least 10 % without raising the other's by more, and it does not raise the "
-              f"recorded force's mean square more than {evidence.STROKE_RATIO:g}x in any quarter of the validation recording "
-              "by position (worst quarter). Blank: not validated (not significant, or a simpler form decided).", "",
+              f"recorded force's mean square more than {evidence.STROKE_RATIO:g}x in any quarter of the validation "
+              "recording by position (worst quarter). Blank: not validated (not significant, or a simpler form "
+              "decided).", "",
               "## Plots", ""]
     for p in plots:
         note = (f" ({clipped[p]} outliers beyond the 1-99 % range widened by {CLIP_WIDEN:g} of its width on each "

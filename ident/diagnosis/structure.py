@@ -15,10 +15,10 @@ import numpy as np
 from motiontwin.fmus import symbolic
 from motiontwin.harness.recording import Recording
 from motiontwin.ident import outputerror
+from motiontwin.ident.diagnosis import axis_kinematics
 from motiontwin.ident.diagnosis import effects as effect_models
 from motiontwin.ident.diagnosis.augmented import (AUGMENTED_CLASS, axis_prefix, load_augmented, load_structure,
                                                   write_axes_structure, write_model)
-from motiontwin.ident.diagnosis import axis_kinematics
 from motiontwin.ident.diagnosis.bundle import Bundle, PlantInfo
 from motiontwin.ident.diagnosis.noise import ProcessNoise, noisy_simulator
 from motiontwin.ident.diagnosis.plant_roles import PlantRoles
