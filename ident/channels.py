@@ -25,8 +25,8 @@ from motiontwin.harness.recording import Recording
 from motiontwin.ident.controller import Controller, at_recording_step
 from motiontwin.ident.oeloop import Signals
 
-__all__ = ["ChannelCheck", "check_channels", "channel_problem", "controller_responses", "lifted", "MAX_DELAY", "NOISE_FACTOR",
-           "RELATIVE_TOLERANCE", "UNEXPLAINED_SHARE"]
+__all__ = ["ChannelCheck", "check_channels", "channel_problem", "controller_relation", "controller_responses", "lifted",
+           "MAX_DELAY", "NOISE_FACTOR", "RELATIVE_TOLERANCE", "UNEXPLAINED_SHARE"]
 
 MAX_DELAY = 10            # samples searched either way
 NOISE_FACTOR = 3.0        # nominal RMS mismatch over the best hypothesis's residual RMS
@@ -80,6 +80,22 @@ def controller_responses(ctrl: Controller, y: np.ndarray) -> tuple[np.ndarray, n
         z = a_l @ z + b0 @ y[:, k] + b1 @ y[:, min(k + 1, n - 1)]
         power = a_l @ power
     return p, g
+
+
+def controller_relation(ctrl: Controller, rec: Recording, channels: tuple[Signals, ...],
+                        z0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The controller's own relation over the whole recording, without the plant: the recorded force minus
+    u_ext minus the controller's output on the recorded r and q from ``z0`` (its residual), and the free
+    response rows C A^k (samples x states) that a start-state change adds to that output; several axes
+    (``channels``, one per axis): the axes' rows one after the other, N per axis."""
+    def column(name: str) -> np.ndarray:
+        return rec[name] if name in rec.columns else np.zeros_like(rec.time)
+
+    y = np.vstack([[rec[sig.reference] for sig in channels], [rec[sig.output] for sig in channels]])
+    force = np.array([rec[sig.input] - column(sig.disturbance) for sig in channels])
+    forced, free = controller_responses(ctrl, y)
+    rows = free.reshape(-1, free.shape[2])
+    return (force - forced).ravel() - rows @ np.asarray(z0, float), rows
 
 
 def _lstsq(columns: np.ndarray, target: np.ndarray) -> tuple[np.ndarray, float]:

@@ -12,7 +12,7 @@ from scipy.optimize import least_squares
 
 from motiontwin.harness.recording import Recording
 from motiontwin.ident import plant_states, startvalues
-from motiontwin.ident.channels import controller_responses, lifted
+from motiontwin.ident.channels import controller_relation, controller_responses, lifted
 from motiontwin.ident.oeloop import Loop, Signals, _output_gain, _state_for_output, default_bounds, output_state
 
 def _column(rec: Recording, name: str, optional: bool = False) -> np.ndarray:
@@ -78,11 +78,13 @@ def initial_state(loop: Loop, rec: Recording, values: dict[str, float] | None = 
     s0 = _start_state(loop, rec, values, initial)
     if shift is not None and len(shift):
         s0[s0.size - len(shift):] += shift
-        held = float((loop.controller.C @ shift)[0])     # the force the shifted controller holds in addition
+        held = loop.controller.C @ shift     # the force each axis's shifted controller holds in addition
         names = [v.name for v in loop.model.states]
+        outputs = [sig.output for sig in loop.channels]
         for state, tracked in loop.tracking.items():
-            if tracked == "u" and state not in (initial or {}):
-                s0[names.index(state)] += held
+            signal, _, axis = tracked.partition(":")
+            if signal == "u" and state not in (initial or {}):
+                s0[names.index(state)] += float(held[outputs.index(axis) if axis else 0])
     return s0
 
 
@@ -295,82 +297,90 @@ def state_indices(loop: Loop, names: list[str] | tuple[str, ...]) -> list[int]:
 
 def controller_states(loop: Loop) -> list[int]:
     """Indices of the controller states in the loop state (empty in open loop, for a controller without
-    states and a multi-axis loop, whose start states stay the first-samples estimate)."""
+    states and a multi-axis loop, whose training start is :func:`relation_shift`:
+    sensitivities w.r.t. every controller state would triple a large plant's Jacobian cost, the Hexapod's)."""
     if not loop.closed or not loop.controller.n_states or loop.axes:
         return []
     nx = loop.model.x.numel()
     return list(range(nx, nx + loop.controller.n_states))
 
 
-def controller_relation(loop: Loop, rec: Recording, z0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The controller's own relation over the whole recording, without the plant: the recorded force minus
-    u_ext minus the controller's output on the recorded r and q from ``z0`` (its residual), and the free
-    response rows C A^k (samples x states) that a start-state change adds to that output (single axis)."""
-    sig = loop.signals
-    y = np.vstack([_column(rec, sig.reference), _column(rec, sig.output)])
-    force = _column(rec, sig.input) - _column(rec, sig.disturbance, True)
-    forced, free = controller_responses(loop.controller, y)
-    return force - forced[0] - free[0] @ np.asarray(z0, float), free[0]
-
-
-def relation_prior(loop: Loop, rec: Recording, values: dict[str, float],
-                   weights: Weights) -> tuple[np.ndarray, np.ndarray, float]:
-    """The controller's relation (:func:`controller_relation`) from the first-samples start at ``values``,
-    and its weight: the noise level of its residual after the whole-run least-squares start, at least 1e-3
-    sigma_u (a recorded command reproduces the relation to round-off: the start is then known, and a
-    shift away from it is priced far above any model error it could hide)."""
+def _relation(loop: Loop, rec: Recording) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The controller's relation (:func:`channels.controller_relation`) from the first-samples start, its rows, the
+    start shift its whole-run least squares puts (:func:`relation_shift`) and each axis's noise level of
+    what that leaves; cached by recording, start and controller (one for every refit of a diagnosis)."""
     ctrl = loop.controller
-    z0 = initial_state(loop, rec, values)[controller_states(loop)]
-    key = (id(rec), hash(_column(rec, loop.signals.input).tobytes() + _column(rec, loop.signals.output).tobytes()),
-           z0.tobytes(), *(m.tobytes() for m in (ctrl.A, ctrl.B, ctrl.C, ctrl.D)))
-    if key not in _RELATIONS:       # one recording and start for every refit of a diagnosis
+    z0 = _start_state(loop, rec, None, None)[-ctrl.n_states:]
+    signals = b"".join(_column(rec, c, True).tobytes() for sig in loop.channels
+                       for c in (sig.reference, sig.input, sig.output, sig.disturbance))
+    key = (id(rec), hash(signals), z0.tobytes(), *(m.tobytes() for m in (ctrl.A, ctrl.B, ctrl.C, ctrl.D)))
+    if key not in _RELATIONS:
         if len(_RELATIONS) > 8:
             _RELATIONS.clear()
-        relation, rows = controller_relation(loop, rec, z0)
-        level = noise_level(relation - rows @ np.linalg.lstsq(rows, relation, rcond=1e-10)[0], ctrl.sample_time)
-        _RELATIONS[key] = (relation, rows, level)
-    relation, rows, level = _RELATIONS[key]
-    return relation, rows, max(level, 1e-3 * float(np.max(weights.sigma_u)))
+        relation, rows = controller_relation(ctrl, rec, loop.channels, z0)
+        shift = np.linalg.lstsq(rows, relation, rcond=1e-10)[0]
+        left = (relation - rows @ shift).reshape(len(loop.channels), -1)
+        _RELATIONS[key] = (relation, rows, shift, np.array([noise_level(axis, ctrl.sample_time) for axis in left]))
+    return _RELATIONS[key]
 
 
-#: relation_prior's results by recording, start state and controller
-_RELATIONS: dict[tuple, tuple[np.ndarray, np.ndarray, float]] = {}
+#: _relation's results by recording, start state and controller
+_RELATIONS: dict[tuple, tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = {}
+
+
+def relation_shift(loop: Loop, rec: Recording) -> np.ndarray | None:
+    """The controller's start state where its own relation on the recorded signals puts it over the whole run,
+    as a ``shift`` from the first-samples estimate of :func:`initial_state`: a state that persists (an
+    integrator holding a load at t = 0) is fixed by every sample, not by a few noisy first ones, one that
+    decays by the samples it still acts on. None in open loop or without controller states. The training
+    start of a multi-axis loop, the plant left out (held by every fit, it must not take up a missing load)."""
+    return _relation(loop, rec)[2] if loop.closed and loop.controller.n_states else None
+
+
+def relation_prior(loop: Loop, rec: Recording, weights: Weights) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The controller's relation (:func:`channels.controller_relation`) from the first-samples start, and its weight
+    per row: each axis's noise level of its residual after the whole-run least-squares start, at least 1e-3
+    of that axis's sigma_u (a recorded command reproduces the relation to round-off: the start is then known,
+    and a shift away from it is priced far above any model error it could hide)."""
+    relation, rows, _, levels = _relation(loop, rec)
+    sigma_u = np.broadcast_to(np.asarray(weights.sigma_u, float), levels.shape)
+    return relation, rows, np.repeat(np.maximum(levels, 1e-3 * sigma_u), rec.time.size)
 
 
 def controller_shift(loop: Loop, rec: Recording, values: dict[str, float], weights: Weights,
-                     iterations: int = 3) -> np.ndarray | None:
+                     iterations: int = 3, start: np.ndarray | None = None) -> np.ndarray | None:
     """The correction of the controller's start state on a recording with the parameters held at ``values``
     (the validation run; a loop compiled without its Jacobian): weighted least squares of the free run's
     output and force channels over the whole run and of the controller's own relation on the recorded
-    signals (:func:`controller_relation`, weighted by its residual's noise level, the recording's evidence
+    signals (:func:`channels.controller_relation`, weighted by its residual's noise level, the recording's evidence
     of the start state that no plant model can reinterpret). A start state that only a few noisy first
     samples fixed moves to where the whole run puts it; one that the recorded force fixes exactly (a load
     the model lacks, held at t = 0) stays, so that the model's error shows. Gauss-Newton with the free
     run's sensitivity to each controller state by a finite difference (the controller is linear, so it is
-    nearly exact). None when there is nothing to estimate or the free run is not finite."""
-    idx = controller_states(loop)
-    if not idx:
+    nearly exact), from ``start`` (default: none). None when there is nothing to estimate or the free run is
+    not finite."""
+    ctrl = loop.controller
+    if not loop.closed or not ctrl.n_states:
         return None
     values = {**loop.values, **values}
     qm, um = measured(loop, rec, "output"), measured(loop, rec, "input")
-    relation, rows, sigma_c = relation_prior(loop, rec, values, weights)
+    relation, rows, sigma_c = relation_prior(loop, rec, weights)
 
     def res(shift: np.ndarray) -> np.ndarray:
         q, u = simulate(loop, rec, values, shift=shift)
         return np.concatenate([_weighted(qm, q, weights.sigma_q), _weighted(um, u, weights.sigma_u),
                                (relation - rows @ shift) / sigma_c])
 
-    ctrl = loop.controller
     # a step that moves the controller's output by about its noise level within its first samples
     a_sample = lifted(ctrl)[0]     # the controller over one recorded sample (ticks updates)
     gain = np.max([np.max(np.abs(ctrl.C @ np.linalg.matrix_power(a_sample, j)), axis=0) for j in range(4)], axis=0)
     step = float(np.max(weights.sigma_u)) / np.maximum(gain, 1e-300)
-    shift = np.zeros(len(idx))
+    shift, unit = (np.zeros(ctrl.n_states) if start is None else np.asarray(start, float)), np.eye(ctrl.n_states)
     r = res(shift)
     if not np.all(np.isfinite(r)):
         return None
     for _ in range(iterations):
-        jac = np.column_stack([(res(shift + step[k] * np.eye(len(idx))[k]) - r) / step[k] for k in range(len(idx))])
+        jac = np.column_stack([(res(shift + step[k] * unit[k]) - r) / step[k] for k in range(ctrl.n_states)])
         delta = np.linalg.lstsq(jac, -r, rcond=1e-12)[0]
         trial = shift + delta
         r_trial = res(trial)
@@ -460,7 +470,8 @@ def fit(loop: Loop, rec: Recording, weights: Weights, bounds: dict[str, tuple[fl
     the recorded signals, :func:`relation_prior`; the reported cost, residual and Jacobian are the
     recording's rows), so that a start state fixed by a few noisy samples is not carried through the whole
     run by an integrator, while one the recorded force fixes exactly stays; ``shift``: where that estimate starts
-    (the fitted shift of the model a refit continues or extends; default none)."""
+    (the fitted shift of the model a refit continues or extends; default none), or without the estimate the
+    controller start used throughout (a multi-axis loop's :func:`relation_shift`)."""
     known = dict(initial or {})
     values = {**loop.values, **(start or {})}
     names = loop.free
@@ -489,7 +500,8 @@ def fit(loop: Loop, rec: Recording, weights: Weights, bounds: dict[str, tuple[fl
         if key not in s0_cache:
             s0_cache.clear()
             s0_cache[key] = initial_state(loop, rec, {**values, **dict(zip(names, theta))},
-                                          {**known, **dict(zip(estimate_initial, x_init[:n_x]))}, x_init[n_x:])
+                                          {**known, **dict(zip(estimate_initial, x_init[:n_x]))},
+                                          x_init[n_x:] if ctrl_idx else shift)
         return s0_cache[key]
 
     def res_at(theta: np.ndarray, x_init: np.ndarray) -> np.ndarray:
@@ -520,8 +532,8 @@ def fit(loop: Loop, rec: Recording, weights: Weights, bounds: dict[str, tuple[fl
         return jac_cache[key] if key in jac_cache else solver_jacobian(jac_at(*split(xs)))
 
     if ctrl_idx:    # the controller's relation on the recorded signals prices a shift of its start
-        relation, rows, sigma_c = relation_prior(loop, rec, values, weights)
-        prior_jac = np.hstack([np.zeros((rows.shape[0], n_th + n_x)), -rows / sigma_c])
+        relation, rows, sigma_c = relation_prior(loop, rec, weights)
+        prior_jac = np.hstack([np.zeros((rows.shape[0], n_th + n_x)), -rows / sigma_c[:, None]])
 
         def res_all(xs: np.ndarray) -> np.ndarray:
             return np.concatenate([res(xs), (relation - rows @ split(xs)[1][n_x:]) / sigma_c])
@@ -561,13 +573,13 @@ def fit(loop: Loop, rec: Recording, weights: Weights, bounds: dict[str, tuple[fl
         free parameters)."""
         final = {**values, **dict(zip(names, map(float, theta)))}
         initial = dict(zip(estimate_initial, map(float, x_init[:n_x])))
-        shift = x_init[n_x:] if ctrl_idx else None
+        start = x_init[n_x:] if ctrl_idx else shift
         r, q, u = residuals(loop, rec, final, weights, q_meas=qm, u_meas=um, initial={**known, **initial},
-                            shift=shift)
+                            shift=start)
         cost = float(r @ r) if np.all(np.isfinite(r)) else math.inf
         rms = float(np.sqrt(np.mean((qm - q) ** 2))) if np.all(np.isfinite(q)) else math.inf
         j = np.zeros((r.size, 0)) if j is None else j
-        return Fit(final, cost, rms, q, u, j, success, nfev, initial, r, shift, weights)
+        return Fit(final, cost, rms, q, u, j, success, nfev, initial, r, start, weights)
 
     result = outcome(*split(xs), jac(xs) / scale if xs.size else None)
     theta_start = loop.theta(values)

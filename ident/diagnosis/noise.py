@@ -24,10 +24,11 @@ from scipy import spatial
 
 from motiontwin.harness.recording import Recording
 from motiontwin.ident import outputerror
+from motiontwin.ident.channels import controller_relation
 from motiontwin.ident.diagnosis import evidence
 from motiontwin.ident.diagnosis.bundle import Bundle
 from motiontwin.ident.diagnosis.plant_roles import output_map
-from motiontwin.ident.oefit import controller_relation, noise_level
+from motiontwin.ident.oefit import noise_level
 from motiontwin.ident.oeloop import Loop, Signals
 from motiontwin.ident.startvalues import mirror_derivatives
 
@@ -223,7 +224,7 @@ def force_measurement(loop: Loop, rec: Recording) -> float:
     for a recorded command): the white part of what the controller's relation on the recorded signals leaves
     (recorded force minus u_ext minus the controller's output on the recorded r and q, from a zero start; the
     start transient is slow and outside the band the level is read in). One axis with a known controller."""
-    relation, _ = controller_relation(loop, rec, np.zeros(loop.controller.n_states))
+    relation, _ = controller_relation(loop.controller, rec, loop.channels, np.zeros(loop.controller.n_states))
     return noise_level(relation, loop.controller.sample_time)
 
 

@@ -196,9 +196,11 @@ def fit_nominal_axes(bundle: Bundle, work: Path, progress=None) -> tuple[ModelFi
                                    f"on {bundle.recording_path('train')}, axis {a.output}",
                                    {n: loop.values[n] for n in loop.free}, _divergence_hint(bundle))
     weights = _noise_weights(bundle, loop, q0, u0)
+    start = outputerror.relation_shift(loop, bundle.train) if bundle.observer is None else None
     result = outputerror.fit(loop, bundle.train, weights, bounds, max_nfev=40,
-                             estimate_controller=bundle.observer is None)
+                             estimate_controller=bundle.observer is None, shift=start)
     weights = _noise_weights(bundle, loop, result.q_sim, result.u_sim)
+
     loop, result = _refit_as_fine_as_needed(
         bundle, loop, result, weights, bounds,
         lambda values, n: build_axes(bundle, [], values, work, bundle.train.time.size, min_substeps=n)[0], progress)

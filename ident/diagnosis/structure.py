@@ -191,10 +191,15 @@ def validation_shift(bundle: Bundle, loop: outputerror.Loop, fit: outputerror.Fi
     """The controller's start state on the validation recording estimated as the refits estimate it on the
     training recording (both channels over the whole run and the controller's relation, weighted by the
     noise levels of ``fit``), so that neither run carries a start state fixed by its first noisy samples
-    (issue 23). None for an unknown controller (its observer keeps its own start)."""
-    if fit.weights is None or bundle.observer is not None:
+    (issue 23); several axes from where the controller's relation on the validation recording puts it
+    (:func:`outputerror.relation_shift`, also without ``fit.weights``). None for an unknown controller (its
+    observer keeps its own start)."""
+    if bundle.observer is not None:
         return None
-    return outputerror.controller_shift(loop, bundle.validation, loop.values, fit.weights)
+    if fit.weights is None:
+        return outputerror.relation_shift(loop, bundle.validation) if loop.axes else None
+    start = outputerror.relation_shift(loop, bundle.validation) if loop.axes else None
+    return outputerror.controller_shift(loop, bundle.validation, loop.values, fit.weights, start=start)
 
 
 def validation_floor(loop: outputerror.Loop, bundle: Bundle, values: dict[str, float], sigma_q: float | np.ndarray,
@@ -371,7 +376,8 @@ def validate_axes(bundle: Bundle, structure: ModelFit, folder: Path) -> None:
     axis in ``val_rms``."""
     loop, _ = build_axes(bundle, structure.placed, structure.fit.values, folder, bundle.validation.time.size,
                          with_jacobian=False, min_substeps=structure.loop.substeps)
-    q, u = outputerror.simulate(loop, bundle.validation, structure.fit.values)
+    q, u = outputerror.simulate(loop, bundle.validation, structure.fit.values,
+                                shift=validation_shift(bundle, loop, structure.fit))
     structure.val_q = q
     structure.val_axes = per_axis_rms(bundle, bundle.validation, q)
     structure.val_force_axes = per_axis_rms(bundle, bundle.validation, u, "input")
