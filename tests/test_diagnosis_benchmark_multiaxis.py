@@ -225,6 +225,9 @@ def test_runner_scores_a_hand_made_diagnosis(two_axes):
     quiet = {**truth, "effects": []}
     empty, empirical = mb.score(_doc([]), quiet), mb.score(_doc([{"name": "empirical_q3", "axis": "q3",
                                                                    "empirical": True, "parameters": {}}]), quiet)
+    # the verdict's "unexplained" (no effect entry) counts as unexplained on its axis too
+    verdict = mb.score({**_doc([]), "unexplained": {"status": "unexplained, no term validated", "axis": "q3"}}, quiet)
+    assert verdict["false_positives"] == [mb.UNEXPLAINED]
     # the ripple on q5 reported on its axis as something else, and a found name on the right axis
     other = mb.score(_doc([{"name": "stribeck_friction", "axis": "q5", "parameters": {}}]), truth)
     assert other["outcomes"] == [("coulomb_friction", "(none)"), ("position_ripple", "stribeck_friction")]

@@ -290,11 +290,15 @@ UNEXPLAINED = "unexplained"
 
 def found_effects(doc: dict) -> list[tuple[str, str]]:
     """(axis, name) of every effect a diagnosis.json names; an entry labelled empirical, or named
-    "unexplained", counts as "unexplained" on its axis (axis "?" when the entry has none)."""
+    "unexplained", and the verdict's ``unexplained`` entry (a validated empirical term, or "unexplained, no
+    term validated") count as "unexplained" on its axis (axis "?" when the entry has none)."""
     found = []
     for e in doc.get("effects", []):
         name = UNEXPLAINED if e.get("empirical") or e.get("name") == UNEXPLAINED else e["name"]
         found.append((str(e.get("axis", "?")), name))
+    verdict = doc.get("unexplained")
+    if verdict and not any(name == UNEXPLAINED for _, name in found):
+        found.append((str(verdict.get("axis", "?")), UNEXPLAINED))
     return found
 
 

@@ -256,35 +256,43 @@ def estimation_rms(train_loop: outputerror.Loop, train: Recording, fit: outputer
     acceleration) is fitted to its noise; that error is no missing physics, and the floor verdict counts it. A
     refit, not a linearised step: it keeps the bounds and follows the nonlinear cost (stiff friction laws).
     NaN when no replicate's refit moved from the fitted values (a cost too rough there for the trust region) or
-    most of them diverged: the error is unknown, not zero."""
+    most of them diverged: the error is unknown, not zero. Several axes: per axis (arrays), encoder noise only,
+    the replicates simulated from the fit's controller start (:func:`outputerror.relation_shift`)."""
+    n_ax = len(train_loop.channels)
+    shape = (n_ax,) if train_loop.axes else ()
     if not train_loop.free:
-        return 0.0, 0.0
-    simulate = noisy_simulator(train_loop, train, fit.values, process)
-    signals = train_loop.signals
+        return np.zeros(shape)[()], np.zeros(shape)[()]
+    simulate = noisy_simulator(train_loop, train, fit.values, process, None if not train_loop.axes else fit.shift)
     q_val, u_val = outputerror.simulate(val_loop, validation, val_values)
     rng = np.random.default_rng(1)
     shifts, forces, moved = [], [], False
+    sigma_q = np.broadcast_to(np.asarray(weights.sigma_q, float), (n_ax,))
     for _ in range(count):
-        encoder = rng.normal(0.0, float(weights.sigma_q), train.time.size)
+        encoder = (rng.normal(0.0, 1.0, (n_ax, train.time.size)) * sigma_q[:, None]).reshape((*shape, -1))
         q, u = simulate(encoder, rng)
         columns = {c: train[c] for c in train.columns}
-        replicate = Recording(train.time, {**columns, signals.output: q + encoder, signals.input: u})
-        refit = outputerror.fit(train_loop, replicate, weights, bounds, start=fit.values, max_nfev=max_nfev)
+        for k, sig in enumerate(train_loop.channels):
+            columns.update({sig.output: np.reshape(q + encoder, (n_ax, -1))[k],
+                            sig.input: np.reshape(u, (n_ax, -1))[k]})
+        refit = outputerror.fit(train_loop, Recording(train.time, columns), weights, bounds, start=fit.values,
+                                max_nfev=max_nfev)     # a replicate's noise-free force fixes its start exactly
         moved = moved or any(refit.values[k] != fit.values[k] for k in refit.values)
         refitted = {k if k in val_values else "plant." + k: v for k, v in refit.values.items()}
         q_moved, u_moved = outputerror.simulate(val_loop, validation, {**val_values, **refitted})
-        shifts.append(float(np.mean((q_moved - q_val) ** 2)))
-        forces.append(float(np.mean((u_moved - u_val) ** 2)))
+        shifts.append(np.mean((q_moved - q_val) ** 2, axis=-1))
+        forces.append(np.mean((u_moved - u_val) ** 2, axis=-1))
     if not moved:
-        return math.nan, math.nan
-    finite = np.isfinite(shifts) & np.isfinite(forces)
+        return np.full(shape, math.nan)[()], np.full(shape, math.nan)[()]
+    shifts, forces = np.reshape(shifts, (count, n_ax)), np.reshape(forces, (count, n_ax))
+    finite = np.all(np.isfinite(shifts) & np.isfinite(forces), axis=1)
     if finite.sum() < (count + 1) // 2:      # most replicates' refits diverged: no estimate
-        return math.nan, math.nan
+        return np.full(shape, math.nan)[()], np.full(shape, math.nan)[()]
     # a replicate whose refit left the stable region is an estimation error beyond any bound: it is counted as
     # the largest finite one, not dropped (dropping it would make the bound tighter the less stable the fit)
-    shifts = np.where(finite, shifts, np.max(np.asarray(shifts)[finite]))
-    forces = np.where(finite, forces, np.max(np.asarray(forces)[finite]))
-    return float(np.sqrt(np.mean(shifts))), float(np.sqrt(np.mean(forces)))
+    shifts = np.where(finite[:, None], shifts, np.max(shifts[finite], axis=0))
+    forces = np.where(finite[:, None], forces, np.max(forces[finite], axis=0))
+    result = np.sqrt(np.mean(shifts, axis=0)), np.sqrt(np.mean(forces, axis=0))
+    return (result[0], result[1]) if train_loop.axes else (float(result[0][0]), float(result[1][0]))
 
 
 def on_axis(effect: effect_models.Effect, roles: PlantRoles,
