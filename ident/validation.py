@@ -92,6 +92,11 @@ def load_model_spec(path: Path | None, *, class_name: str | None = None, modelic
         if path.is_dir():
             fmu = _diagnosis_fmu(path)
             diagnosis = load_json(path / "diagnosis.json")
+            axes = (diagnosis.get("validation") or {}).get("per_axis")
+            if axes:
+                raise ValueError(f"{path}: a multi-axis diagnosis (axes {', '.join(axes)}); validate re-simulates "
+                                 f"one axis. The diagnosis' validation free runs of every axis are in "
+                                 f"{path / 'validation_prediction.csv'}")
             controller = diagnosis.get("controller")
             path, library = fmu, library or path / "augmented_model"
         if not path.is_file():

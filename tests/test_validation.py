@@ -137,6 +137,12 @@ def test_bad_input_is_one_message(tmp_path, capsys):
                                                                     np.zeros((1, 0)), np.array([[1e4, -1e4]])))))
     assert main(["validate", "-", str(path), "--class", CLASS, "--controller", str(controller)]) == 1
     assert "required column 'r' missing" in capsys.readouterr().err
+    diagnosis = tmp_path / "multi"      # a multi-axis diagnose output: said so, not "column 'q' missing"
+    (diagnosis / "fmu" / "fmi2").mkdir(parents=True)
+    (diagnosis / "fmu" / "fmi2" / "Augmented.fmu").write_bytes(b"")
+    (diagnosis / "diagnosis.json").write_text(json.dumps({"validation": {"per_axis": {"q1": {}, "q2": {}}}}))
+    assert main(["validate", str(diagnosis), str(path)]) == 1
+    assert "a multi-axis diagnosis (axes q1, q2); validate re-simulates one axis" in capsys.readouterr().err
 
 
 def test_identify_oe_and_validate_report_one_rms(tmp_path, capsys):
