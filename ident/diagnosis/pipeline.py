@@ -302,7 +302,7 @@ def with_final_start(bundle: Bundle, final: ModelFit, weights: outputerror.Weigh
     training run put (:func:`outputerror.controller_shift` from the relation's start every fit held, the
     plant then refitted with it), kept when the training cost falls. The relation alone fixes an integrator's
     start only to the force noise over the run; in a velocity loop that is a constant position offset (on the
-    two-axis bundle of ``tests/test_diagnosis_start_state.py``, q1 1.6x its floor before, 1.0x after)."""
+    two-axis bundle of ``tests/test_diagnosis_start_state.py``, q1 1.6x its floor before, 1.12x after)."""
     if bundle.observer is not None or final.fit.shift is None:
         return final
     shift = outputerror.controller_shift(final.loop, bundle.train, final.fit.values, weights, start=final.fit.shift)
@@ -343,7 +343,7 @@ def above_floor_axes(bundle: Bundle, final: ModelFit, loop: outputerror.Loop, re
         for a, r, f, e in zip(axes, rms, floor, spread)))
     if not np.any(rms > bound):
         return remainder
-    k = int(np.argmax(rms / np.hypot(floor, spread)))
+    k = int(np.argmax(np.where(rms > bound, rms / np.hypot(floor, spread), -np.inf)))   # the farthest of those above
     axis, rec, ts = axes[k], bundle.validation, bundle.controller.sample_time
     residual = rec[axis] - final.val_q[k]
     _, v, _ = startvalues.mirror_derivatives(rec[axis], 1 / ts, startvalues.derivative_cutoff(1 / ts))
