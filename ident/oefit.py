@@ -573,13 +573,13 @@ def fit(loop: Loop, rec: Recording, weights: Weights, bounds: dict[str, tuple[fl
         free parameters)."""
         final = {**values, **dict(zip(names, map(float, theta)))}
         initial = dict(zip(estimate_initial, map(float, x_init[:n_x])))
-        start = x_init[n_x:] if ctrl_idx else shift
+        held = x_init[n_x:] if ctrl_idx else shift      # the controller start of this fit
         r, q, u = residuals(loop, rec, final, weights, q_meas=qm, u_meas=um, initial={**known, **initial},
-                            shift=start)
+                            shift=held)
         cost = float(r @ r) if np.all(np.isfinite(r)) else math.inf
         rms = float(np.sqrt(np.mean((qm - q) ** 2))) if np.all(np.isfinite(q)) else math.inf
         j = np.zeros((r.size, 0)) if j is None else j
-        return Fit(final, cost, rms, q, u, j, success, nfev, initial, r, start, weights)
+        return Fit(final, cost, rms, q, u, j, success, nfev, initial, r, held, weights)
 
     result = outcome(*split(xs), jac(xs) / scale if xs.size else None)
     theta_start = loop.theta(values)

@@ -200,7 +200,6 @@ def fit_nominal_axes(bundle: Bundle, work: Path, progress=None) -> tuple[ModelFi
     result = outputerror.fit(loop, bundle.train, weights, bounds, max_nfev=40,
                              estimate_controller=bundle.observer is None, shift=start)
     weights = _noise_weights(bundle, loop, result.q_sim, result.u_sim)
-
     loop, result = _refit_as_fine_as_needed(
         bundle, loop, result, weights, bounds,
         lambda values, n: build_axes(bundle, [], values, work, bundle.train.time.size, min_substeps=n)[0], progress)

@@ -196,9 +196,9 @@ def validation_shift(bundle: Bundle, loop: outputerror.Loop, fit: outputerror.Fi
     observer keeps its own start)."""
     if bundle.observer is not None:
         return None
-    if fit.weights is None:
-        return outputerror.relation_shift(loop, bundle.validation) if loop.axes else None
     start = outputerror.relation_shift(loop, bundle.validation) if loop.axes else None
+    if fit.weights is None:
+        return start
     return outputerror.controller_shift(loop, bundle.validation, loop.values, fit.weights, start=start)
 
 
@@ -262,7 +262,8 @@ def estimation_rms(train_loop: outputerror.Loop, train: Recording, fit: outputer
     shape = (n_ax,) if train_loop.axes else ()
     if not train_loop.free:
         return np.zeros(shape)[()], np.zeros(shape)[()]
-    simulate = noisy_simulator(train_loop, train, fit.values, process, None if not train_loop.axes else fit.shift)
+    # several axes: the replicates start from the fit's controller start, which no refit re-estimates
+    simulate = noisy_simulator(train_loop, train, fit.values, process, fit.shift if train_loop.axes else None)
     q_val, u_val = outputerror.simulate(val_loop, validation, val_values)
     rng = np.random.default_rng(1)
     shifts, forces, moved = [], [], False
