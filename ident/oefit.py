@@ -404,10 +404,16 @@ def noise_level(residual: np.ndarray, ts: float) -> float:
 
 def weighted_jacobian(loop: Loop, s0: np.ndarray, W: np.ndarray, theta: np.ndarray, pf: np.ndarray,
                       idx: list[int], weights: Weights) -> np.ndarray:
-    """Jacobian of the weighted residual of the free run from ``s0`` w.r.t. [theta, s0[idx]]."""
+    """Jacobian of the weighted residual of the free run from ``s0`` w.r.t. [theta, s0[idx]] (``idx``: states
+    among the loop's ``initial_states``)."""
     n_ax = len(loop.channels)
     jq, ju, jq0, ju0 = (_channel_major(m, n_ax) for m in loop.jac(s0, W, theta, pf))
     rows = loop.n_samples
+    missing = [i for i in idx if i not in loop.initial_states]
+    if missing:
+        raise ValueError(f"the loop was compiled without the initial-value sensitivities of states {missing} "
+                         f"(build_loop's initial_states)")
+    idx = [loop.initial_states.index(i) for i in idx]
 
     def scaled(block: np.ndarray, sigma: float | np.ndarray) -> np.ndarray:
         with np.errstate(over="ignore"):   # a trial step whose loop diverges: inf entries, which the solver refuses

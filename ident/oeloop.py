@@ -7,7 +7,7 @@ from __future__ import annotations
 import logging
 import math
 from dataclasses import dataclass, field
-from typing import Callable
+from typing import Callable, Sequence
 
 import casadi as ca
 import numpy as np
@@ -59,6 +59,7 @@ class Loop:
     ts: float = 0.0                     # sample period [s]
     step: ca.Function | None = field(default=None, repr=False)  # (s, w, theta, pfix) -> (s_next, q, u), one sample
     axes: tuple[Signals, ...] = ()      # multi-axis loop: one entry per axis (plant input/output = columns)
+    initial_states: tuple[int, ...] = ()  # the states (indices into [x; z]) whose dQ/ds0, dU/ds0 columns jac gives
 
     @property
     def closed(self) -> bool:
@@ -84,7 +85,8 @@ class Loop:
         merged = dict(self.values)
         merged.update(values)
         return Loop(self.model, self.controller, self.position_state, self.free, merged, self.substeps,
-                    self.n_samples, self.sim, self.jac, self.tracking, self.signals, self.ts, self.step, self.axes)
+                    self.n_samples, self.sim, self.jac, self.tracking, self.signals, self.ts, self.step, self.axes,
+                    self.initial_states)
 
 
 def stable_substeps(model: symbolic.SymbolicModel, values: dict[str, float], ts: float,
@@ -184,7 +186,7 @@ def build_loop(model: symbolic.SymbolicModel, controller: Controller | None, pos
                tracking: dict[str, str] | None = None, with_jacobian: bool = True, min_substeps: int = 1,
                ts: float | None = None, input_name: str | None = None, signals: Signals = Signals(),
                jit: bool = False, native: bool | None = None, axes: list[Signals] | None = None,
-               initial_sensitivity: bool = True) -> Loop:
+               initial_states: Sequence[int] | None = None) -> Loop:
     """Compile the free-run simulation of ``n_samples`` samples with the parameters ``free`` symbolic.
 
     controller: None for open loop (then ``ts`` [s] is required); position_state: the state or output
@@ -198,9 +200,10 @@ def build_loop(model: symbolic.SymbolicModel, controller: Controller | None, pos
     ``output`` are plant names (and recording columns); ``position_state`` and ``input_name`` are then
     ignored. The controller maps y = [r_1..r_n, q_1..q_n] to u = [u_1..u_n] (block-diagonal or
     multivariable); w = [r (n); u_ext (n); measurement noise (n)] per sample, and the step returns q and u
-    with n entries each. initial_sensitivity: compile the sensitivities w.r.t. the initial state too (needed
-    to estimate initial states, ``fit(..., estimate_initial=...)``); without them the Jacobian step of a
-    large coupled plant is a fraction of the size (its d/ds0 blocks are then empty).
+    with n entries each. initial_states: the states (indices into [x; z], the controller's after the plant's)
+    whose initial values the Jacobian differentiates (needed to estimate them, ``fit(..., estimate_initial=...,
+    estimate_controller=...)``); None: every state. Each costs about one free run per Jacobian: a diagnosis
+    estimates only the controller's, a large coupled plant none (its d/ds0 blocks are then empty).
     """
     if ca.depends_on(model.dx, model.t):
         raise ValueError(f"{model.name}: time-varying plants are not supported by the output-error refit")
@@ -278,15 +281,18 @@ def build_loop(model: symbolic.SymbolicModel, controller: Controller | None, pos
             xk = xk + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
     s_next, out_k = ca.vertcat(xk, zk), ca.vertcat(q, u)
     step = ca.Function("step", [s, w, theta, pfix], [ca.densify(s_next), ca.densify(q), ca.densify(u)])
+    columns = list(range(nx + nz)) if initial_states is None else [int(i) for i in initial_states]
+    if any(not 0 <= i < nx + nz for i in columns):
+        raise ValueError(f"initial_states {columns}: the loop has {nx + nz} states")
     if not with_jacobian:
         aug, seed = None, None
     elif sym is ca.SX:
-        aug, seed = _sensitivity_step(s, w, theta, pfix, s_next, out_k, initial_sensitivity)
+        aug, seed = _sensitivity_step(s, w, theta, pfix, s_next, out_k, columns)
     else:
         select_p = np.array([[1.0 if n == m else 0.0 for m in free] for n in names]).reshape(len(names), len(free))
         select_u = np.array([[1.0 if i == k else 0.0 for k in k_in] for i in range(len(inputs))])
         aug, seed = _called_sensitivity_step(model, observed, controller, plant_input, select_p, select_u, p_full,
-                                             s, w, theta, pfix, substeps, ts, initial_sensitivity)
+                                             s, w, theta, pfix, substeps, ts, columns)
     pair = None
     if native or (native is None and native_chain.available()):
         try:
@@ -297,7 +303,7 @@ def build_loop(model: symbolic.SymbolicModel, controller: Controller | None, pos
             _LOG.warning("compiled chain unavailable, using CasADi's mapaccum chain: %s", exc)
     sim, jac = pair or _casadi_pair(step, aug, seed, n_samples, JIT_OPTIONS if jit else {})
     return Loop(model, controller, observed[0], list(free), values, substeps, n_samples, sim, jac,
-                dict(tracking or {}), signals if not axes else axes[0], ts, step, tuple(axes or ()))
+                dict(tracking or {}), signals if not axes else axes[0], ts, step, tuple(axes or ()), tuple(columns))
 
 
 def _check_controller_shape(controller: Controller, n_axes: int) -> None:
@@ -312,13 +318,13 @@ def _check_controller_shape(controller: Controller, n_axes: int) -> None:
 
 
 def _sensitivity_step(s: ca.SX, w: ca.SX, theta: ca.SX, pfix: ca.SX, s_next: ca.SX,
-                      out_k: ca.SX, initial: bool = True) -> tuple[ca.Function, np.ndarray]:
-    """The step augmented with forward sensitivities w.r.t. [theta; s0], propagated sample by sample with
-    the step's AD Jacobians (S+ = ds+/ds S + [ds+/dtheta, 0]), and the initial seed vec([0, I]): one pass
-    over the recording gives the whole residual Jacobian, at a cost of about (1 + n_theta + n_s) free runs.
-    Without ``initial`` only the theta columns are propagated (seed 0) and the d/ds0 outputs are omitted."""
+                      out_k: ca.SX, initial: list[int]) -> tuple[ca.Function, np.ndarray]:
+    """The step augmented with forward sensitivities w.r.t. [theta; s0[initial]], propagated sample by sample
+    with the step's AD Jacobians (S+ = ds+/ds S + [ds+/dtheta, 0]), and the initial seed vec([0, I[:, initial]]):
+    one pass over the recording gives the whole residual Jacobian, at a cost of about (1 + n_theta +
+    len(initial)) free runs. Without ``initial`` states the d/ds0 outputs are omitted."""
     ns, nth = s.numel(), theta.numel()
-    n0 = ns if initial else 0
+    n0 = len(initial)
     sens = ca.SX.sym("S", ns, nth + n0)
     pad = ca.SX.zeros(ns, n0)
     s_sens = ca.jacobian(s_next, s) @ sens + ca.horzcat(ca.jacobian(s_next, theta), pad)
@@ -326,24 +332,24 @@ def _sensitivity_step(s: ca.SX, w: ca.SX, theta: ca.SX, pfix: ca.SX, s_next: ca.
     o_sens = ca.jacobian(out_k, s) @ sens + ca.horzcat(ca.jacobian(out_k, theta), ca.SX.zeros(2 * n_out, n0))
     # per sample and channel: axis 0's row, then axis 1's, ... (see _channel_major)
     outs = [ca.vertcat(s_next, ca.vec(s_sens)), ca.vec(o_sens[:n_out, :nth].T), ca.vec(o_sens[n_out:, :nth].T)]
-    if initial:
+    if n0:
         outs += [ca.vec(o_sens[:n_out, nth:].T), ca.vec(o_sens[n_out:, nth:].T)]
     aug = ca.Function("sstep", [ca.vertcat(s, ca.vec(sens)), w, theta, pfix], [ca.densify(o) for o in outs])
-    seed = np.hstack([np.zeros((ns, nth)), np.eye(ns)[:, :n0]]).ravel(order="F")
+    seed = np.hstack([np.zeros((ns, nth)), np.eye(ns)[:, initial]]).ravel(order="F")
     return aug, seed
 
 
 def _called_sensitivity_step(model: symbolic.SymbolicModel, observed: list[str], controller: Controller | None,
                              plant_input: Callable, select_p: np.ndarray, select_u: np.ndarray, p_full: ca.MX,
                              s: ca.MX, w: ca.MX, theta: ca.MX, pfix: ca.MX, substeps: int, ts: float,
-                             initial: bool) -> tuple[ca.Function, np.ndarray]:
+                             initial: list[int]) -> tuple[ca.Function, np.ndarray]:
     """:func:`_sensitivity_step` for a large plant (MX graph): the variational equations of the same RK4
     step written out, with the plant's derivatives as called functions (:func:`_plant_derivatives`), so that
     the generated code holds them once instead of one forward derivative per sensitivity direction inlined in
     every stage."""
     nx, ns, nth = model.x.numel(), s.numel(), theta.numel()
     nz, n_ax = ns - nx, len(observed)
-    n0 = ns if initial else 0
+    n0 = len(initial)
     na = nth + n0
     dp = np.hstack([select_p, np.zeros((select_p.shape[0], n0))])      # d p / d [theta, s0]
     slope, measure = _plant_derivatives(model, observed, dp)
@@ -384,10 +390,10 @@ def _called_sensitivity_step(model: symbolic.SymbolicModel, observed: list[str],
             sk = sk + h / 6 * (d1 + 2 * d2 + 2 * d3 + d4)
     s_sens = ca.vertcat(sk, dzk)
     outs = [ca.vertcat(xk, zk, ca.vec(s_sens)), ca.vec(dq[:, :nth].T), ca.vec(du[:, :nth].T)]
-    if initial:
+    if n0:
         outs += [ca.vec(dq[:, nth:].T), ca.vec(du[:, nth:].T)]
     aug = ca.Function("sstep", [s_aug, w, theta, pfix], [ca.densify(o) for o in outs])
-    seed = np.hstack([np.zeros((ns, nth)), np.eye(ns)[:, :n0]]).ravel(order="F")
+    seed = np.hstack([np.zeros((ns, nth)), np.eye(ns)[:, initial]]).ravel(order="F")
     return aug, seed
 
 

@@ -218,6 +218,30 @@ def test_compiled_chain_matches_casadi_mapaccum(model, closed):
         assert np.shape(fast) == ref.shape and _relative_error(fast, ref) < 1e-12
 
 
+def test_initial_state_sensitivities_of_chosen_states_only(model):
+    """A loop compiled with the start sensitivities of some states gives the same parameter columns and, for
+    those states, the same start columns as one compiled with every state's; the fit's Jacobian refuses a
+    state whose columns were not compiled (a wrong estimate, not a silent zero)."""
+    n = 600
+    ctrl = pd_controller()
+    full, some = (oe.build_loop(model, ctrl, "x", ["m", "d"], {}, n, ts=TS, substeps=4, initial_states=states)
+                  for states in (None, [2]))
+    assert full.initial_states == (0, 1, 2) and some.initial_states == (2,)
+    args = _chain_inputs(full, n, seed=5)
+    jq, ju, jq0, ju0 = full.jac(*args)
+    sq, su, sq0, su0 = some.jac(*args)
+    np.testing.assert_array_equal(sq, jq)
+    np.testing.assert_array_equal(su, ju)
+    assert np.shape(sq0)[1] == 1 and np.abs(jq0[:, 2]).max() > 0
+    np.testing.assert_array_equal(np.ravel(sq0), jq0[:, 2])
+    np.testing.assert_array_equal(np.ravel(su0), ju0[:, 2])
+    weights = oe.Weights(1e-6, 1e-2)
+    columns = oe.weighted_jacobian(some, *args, [2], weights)
+    np.testing.assert_array_equal(columns, oe.weighted_jacobian(full, *args, [2], weights))
+    with pytest.raises(ValueError, match=r"states \[0\]"):
+        oe.weighted_jacobian(some, *args, [0], weights)
+
+
 def test_compiled_chain_cached_and_fallback_without_compiler(model, monkeypatch, tmp_path):
     """The library is compiled once per generated source (second build reuses the cached file); without a
     working C compiler the loop falls back to the CasADi chain (unless the compiled one is demanded)."""

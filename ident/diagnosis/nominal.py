@@ -19,7 +19,8 @@ from motiontwin.ident.diagnosis.bounds import at_bound, at_bound_text
 from motiontwin.ident.diagnosis.bundle import Bundle, BundleError
 from motiontwin.ident.diagnosis.locate import _mass_equivalent, _needed_force, _pitch_in_state_coordinates, _states_from
 from motiontwin.ident.diagnosis.plant_roles import PlantFormError, output_map
-from motiontwin.ident.diagnosis.structure import ModelFit, _fmt, _log, _moving_start, _nominal_bounds, build_axes
+from motiontwin.ident.diagnosis.structure import (ModelFit, _fmt, _log, _moving_start, _nominal_bounds, build_axes,
+                                                  estimated_start_states)
 from motiontwin.ident.plant_states import alias_state
 
 SAME_PHYSICS = 0.9    # |cosine| between a plant parameter's force and an effect's force shape: the same physics
@@ -76,7 +77,8 @@ def fit_nominal(bundle: Bundle, progress=None) -> tuple[ModelFit, outputerror.We
     def loop_at(values: dict[str, float], min_substeps: int = 1) -> outputerror.Loop:
         return outputerror.build_loop(model, bundle.controller, bundle.plant.output_name, free, values,
                                       bundle.train.time.size, input_name=bundle.plant.input_name,
-                                      tracking=_moving_start(bundle), min_substeps=min_substeps)
+                                      tracking=_moving_start(bundle), min_substeps=min_substeps,
+                                      initial_states=estimated_start_states(bundle, model))
 
     values = dict(bundle.start)
     loop = loop_at(values)

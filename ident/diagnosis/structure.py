@@ -135,6 +135,16 @@ def structure_parameters(model, effects: list[effect_models.Effect], free: list[
     return free, bounds, all_values
 
 
+def estimated_start_states(bundle: Bundle, model: symbolic.SymbolicModel) -> list[int]:
+    """The loop states whose start the diagnosis's fits estimate (a known controller's, ``outputerror.fit``'s
+    ``estimate_controller``): its loops differentiate the start of these only, one free run less per Jacobian
+    for every other state (plant and effect states)."""
+    if bundle.observer is not None or bundle.multi_axis or bundle.controller is None:
+        return []
+    nx = model.x.numel()
+    return list(range(nx, nx + bundle.controller.n_states))
+
+
 def build_structure(bundle: Bundle, effects: list[effect_models.Effect], values: dict[str, float], folder: Path,
                     n_samples: int, with_jacobian: bool = True, min_substeps: int = 1,
                     substeps: int | None = None) -> tuple[outputerror.Loop, dict[str, tuple[float, float]]]:
@@ -157,7 +167,8 @@ def build_structure(bundle: Bundle, effects: list[effect_models.Effect], values:
     if key not in cache.loops:
         cache.loops[key] = outputerror.build_loop(model, bundle.controller, "q",
                                                   free, all_values, n_samples, substeps=substeps, tracking=tracking,
-                                                  with_jacobian=with_jacobian)
+                                                  with_jacobian=with_jacobian,
+                                                  initial_states=estimated_start_states(bundle, model))
     return cache.loops[key].with_values(all_values), bounds
 
 
@@ -370,7 +381,7 @@ def build_axes(bundle: Bundle, effects: list[tuple[str, effect_models.Effect]], 
         cache.loops[key] = outputerror.build_loop(model, bundle.controller, bundle.plant.axes[0].output, free,
                                                   all_values, n_samples, substeps=substeps,
                                                   tracking=_tracking(bundle, effects), with_jacobian=with_jacobian,
-                                                  axes=axes_signals(bundle.plant), initial_sensitivity=False)
+                                                  axes=axes_signals(bundle.plant), initial_states=())
     return cache.loops[key].with_values(all_values), bounds
 
 
