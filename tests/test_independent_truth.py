@@ -6,6 +6,7 @@ from __future__ import annotations
 import ast
 import json
 import math
+import runpy
 from pathlib import Path
 
 import numpy as np
@@ -134,7 +135,8 @@ def test_floor_of_a_quiet_parameters_only_case_is_the_encoder_noise(short_bundle
     assert truth["noise"]["process_white_std"] == 0 and truth["laws"] == []
     assert truth["floor_rms"] == pytest.approx(white, rel=0.15)
     assert truth["floor_reseed_rms"] == pytest.approx(math.sqrt(2) * truth["floor_rms"], rel=0.1)
-    assert truth["without_effect_rms"] == truth["floor_rms"]       # no effect: the same noise-free lane
+    assert truth["without_effect_rms"] == truth["floor_noise_free_rms"]     # no effect: the same noise-free lane
+    assert truth["floor_rms"] == pytest.approx(truth["floor_noise_free_rms"], rel=1e-9)    # not chaotic
     assert truth["force_without_effect_rms"] == truth["force_floor_rms"] > 0
 
 
@@ -144,6 +146,32 @@ def test_effect_over_the_floor_is_the_truth_without_its_effect(short_bundles: Pa
     by more than the diagnosis' floor margin (1.5) times the floor."""
     truth = json.loads((short_bundles / "coulomb.truth.json").read_text())
     assert truth["without_effect_rms"] > 1.5 * truth["floor_rms"]
+
+
+def test_floor_of_a_chaotic_backlash_loop_is_the_median_of_perturbed_reruns(short_bundles: Path,
+                                                                           monkeypatch: pytest.MonkeyPatch) -> None:
+    """A PID loop hunting in a backlash gap is chaotic: reruns of the noise-free truth perturbed by 1e-12 of the
+    force miss the validation recording by amounts spread over 3x (one run is a lucky draw), and the floor is
+    their median. A loop without backlash (Coulomb) is not: its reruns agree to 1e-9 and the floor is the
+    noise-free run's. The benchmark's detectability counts against the top of the spread."""
+    durations = independent.DURATIONS
+    independent.DURATIONS = (1.0, 0.6)
+    try:
+        sim = independent.simulate_case(independent.draw_case("backlash", 7007))
+    finally:
+        independent.DURATIONS = durations
+    low, high = sim["floor_spread"]
+    assert high > 2 * low and low <= sim["floor_rms"] <= high
+    coulomb = json.loads((short_bundles / "coulomb.truth.json").read_text())
+    low, high = coulomb["floor_spread"]
+    assert high - low < 1e-9 * high and coulomb["floor_rms"] == pytest.approx(coulomb["floor_noise_free_rms"],
+                                                                              rel=1e-9)
+    monkeypatch.syspath_prepend(str(ROOT / "tests" / "benchmarks"))
+    bench = runpy.run_path(str(ROOT / "tests" / "benchmarks" / "bench_independent.py"))
+    chaotic = {"expected": ["backlash"], "without_effect_rms": 6.4e-5, "floor_rms": 3.4e-5,
+               "floor_spread": [1.1e-5, 8.0e-5], "force_without_effect_rms": 5.6, "force_floor_rms": 3.0,
+               "force_floor_spread": [1.0, 7.0]}
+    assert bench["effect_over_floor"](chaotic) == pytest.approx(0.8)
 
 
 def test_the_truth_does_not_import_the_diagnosis_candidates_or_the_effects_library() -> None:

@@ -9,9 +9,10 @@ the parameters-only controls; columns: named effect, "unexplained", "(none)", "(
 raised). A case is named right when the set of answers equals the expected set exactly. An effect case is
 DETECTABLE when its truth without the effects misses the recording's validation run, in position or in force,
 by more than FLOOR_MARGIN (1.5, the diagnosis' own floor rule) times the achievable floor (truth.json's
-without_effect_rms / floor_rms and force_without_effect_rms / force_floor_rms, the larger in column
-"effect/floor"): below it no free-run criterion can tell the effect from the noise, and the summary also counts
-the cases named right among the detectable ones and the controls.
+without_effect_rms and force_without_effect_rms over the top of floor_spread and force_floor_spread, the larger
+in column "effect/floor"; the spread is that of noise-free reruns perturbed by 1e-12 of the force, wide where
+the loop is chaotic): below it no free-run criterion can tell the effect from the noise, and the summary also
+counts the cases named right among the detectable ones and the controls.
 
 Run: MOTIONTWIN_DIAGNOSIS_WORKERS=1 .venv/bin/python tests/benchmarks/bench_independent.py [BENCH_DIR]
 [--set heldout|tuning] [--case NAME ...] (bundles are generated into BENCH_DIR/SET by
@@ -75,11 +76,14 @@ def parameter_errors(truth: dict, doc: dict) -> list[str]:
 def effect_over_floor(truth: dict) -> float | None:
     """How far the truth without its effects misses the validation recording, over the achievable floor, in
     position or in force (the larger; None for a parameters-only control, or a truth.json written before the
-    fields existed)."""
+    fields existed). The floor is the top of its spread over the noise-free reruns (``floor_spread``): where
+    the loop is chaotic (backlash), a correct model's free run lands anywhere in it, so an effect shows in a
+    free run reliably only above its top."""
     if not truth["expected"] or "force_without_effect_rms" not in truth:
         return None
-    return max(truth["without_effect_rms"] / truth["floor_rms"],
-               truth["force_without_effect_rms"] / truth["force_floor_rms"])
+    floor = max(truth.get("floor_spread", [truth["floor_rms"]]))
+    force_floor = max(truth.get("force_floor_spread", [truth["force_floor_rms"]]))
+    return max(truth["without_effect_rms"] / floor, truth["force_without_effect_rms"] / force_floor)
 
 
 def force_over(truth: dict, validation: dict) -> str:
