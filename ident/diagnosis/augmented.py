@@ -142,6 +142,14 @@ def load_augmented(folder: Path, class_name: str) -> symbolic.SymbolicModel:
     return symbolic.build(frontend.load(folder, class_name))
 
 
+def write_structure(plant: PlantInfo, effects: list[Effect], values: dict[str, float], folder: Path) -> Path:
+    """Write the self-contained Modelica folder of the nominal ``plant`` + ``effects`` at ``values`` (one axis;
+    several: :func:`write_axes_structure`)."""
+    plant_values = {k[len("plant."):]: v for k, v in values.items() if k.startswith("plant.")}
+    return write_model(folder, plant.text, plant.class_name, effects, values, plant_values, AUGMENTED_CLASS,
+                       plant.roles)
+
+
 def axes_modelica_text(plant: PlantInfo, effects: list[tuple[str, Effect]], values: dict[str, float],
                   plant_values: dict[str, float]) -> str:
     """Source of the augmented class: the nominal class as ``plant``, one input and output per axis (the

@@ -20,7 +20,7 @@ from scipy import stats
 from motiontwin.fmus.files import move_file
 from motiontwin.ident import outputerror, startvalues
 from motiontwin.ident.diagnosis import empirical, noise, report, report_plots
-from motiontwin.ident.diagnosis.augmented import AUGMENTED_CLASS
+from motiontwin.ident.diagnosis.augmented import AUGMENTED_CLASS, write_structure
 from motiontwin.ident.diagnosis.bounds import bounds_widened, structure_at_bound
 from motiontwin.ident.diagnosis.axis_units import bundle_units
 from motiontwin.ident.diagnosis.bundle import Bundle
@@ -32,7 +32,7 @@ from motiontwin.ident.diagnosis.select import VALIDATION_GAIN, select, upgrade_n
 from motiontwin.ident.diagnosis.structure import (FLOOR_REPLICATES, LoopCache, ModelFit, _log,
                                                   _nominal_bounds, build_axes, build_structure, estimation_rms,
                                                   floor_rms, floors, validate, validate_axes, validation_floor,
-                                                  validation_shift, write_structure)
+                                                  validation_shift)
 
 #: the final validation RMS may exceed the estimated noise floor by this factor before the verdict is "unexplained"
 FLOOR_MARGIN = 1.5
@@ -245,7 +245,7 @@ class Diagnosis:
         result = self.result
         with tempfile.TemporaryDirectory(dir=out.parent, prefix=f".{out.name}.work-") as tmp:
             staging = Path(tmp) / "out"
-            write_structure(result["bundle"], result["final"].effects, result["augmented_values"],
+            write_structure(result["bundle"].plant, result["final"].effects, result["augmented_values"],
                             staging / "augmented_model")
             document = report.write_all(result, staging, out)
             _publish(staging, out)

@@ -18,7 +18,7 @@ from motiontwin.ident import outputerror
 from motiontwin.ident.diagnosis import axis_kinematics
 from motiontwin.ident.diagnosis import effects as effect_models
 from motiontwin.ident.diagnosis.augmented import (AUGMENTED_CLASS, axis_prefix, load_augmented, load_structure,
-                                                  write_axes_structure, write_model)
+                                                  write_axes_structure, write_structure)
 from motiontwin.ident.diagnosis.bundle import Bundle, PlantInfo
 from motiontwin.ident.diagnosis.noise import ProcessNoise, noisy_simulator
 from motiontwin.ident.diagnosis.plant_roles import PlantRoles
@@ -111,14 +111,6 @@ class LoopCache:
     models: dict[tuple[str, ...], object] = field(default_factory=dict)
 
 
-def write_structure(bundle: Bundle, effects: list[effect_models.Effect], values: dict[str, float],
-                    folder: Path) -> Path:
-    """Write the self-contained Modelica folder of the nominal plant + ``effects`` at ``values``."""
-    plant_values = {k[len("plant."):]: v for k, v in values.items() if k.startswith("plant.")}
-    return write_model(folder, bundle.plant.text, bundle.plant.class_name, effects, values, plant_values,
-                       AUGMENTED_CLASS, bundle.plant.roles)
-
-
 def structure_parameters(model, effects: list[effect_models.Effect], free: list[str],
                          bounds: dict[str, tuple[float, float]], values: dict[str, float]
                          ) -> tuple[list[str], dict[str, tuple[float, float]], dict[str, float]]:
@@ -156,7 +148,7 @@ def build_structure(bundle: Bundle, effects: list[effect_models.Effect], values:
     names = tuple(e.name for e in effects)
     model = cache.models.get(names)
     if model is None:
-        write_structure(bundle, effects, values, folder)
+        write_structure(bundle.plant, effects, values, folder)
         model = cache.models[names] = load_augmented(folder, AUGMENTED_CLASS)
     free, bounds, all_values = structure_parameters(model, effects, *_nominal_bounds(bundle, "plant."), values)
     tracking = {s: "q" for e in effects for s in e.tracks_position} | _moving_start(bundle, "plant.")
