@@ -402,6 +402,14 @@ def noise_level(residual: np.ndarray, ts: float) -> float:
     return float(np.sqrt(max(level, 1e-300) / (2 * ts)))
 
 
+def squared_norm(r: np.ndarray) -> float:
+    """r . r, the cost of a weighted residual; inf for a diverged free run (non-finite, or overflowing the sum)."""
+    if not np.all(np.isfinite(r)):
+        return math.inf
+    with np.errstate(over="ignore"):
+        return float(r @ r)
+
+
 def weighted_jacobian(loop: Loop, s0: np.ndarray, W: np.ndarray, theta: np.ndarray, pf: np.ndarray,
                       idx: list[int], weights: Weights) -> np.ndarray:
     """Jacobian of the weighted residual of the free run from ``s0`` w.r.t. [theta, s0[idx]] (``idx``: states
@@ -563,8 +571,9 @@ def fit(loop: Loop, rec: Recording, weights: Weights, bounds: dict[str, tuple[fl
     if x_start.size:
         if loop.jac is None:
             raise ValueError("the loop was compiled without its Jacobian (with_jacobian=False)")
-        with np.errstate(over="ignore"):     # a trial step whose loop diverges overflows the solver's sums: its
-            # cost is inf, the trust region shrinks and the step is refused, which is the answer, not a warning
+        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):    # a trial step whose loop diverges
+            # overflows the solver's sums: its cost is inf, the trust region shrinks and the step is refused,
+            # which is the answer, not a warning
             sol = least_squares(res_all, x_start, jac=jac_all, bounds=(lo_all / scale, hi_all / scale),
                                 method="trf", x_scale="jac", max_nfev=max_nfev, xtol=1e-10, ftol=1e-10, gtol=1e-10)
         xs = sol.x
@@ -582,8 +591,9 @@ def fit(loop: Loop, rec: Recording, weights: Weights, bounds: dict[str, tuple[fl
         held = x_init[n_x:] if ctrl_idx else shift      # the controller start of this fit
         r, q, u = residuals(loop, rec, final, weights, q_meas=qm, u_meas=um, initial={**known, **initial},
                             shift=held)
-        cost = float(r @ r) if np.all(np.isfinite(r)) else math.inf
-        rms = float(np.sqrt(np.mean((qm - q) ** 2))) if np.all(np.isfinite(q)) else math.inf
+        cost = squared_norm(r)
+        with np.errstate(over="ignore"):
+            rms = float(np.sqrt(np.mean((qm - q) ** 2))) if np.all(np.isfinite(q)) else math.inf
         j = np.zeros((r.size, 0)) if j is None else j
         return Fit(final, cost, rms, q, u, j, success, nfev, initial, r, held, weights)
 
@@ -591,7 +601,7 @@ def fit(loop: Loop, rec: Recording, weights: Weights, bounds: dict[str, tuple[fl
     theta_start = loop.theta(values)
     if x_start.size and np.all((lo <= theta_start) & (theta_start <= hi)):
         r0 = res_at(theta_start, x_init0)
-        if float(r0 @ r0) < result.cost:   # the solver traded recording cost for the controller prior (or for
+        if squared_norm(r0) < result.cost:   # the solver traded recording cost for the controller prior (or for
             # the interior start): the recording's cost never ends above the start's, so the start is the result
             result = outcome(theta_start, x_init0, solver_jacobian(jac_at(theta_start, x_init0)) / scale)
     return result

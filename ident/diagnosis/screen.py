@@ -90,7 +90,7 @@ def _start_cost(bundle: Bundle, loop: outputerror.Loop, weights: outputerror.Wei
                 values: dict[str, float], shift: np.ndarray | None = None) -> float:
     """The training cost of ``loop`` at ``values`` with the controller start ``shift`` (one free run, no fit)."""
     r, _, _ = outputerror.residuals(loop, bundle.train, values, weights, shift=shift)
-    return float(r @ r) if np.all(np.isfinite(r)) else math.inf
+    return outputerror.squared_norm(r)
 
 
 def _best_fit(bundle: Bundle, loop: outputerror.Loop, bounds: dict[str, tuple[float, float]],
