@@ -126,14 +126,35 @@ def refine(bundle: Bundle, structure: ModelFit, weights: outputerror.Weights, ma
                     structure.folder, evidence=structure.evidence, axes=structure.axes)
 
 
-#: screening jobs by token (the function fitting one candidate by name): forked workers inherit the table and
-#: are sent only (token, name); every call adds its own token and removes it, so concurrent diagnoses do not collide
-_SCREEN_JOBS: dict[int, tuple] = {}
+#: jobs by token (a function of a candidate's name): forked workers inherit the table and are sent only
+#: (token, name); every call adds its own token and removes it, so concurrent diagnoses do not collide
+_JOBS: dict[int, Callable] = {}
 
 
-def _screen_one(token: int, name: str) -> tuple[str, outputerror.Fit | None, int, float, str, float]:
+def _run_job(token: int, name: str):
+    return _JOBS[token](name)
+
+
+def map_candidates(job: Callable[[str], object], names: list[str]) -> list:
+    """``[job(name) for name in names]`` in forked worker processes (:func:`screen_workers`; they share the
+    bundle and the current fit), in the order of ``names``; in-process with one worker. ``job`` returns
+    what pickles (fits, numbers), not compiled loops."""
+    token = next(_TOKENS)
+    _JOBS[token] = job
+    workers = min(screen_workers(), len(names))
+    try:
+        if workers > 1:
+            with concurrent.futures.ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("fork")) \
+                    as pool:
+                return list(pool.map(_run_job, [token] * len(names), names))
+        return [job(name) for name in names]
+    finally:
+        del _JOBS[token]
+
+
+def _screen_one(fit_one: Callable[[str], ModelFit], name: str
+                ) -> tuple[str, outputerror.Fit | None, int, float, str, float]:
     """Cheap fit of the current structure plus the effect ``name`` (run in a worker or in-process)."""
-    fit_one = _SCREEN_JOBS[token]
     t0 = time.perf_counter()
     try:
         trial = fit_one(name)
@@ -156,26 +177,15 @@ def screen_workers() -> int:
 def screen(bundle: Bundle, current: ModelFit, names: list[str], ctx: effect_models.Context,
            weights: outputerror.Weights, folder: Path, progress=None,
            fit_one: Callable[[str], ModelFit] | None = None) -> dict[str, tuple[outputerror.Fit, int]]:
-    """Screen every candidate effect with a few Gauss-Newton steps, in parallel processes (forked, so
-    they share the bundle and the current fit): name -> (fit, RK4 substeps of its loop). ``fit_one``: the
+    """Screen every candidate effect with a few Gauss-Newton steps, in parallel processes
+    (:func:`map_candidates`): name -> (fit, RK4 substeps of its loop). ``fit_one``: the
     cheap fit of one candidate by name (default: :func:`fit_structure` with ``SCREEN_NFEV``; the multi-axis
     diagnosis places the effect on its located axis)."""
     if fit_one is None:
         def fit_one(name: str) -> ModelFit:
             return fit_structure(bundle, current, effect_models.VOCABULARY[name](ctx), ctx, weights, folder / name,
                                  SCREEN_NFEV)
-    token = next(_TOKENS)
-    _SCREEN_JOBS[token] = fit_one
-    workers = min(screen_workers(), len(names))
-    try:
-        if workers > 1:
-            with concurrent.futures.ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("fork")) \
-                    as pool:
-                results = list(pool.map(_screen_one, [token] * len(names), names))
-        else:
-            results = [_screen_one(token, name) for name in names]
-    finally:
-        del _SCREEN_JOBS[token]
+    results = map_candidates(lambda name: _screen_one(fit_one, name), names)
     out: dict[str, tuple[outputerror.Fit, int]] = {}
     for name, result, substeps, seconds, error, start_cost in results:
         if result is None:

@@ -19,7 +19,8 @@ from motiontwin.ident.diagnosis.axis_units import bundle_units
 from motiontwin.ident.diagnosis.bundle import Bundle
 from motiontwin.ident.diagnosis.locate import AxisEvidence, locate
 from motiontwin.ident.diagnosis.screen import (MAX_NFEV, fit_structure, SCREEN_NFEV, _close_richer, candidates,
-                                               fit_candidate, placed_structure, ranked_with_nested, refine, screen)
+                                               fit_candidate, map_candidates, placed_structure, ranked_with_nested,
+                                               refine, screen)
 from motiontwin.ident.diagnosis.structure import ModelFit, _log, build_structure, compiled, validate_any
 
 VALIDATION_GAIN = evidence.VALIDATION_GAIN
@@ -81,11 +82,20 @@ def select(bundle: Bundle, nominal: ModelFit, weights: outputerror.Weights, ctx:
         ranked = ranked_with_nested(order, screened)
         ranked += _close_richer(ranked, screened, current.fit.cost)
         trials: dict[str, tuple[ModelFit, float, float, np.ndarray]] = {}
-        for name in ranked:
+
+        def refined(name: str, c: ModelFit = current, a: str | None = axis, x=ctx, r: int = rounds
+                    ) -> tuple[outputerror.Fit, float]:
             t0 = time.perf_counter()
             result, substeps = screened[name]
-            trial = refine(bundle, _screened_structure(bundle, current, name, axis, ctx, result, substeps,
-                                                       work / f"r{rounds}_{name}"), weights)
+            trial = refine(bundle, _screened_structure(bundle, c, name, a, x, result, substeps, work / f"r{r}_{name}"),
+                           weights)
+            return trial.fit, time.perf_counter() - t0
+
+        # the full fits are independent: in the screening's worker processes (several axes: 25-50 s each)
+        for name, (result, seconds) in zip(ranked, map_candidates(refined, ranked)):
+            t0 = time.perf_counter() - seconds
+            trial = _screened_structure(bundle, current, name, axis, ctx, result, screened[name][1],
+                                        work / f"r{rounds}_{name}")
             candidate = trial.effects[-1]
             gain = current.fit.cost - trial.fit.cost
             null_gain = evidence.extension_null(trial.fit.jacobian, current.fit.jacobian, null, base_gain)
