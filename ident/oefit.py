@@ -12,7 +12,7 @@ from scipy.optimize import least_squares
 
 from motiontwin.harness.recording import Recording
 from motiontwin.ident import plant_states, startvalues
-from motiontwin.ident.channels import controller_relation, controller_responses, lifted
+from motiontwin.ident.channels import controller_relation, controller_responses, lifted, noise_level
 from motiontwin.ident.oeloop import Loop, Signals, _output_gain, _state_for_output, default_bounds, output_state
 
 def _column(rec: Recording, name: str, optional: bool = False) -> np.ndarray:
@@ -388,18 +388,6 @@ def controller_shift(loop: Loop, rec: Recording, values: dict[str, float], weigh
             break
         shift, r = trial, r_trial
     return shift
-
-
-def noise_level(residual: np.ndarray, ts: float) -> float:
-    """Standard deviation of the white part of ``residual``: median PSD over the upper half band (as the
-    diagnosis' :func:`ident.diagnosis.evidence.noise_level`)."""
-    from scipy.signal import welch   # here: scipy.signal takes 0.3-0.7 s to import, and open-loop fits never call this
-
-    x = np.asarray(residual, float) - np.mean(residual)
-    f, pxx = welch(x, fs=1 / ts, nperseg=min(1024, x.size))
-    band = pxx[f >= 0.25 / ts]
-    level = float(np.median(band)) if band.size else float(np.var(x)) * 2 * ts
-    return float(np.sqrt(max(level, 1e-300) / (2 * ts)))
 
 
 def squared_norm(r: np.ndarray) -> float:

@@ -22,7 +22,7 @@ from scipy import stats
 
 from motiontwin.fmus import symbolic
 from motiontwin.harness.recording import Recording
-from motiontwin.ident import oefit
+from motiontwin.ident import channels
 from motiontwin.ident.startvalues import derivative_cutoff, mirror_derivatives
 
 if TYPE_CHECKING:
@@ -31,7 +31,7 @@ if TYPE_CHECKING:
 NULL_QUANTILE = 0.999
 VALIDATION_GAIN = 0.9        # an effect must reduce the validation RMS by at least 10 %
 #: standard deviation of the white part of a residual (median PSD over the upper half band)
-noise_level = oefit.noise_level
+noise_level = channels.noise_level
 
 
 @dataclass

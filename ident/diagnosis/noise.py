@@ -28,7 +28,7 @@ from motiontwin.ident.channels import controller_relation
 from motiontwin.ident.diagnosis import evidence
 from motiontwin.ident.diagnosis.bundle import Bundle
 from motiontwin.ident.diagnosis.plant_roles import output_map
-from motiontwin.ident.oefit import noise_level
+from motiontwin.ident.channels import noise_level
 from motiontwin.ident.oeloop import Loop, Signals
 from motiontwin.ident.startvalues import mirror_derivatives
 
