@@ -17,10 +17,10 @@ Next to each bundle folder ``OUT/SET/CASE`` the file ``OUT/SET/CASE.truth.json``
 parameters, the expected answers, the concealment, and the ACHIEVABLE FLOOR: ``floor_rms``, the validation RMS
 of the measured position against the truth re-simulated without any noise (what a correct deterministic model,
 as the diagnosis' validation simulation is, can reach; the median over that run and reruns perturbed by 1e-12 of
-the force, since a loop with backlash can be chaotic, ``floor_spread`` their extremes), and ``floor_reseed_rms``, against the truth
-re-simulated with other noise seeds (about sqrt(2) x ``floor_rms`` in a linear loop), and ``without_effect_rms``,
-against the truth re-simulated noise-free without its effects (how far the effect shows above the floor on the
-validation run); ``force_floor_rms`` and ``force_without_effect_rms`` the same for the recorded force u (an effect the
+the force, since a loop with backlash can be chaotic, ``floor_spread`` their extremes), and
+``floor_reseed_rms``, against the truth re-simulated with other noise seeds (about sqrt(2) x ``floor_rms`` in a
+linear loop), and ``without_effect_rms``, against the truth re-simulated noise-free without its effects (how far
+the effect shows above the floor on the validation run); ``force_floor_rms`` and ``force_without_effect_rms`` the same for the recorded force u (an effect the
 loop's integral action rejects, a constant force, shows in u only). Units: SI.
 
     python -m motiontwin.ident.benchmarks.independent generate OUT_DIR [--set heldout|tuning] [--case A,B]
@@ -372,7 +372,8 @@ def write_bundle(folder: Path, case: Case) -> dict:
              "floor_rms": sim["floor_rms"], "floor_spread": sim["floor_spread"],
              "floor_noise_free_rms": sim["floor_noise_free_rms"], "floor_reseed_rms": sim["floor_reseed_rms"],
              "without_effect_rms": sim["without_effect_rms"], "force_floor_rms": sim["force_floor_rms"],
-             "force_floor_spread": sim["force_floor_spread"], "force_without_effect_rms": sim["force_without_effect_rms"]}
+             "force_floor_spread": sim["force_floor_spread"],
+             "force_without_effect_rms": sim["force_without_effect_rms"]}
     atomic_write_texts({
         folder / "plant.mo": form.text.format(a=float(round(case.nominal[0], 4)) * form.scale,
                                               b=float(round(case.nominal[1], 4)) * form.scale),
