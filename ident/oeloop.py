@@ -419,7 +419,8 @@ def _plant_derivatives(model: symbolic.SymbolicModel, observed: list[str], dp: n
                        ) -> tuple[Callable, Callable]:
     """``slope(x, u, p, Sx, Su) -> (f, df/dx Sx + df/du Su + df/dp dp)`` and ``measure(x, u, p, Sx) -> (h, dh/dx Sx +
     dh/dp dp)`` on MX, ``dp`` (parameters x directions) the constant d p / d [theta, s0]. A small plant: its full
-    Jacobians in x, u and p as one called function each, multiplied out. A large one (the full Jacobian above
+    Jacobians in x and u and its Jacobian in the parameters ``dp`` moves, as one called function each,
+    multiplied out. A large one (the full Jacobian above
     :data:`DIRECTIONAL_INSTRUCTIONS`): one forward directional derivative per call, mapped over the directions,
     about 3 right-hand sides per direction; the Hexapod (12 + 6 + 25 Jacobian columns against 7-11 directions):
     its Jacobian pass over 1500 samples 2.5 s -> 0.8 s of CPU with the same values to 2e-15, its generated C

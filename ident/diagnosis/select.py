@@ -83,8 +83,8 @@ def select(bundle: Bundle, nominal: ModelFit, weights: outputerror.Weights, ctx:
         ranked += _close_richer(ranked, screened, current.fit.cost)
         trials: dict[str, tuple[ModelFit, float, float, np.ndarray]] = {}
 
-        def refined(name: str, c: ModelFit = current, a: str | None = axis, x=ctx, r: int = rounds
-                    ) -> tuple[outputerror.Fit, float]:
+        def refined(name: str, c: ModelFit = current, a: str | None = axis, x: effect_models.Context = ctx,
+                    r: int = rounds) -> tuple[outputerror.Fit, float]:
             t0 = time.perf_counter()
             result, substeps = screened[name]
             trial = refine(bundle, _screened_structure(bundle, c, name, a, x, result, substeps, work / f"r{r}_{name}"),
