@@ -32,9 +32,12 @@ import multiprocessing
 import multiprocessing.connection
 import os
 import pickle
+import shutil
 import signal
 import struct
+import tempfile
 import threading
+import weakref
 from multiprocessing.connection import Connection
 from pathlib import Path
 from typing import Any, Callable, Iterable, Iterator, Mapping, Protocol, Sequence
@@ -125,11 +128,13 @@ def _unreadable(exc: BaseException) -> RunFailed:
 _HEADER = struct.Struct("!Q")   # length of the pickled reply that follows, on a worker's private result pipe
 
 
-def _serve(tasks: Connection, results: Connection) -> None:
+def _serve(tasks: Connection, results: Connection, scratch: str) -> None:
     """A worker process: read ``(fn, item)`` from its private task pipe, run it, write the reply (result or
     :class:`RunFailed`) to its private result pipe; stop at None or when the parent is gone. Nothing is shared
-    with another worker, so a worker killed at any instant breaks only its own pipes."""
+    with another worker, so a worker killed at any instant breaks only its own pipes. Its temporary files
+    (unzipped FMUs) go to the pool's ``scratch`` folder, which the parent removes, also after a kill."""
     _ignore_interrupt()
+    tempfile.tempdir = scratch
     out = results.fileno()
     while True:
         try:
@@ -159,10 +164,10 @@ class _Worker:
     """One spawned worker process and the parent's ends of its two private pipes; the result pipe is read
     without blocking, a piece at a time, so the parent never waits on one worker."""
 
-    def __init__(self, context: Any):
+    def __init__(self, context: Any, scratch: str):
         task_end, self.tasks = context.Pipe(duplex=False)
         self.results, result_end = context.Pipe(duplex=False)
-        self.process = context.Process(target=_serve, args=(task_end, result_end), daemon=True)
+        self.process = context.Process(target=_serve, args=(task_end, result_end, scratch), daemon=True)
         self.process.start()
         task_end.close()      # the worker holds the only other ends: its death is EOF / EPIPE here
         result_end.close()
@@ -227,16 +232,20 @@ class ProcessPoolExecutor(_Closing):
         self.workers = workers or os.cpu_count() or 1
         self.watchdog = watchdog
         self._context = multiprocessing.get_context("spawn")
+        self._remove_scratch: weakref.finalize | None = None
         self._idle = [self._spawn() for _ in range(self.workers)]
 
     def _spawn(self) -> _Worker:
         """A new worker with SIGINT ignored from its start: a spawned interpreter inherits the ignored
         disposition across exec, so a Ctrl-C while it is still importing cannot end it with a traceback."""
+        if self._remove_scratch is None or not self._remove_scratch.alive:   # first worker, or after close()
+            self._scratch = tempfile.mkdtemp(prefix="motiontwin-pool-")
+            self._remove_scratch = weakref.finalize(self, shutil.rmtree, self._scratch, True)
         if threading.current_thread() is not threading.main_thread():
-            return _Worker(self._context)
+            return _Worker(self._context, self._scratch)
         previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
         try:
-            return _Worker(self._context)
+            return _Worker(self._context, self._scratch)
         finally:
             signal.signal(signal.SIGINT, previous)
 
@@ -308,20 +317,26 @@ class ProcessPoolExecutor(_Closing):
         for worker in self._idle:
             worker.stop(5)
         self._idle = []
+        if self._remove_scratch is not None:
+            self._remove_scratch()
 
 
 class DaskExecutor(_Closing):
     """Dask distributed: connect to ``scheduler`` or start a LocalCluster of ``workers`` processes."""
 
     def __init__(self, scheduler: str | None = None, workers: int | None = None):
+        import dask
         from dask.distributed import Client, LocalCluster
 
         self._cluster = None
         if scheduler:
             self._client = Client(scheduler)
         else:
-            self._cluster = LocalCluster(n_workers=workers or os.cpu_count() or 1, processes=True,
-                                         threads_per_worker=1, dashboard_address=None)
+            self._scratch = tempfile.mkdtemp(prefix="motiontwin-dask-")   # Dask leaves its scratch folder
+            self._remove_scratch = weakref.finalize(self, shutil.rmtree, self._scratch, True)
+            with dask.config.set({"temporary-directory": self._scratch}):
+                self._cluster = LocalCluster(n_workers=workers or os.cpu_count() or 1, processes=True,
+                                             threads_per_worker=1, dashboard_address=None)
             self._client = Client(self._cluster)
 
     def map(self, fn: Callable[[Any], Any], items: Iterable[Any]) -> list[Any]:
@@ -345,6 +360,7 @@ class DaskExecutor(_Closing):
         self._client.close()
         if self._cluster is not None:
             self._cluster.close()
+            self._remove_scratch()
 
 
 def make_executor(kind: str = "inprocess", workers: int | None = None, scheduler: str | None = None) -> Executor:

@@ -7,6 +7,8 @@ from __future__ import annotations
 import atexit
 import ctypes
 import itertools
+import multiprocessing.util
+import os
 import shutil
 import weakref
 from collections import deque
@@ -57,25 +59,31 @@ class FMUCallError(RuntimeError):
 # ---------------------------------------------------------------------------------------------
 # extraction cache (once per process)
 
-_EXTRACTED: dict[tuple[str, int, int], str] = {}
+_EXTRACTED: dict[tuple[str, int, int], tuple[int, str]] = {}   # FMU file version -> (extracting pid, folder)
 
 
 def _cleanup_extracted() -> None:
-    for folder in _EXTRACTED.values():
-        shutil.rmtree(folder, ignore_errors=True)
+    """Remove the folders this process unzipped (a forked worker inherits, but must not remove, its parent's)."""
+    for key, (pid, folder) in list(_EXTRACTED.items()):
+        if pid == os.getpid():
+            shutil.rmtree(folder, ignore_errors=True)
+            del _EXTRACTED[key]
 
 
 atexit.register(_cleanup_extracted)
 
 
 def extracted_fmu(path: str | Path) -> str:
-    """Folder holding the unzipped FMU; unzipped at most once per process and FMU file version."""
+    """Folder holding the unzipped FMU; unzipped at most once per process and FMU file version, removed when
+    the process ends (also a multiprocessing or process-pool worker, which leaves without running atexit)."""
     path = Path(path).resolve()
     stat = path.stat()
     key = (str(path), stat.st_mtime_ns, stat.st_size)
     if key not in _EXTRACTED:
-        _EXTRACTED[key] = str(extract(str(path)))
-    return _EXTRACTED[key]
+        if not any(pid == os.getpid() for pid, _ in _EXTRACTED.values()):
+            multiprocessing.util.Finalize(None, _cleanup_extracted, exitpriority=0)
+        _EXTRACTED[key] = (os.getpid(), str(extract(str(path))))
+    return _EXTRACTED[key][1]
 
 
 # ---------------------------------------------------------------------------------------------

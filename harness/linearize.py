@@ -9,12 +9,12 @@ from pathlib import Path
 from typing import Mapping
 
 import control
-import fmpy
 import numpy as np
 from fmpy.fmi2 import FMU2Model
 from fmpy.fmi3 import FMU3Model
 
 from motiontwin.fmus.archive import read_description
+from motiontwin.harness.fmu_instance import extracted_fmu
 
 
 def linearize(fmu: str | Path, inputs: list[str], outputs: list[str],
@@ -34,7 +34,7 @@ def linearize(fmu: str | Path, inputs: list[str], outputs: list[str],
     unknown = derivatives + [vr[n] for n in outputs]
     fmi3 = md.fmiVersion != "2.0"
     cls = FMU3Model if fmi3 else FMU2Model
-    model = cls(guid=md.guid, unzipDirectory=fmpy.extract(str(fmu)),
+    model = cls(guid=md.guid, unzipDirectory=extracted_fmu(fmu),
                 modelIdentifier=md.modelExchange.modelIdentifier, instanceName="linearize")
     model.instantiate()
     try:

@@ -54,6 +54,7 @@ import numpy as np
 
 from motiontwin.harness import kinematics, metrics
 from motiontwin.harness.excitation import end_effector_point_to_point
+from motiontwin.harness.fmu_instance import extracted_fmu
 from motiontwin.harness.master import Master
 from motiontwin.fmus.archive import read_description
 from motiontwin.fmus.limits import load_json
@@ -110,7 +111,6 @@ class PlantDynamics:
     """
 
     def __init__(self, fmu: str | Path, parameters: dict[str, float] | None = None):
-        import fmpy
         from fmpy.fmi2 import FMU2Model
 
         self.md = md = read_description(fmu)
@@ -121,7 +121,7 @@ class PlantDynamics:
         self._n = len(self._der)
         self._u = [vr[f"u{p}"] for p in PORTS]
         self._dv = self._der[4:]
-        self.model = FMU2Model(guid=md.guid, unzipDirectory=fmpy.extract(str(fmu)),
+        self.model = FMU2Model(guid=md.guid, unzipDirectory=extracted_fmu(fmu),
                                modelIdentifier=md.modelExchange.modelIdentifier, instanceName="dynamics")
         self.model.instantiate()
         self.model.setupExperiment(startTime=0.0)

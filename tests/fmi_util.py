@@ -12,6 +12,8 @@ import numpy as np
 from fmpy.fmi2 import FMU2Model, FMU2Slave, fmi2CallbackFunctions, fmi2CallbackLoggerTYPE
 from fmpy.fmi3 import FMU3Model, FMU3Slave
 
+from motiontwin.harness.fmu_instance import extracted_fmu
+
 
 GEMSEO_FMU_WHEEL = "gemseo-fmu==3.1.1"
 
@@ -43,7 +45,7 @@ class Loaded:
 def instantiate(path: Path, kind: str = "cs") -> Loaded:
     """Extract and instantiate ``path`` (kind "cs" or "me") with a logger that records messages."""
     md = fmpy.read_model_description(str(path))
-    unzipdir = fmpy.extract(str(path))
+    unzipdir = extracted_fmu(path)   # once per process, removed at its exit
     iface = md.coSimulation if kind == "cs" else md.modelExchange
     messages: list[str] = []
     vr = {v.name: v.valueReference for v in md.modelVariables}
@@ -117,7 +119,7 @@ def fmpy_closed_loop(fmu: Path, ctrl, r: np.ndarray, u_ext: np.ndarray, noise: n
     to the plant's input; returns the recorded (q + noise, u)."""
     md = fmpy.read_model_description(str(fmu))
     vr = {v.name: v.valueReference for v in md.modelVariables}
-    slave = FMU2Slave(guid=md.guid, unzipDirectory=fmpy.extract(str(fmu)),
+    slave = FMU2Slave(guid=md.guid, unzipDirectory=extracted_fmu(fmu),
                       modelIdentifier=md.coSimulation.modelIdentifier, instanceName="plant")
     slave.instantiate()
     slave.setupExperiment(startTime=0.0)

@@ -1,5 +1,5 @@
 """The benchmark scripts cannot rot: each runs in its small ``--smoke`` size as its own process, within a time
-limit, exits 0 and prints at least one ratio line (tests/benchmarks/ratios.py), every value finite; and
+limit, exits 0, leaves no temporary file behind and prints at least one ratio line (tests/benchmarks/ratios.py), every value finite; and
 `make bench`'s runner turns those lines into its table."""
 from __future__ import annotations
 
@@ -20,8 +20,11 @@ TIMEOUT_S = 300  # a smoke run takes 1-25 s on an idle core; the limit allows fo
 
 
 @pytest.mark.parametrize("script", run_all.scripts(), ids=lambda p: p.stem)
-def test_benchmark_runs_in_smoke_size_and_prints_finite_ratios(script: Path, gemseo_fmus: Path) -> None:
-    env = {**os.environ, "MOTIONTWIN_TEST_FMUS": str(gemseo_fmus), "MOTIONTWIN_DIAGNOSIS_WORKERS": "1"}
+def test_benchmark_runs_in_smoke_size_and_prints_finite_ratios(script: Path, gemseo_fmus: Path,
+                                                               tmp_path: Path) -> None:
+    """... and leaves nothing in its temporary folder (unzipped or built FMUs, compile caches, Dask scratch)."""
+    env = {**os.environ, "MOTIONTWIN_TEST_FMUS": str(gemseo_fmus), "MOTIONTWIN_DIAGNOSIS_WORKERS": "1",
+           "TMPDIR": str(tmp_path)}
     proc = subprocess.run(run_all.command(script, smoke=True), capture_output=True, text=True, timeout=TIMEOUT_S,
                           env=env, cwd=BENCH.parents[1])
     assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-3000:]
@@ -29,6 +32,7 @@ def test_benchmark_runs_in_smoke_size_and_prints_finite_ratios(script: Path, gem
     assert found and ratios.finite(found), proc.stdout[-3000:]
     assert all(name.split(".")[0] and baseline.strip() for name, _, baseline in found)
     assert "--smoke" in script.read_text().split('"""')[1], "the docstring documents the smoke size"
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_runner_prints_one_table_with_the_commands(capsys: pytest.CaptureFixture[str]) -> None:

@@ -14,6 +14,7 @@ import pytest
 from fmpy.fmi2 import FMU2Slave
 
 from motiontwin.harness import measurement
+from motiontwin.harness.fmu_instance import extracted_fmu
 from motiontwin.ident.benchmarks import single_axis as bench
 from motiontwin.ident.diagnosis.bundle import read_bundle
 
@@ -39,7 +40,7 @@ def _fmpy_plant(path: Path, parameters: dict[str, float], u: np.ndarray, ts: flo
     """Position of the plant FMU at k*ts driven by u held over each ts (fmpy's FMI 2.0 API, no harness)."""
     md = fmpy.read_model_description(str(path))
     vr = {v.name: v.valueReference for v in md.modelVariables}
-    unzipdir = fmpy.extract(str(path))
+    unzipdir = extracted_fmu(path)
     slave = FMU2Slave(guid=md.guid, unzipDirectory=unzipdir, modelIdentifier=md.coSimulation.modelIdentifier,
                       instanceName="reference")
     slave.instantiate()

@@ -3,6 +3,7 @@ in the same order, and each equal to a direct run of the same case on a fresh ma
 survives a worker killed at any instant, the hand-off of a result included."""
 from __future__ import annotations
 
+import tempfile
 import time
 from pathlib import Path
 
@@ -32,15 +33,27 @@ def cases() -> list[dict]:
     return out
 
 
-def test_executors_give_identical_results_in_case_order(short_loop: Path) -> None:
+def private_temp(monkeypatch: pytest.MonkeyPatch, folder: Path) -> Path:
+    """This process and the workers it starts from now on put their temporary files in ``folder``."""
+    folder.mkdir()
+    monkeypatch.setenv("TMPDIR", str(folder))
+    monkeypatch.setattr(tempfile, "tempdir", None)
+    return folder
+
+
+def test_executors_give_identical_results_in_case_order(short_loop: Path, tmp_path: Path,
+                                                        monkeypatch: pytest.MonkeyPatch) -> None:
+    """... and leave no temporary file behind once closed (unzipped FMUs of the workers, Dask's scratch)."""
     system = load_system(short_loop)
     sweep = cases()
     with Master(system) as fresh:
         direct = [fresh.run(**case) for case in sweep]
+    temp = private_temp(monkeypatch, tmp_path / "temp")
     results = {}
     for kind in ("inprocess", "process", "dask"):
         with make_executor(kind, workers=2) as executor:
             results[kind] = run_sweep(system, sweep, executor)
+        assert list(temp.iterdir()) == [], kind
     for kind, logs in results.items():
         assert len(logs) == len(sweep), kind
         for expected, got in zip(direct, logs):

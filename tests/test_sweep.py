@@ -167,13 +167,18 @@ def _kill_workers(out: Path, total: int, kills: int = 1, interval: float = 0.0) 
 LONG_SWEEP = SWEEP.replace('log = "log"', 'log = "log"\nstop_time = 1.0').replace("count = 3", "count = 4")
 
 
-def test_killed_workers_are_retried_and_every_run_is_committed(sweep_file: Path, tmp_path: Path) -> None:
-    """Workers killed again and again while they run or send a case (up to 3 kills; tests/test_executor.py kills at every instant): every run is committed,
-    equal to a direct run, within a bound."""
+def test_killed_workers_are_retried_and_every_run_is_committed(sweep_file: Path, tmp_path: Path,
+                                                              monkeypatch: pytest.MonkeyPatch) -> None:
+    """Workers killed again and again while they run or send a case (up to 3 kills; tests/test_executor.py kills
+    at every instant): every run is committed, equal to a direct run, within a bound; the killed workers' unzipped
+    FMUs are removed with the pool."""
     import time
+
+    from tests.test_executor import private_temp
 
     sweep_file.write_text(LONG_SWEEP)
     direct = _direct_runs(sweep_file)
+    temp = private_temp(monkeypatch, tmp_path / "temp")
     out = tmp_path / "out"
     killer = _kill_workers(out, len(direct), kills=3, interval=0.05)
     t0 = time.monotonic()
@@ -184,6 +189,7 @@ def test_killed_workers_are_retried_and_every_run_is_committed(sweep_file: Path,
     assert code == 0 and killer.kills >= 1
     _assert_folder_holds(out, direct)
     assert seconds < 150
+    assert list(temp.iterdir()) == []
 
 
 def test_killed_worker_without_retries_fails_its_runs_by_name_and_keeps_the_others(sweep_file: Path,

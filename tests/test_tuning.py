@@ -192,7 +192,7 @@ def test_write_back_tuned_values_into_controller_fmu(tuned: tuning.TuningResult,
     variables = {v.name: v for v in md.modelVariables}
     for name, value in values.items():
         assert float(variables[name].start) == pytest.approx(value, rel=1e-15)
-    unzipped = fmpy.extract(str(out))
+    unzipped = fmpy.extract(str(out), unzipdir=str(tmp_path / "tuned"))
     fmu = FMU2Slave(guid=md.guid, unzipDirectory=unzipped, modelIdentifier=md.coSimulation.modelIdentifier,
                     instanceName="tuned")
     fmu.instantiate()

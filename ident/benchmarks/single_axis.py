@@ -185,10 +185,10 @@ def verify(case: str = "coulomb_friction", seed: int = 10, duration: float = 12.
         effects.append(effect)
         values.update({p.name: float(np.mean(p.bounds)) for p in effect.params})
         values.update({k: v for k, v in true["parameters"].items() if k in {p.name for p in effect.params}})
-    folder = Path(tempfile.mkdtemp(prefix="mt-verify-"))
-    augmented.write_model(folder, PLANT_TEXT.format(m=TRUE_M, d=TRUE_D), PLANT_CLASS, effects, values,
-                   {"m": TRUE_M, "d": TRUE_D}, "Truth", PlantRoles("u", "q", "x", "v"))
-    model = augmented.load_augmented(folder, "Truth")
+    with tempfile.TemporaryDirectory(prefix="mt-verify-") as folder:
+        augmented.write_model(Path(folder), PLANT_TEXT.format(m=TRUE_M, d=TRUE_D), PLANT_CLASS, effects, values,
+                              {"m": TRUE_M, "d": TRUE_D}, "Truth", PlantRoles("u", "q", "x", "v"))
+        model = augmented.load_augmented(Path(folder), "Truth")
     n = rr.size
     loop = outputerror.build_loop(model, pid_controller(), "plant.x", [], values, n, substeps=32, with_jacobian=False)
     rec = make_recording(np.arange(n) * TS, {"r": rr, "u": np.zeros(n), "q": np.zeros(n), "u_ext": ue})

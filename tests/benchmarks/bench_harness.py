@@ -30,6 +30,7 @@ sys.path.insert(0, str(ROOT))
 from fmpy.fmi3 import FMU3Slave  # noqa: E402
 
 from motiontwin.harness.executor import run_sweep  # noqa: E402
+from motiontwin.harness.fmu_instance import extracted_fmu  # noqa: E402
 from motiontwin.harness.master import Master  # noqa: E402
 from ratios import ratio, smoke  # noqa: E402
 from tests.fmi_util import gemseo_fmu_folder  # noqa: E402
@@ -75,7 +76,7 @@ def raw_loop(fmus: Path, r: float, u_ext: np.ndarray) -> np.ndarray:
     slaves = []
     for name in ("add", "Mass_Damper"):
         md = fmpy.read_model_description(str(fmus / f"{name}.fmu"))
-        s = FMU2Slave(guid=md.guid, unzipDirectory=fmpy.extract(str(fmus / f"{name}.fmu")),
+        s = FMU2Slave(guid=md.guid, unzipDirectory=extracted_fmu(fmus / f"{name}.fmu"),
                       modelIdentifier=md.coSimulation.modelIdentifier, instanceName=name)
         s.instantiate()
         s.setupExperiment(startTime=0.0)
@@ -137,9 +138,9 @@ def raw_project_loop(pi_path: Path, plant_path: Path, r: float, u_ext: np.ndarra
     """The project loop with fmpy's FMU3Slave/FMU2Slave set/doStep/get and nothing else."""
     md_pi = fmpy.read_model_description(str(pi_path))
     md_pl = fmpy.read_model_description(str(plant_path))
-    pi = FMU3Slave(guid=md_pi.guid, unzipDirectory=fmpy.extract(str(pi_path)),
+    pi = FMU3Slave(guid=md_pi.guid, unzipDirectory=extracted_fmu(pi_path),
                    modelIdentifier=md_pi.coSimulation.modelIdentifier, instanceName="pi")
-    plant = FMU2Slave(guid=md_pl.guid, unzipDirectory=fmpy.extract(str(plant_path)),
+    plant = FMU2Slave(guid=md_pl.guid, unzipDirectory=extracted_fmu(plant_path),
                       modelIdentifier=md_pl.coSimulation.modelIdentifier, instanceName="plant")
     pv = {v.name: v.valueReference for v in md_pi.modelVariables}
     qv = {v.name: v.valueReference for v in md_pl.modelVariables}

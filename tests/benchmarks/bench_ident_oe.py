@@ -12,6 +12,7 @@ import argparse
 import os
 import tempfile
 import time
+from pathlib import Path
 
 import fmpy
 import numpy as np
@@ -47,6 +48,11 @@ def fmpy_q(fmu: str, u: np.ndarray, values: dict[str, float]) -> np.ndarray:
 
 
 def main() -> None:
+    with tempfile.TemporaryDirectory(prefix="bench-oe-") as scratch:
+        measure(Path(scratch))
+
+
+def measure(scratch: Path) -> None:
     parser = argparse.ArgumentParser()
     parser.add_argument("--seconds", type=float, default=60.0)
     parser.add_argument("--model", choices=sorted(MODELS), default="linear")
@@ -59,7 +65,7 @@ def main() -> None:
         args.seconds = 1.0
     class_name, state, truth = MODELS[args.model]
     model = build.load_model(class_name)
-    fmu = str(build.build_fmu(model, tempfile.mkdtemp(prefix="bench-oe-"), "2.0").path)
+    fmu = str(build.build_fmu(model, scratch, "2.0").path)
     n = int(round(args.seconds / TS))
     u = periodic_multisine(n, 40 if args.model == "linear" else 500, 5.0, seed=0)
     q = fmpy_q(fmu, u, truth) + args.noise * np.random.default_rng(1).standard_normal(n)
@@ -77,7 +83,7 @@ def main() -> None:
         fit = oe.fit(loop, rec, oe.Weights(args.noise), initial={state: 0.0}, max_nfev=50)
         return time.perf_counter() - t0, t_build, loop, fit
 
-    os.environ["XDG_CACHE_HOME"] = tempfile.mkdtemp(prefix="bench-oe-cache-")  # first refit compiles
+    os.environ["XDG_CACHE_HOME"] = str(scratch / "cache")  # first refit compiles
     t_casadi, t_build, loop, fit = refit()
     t_cached, t_build_cached, _, fit_cached = refit()
     casadi_opt = np.array([fit.values[k] for k in free])

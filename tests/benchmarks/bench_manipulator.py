@@ -28,6 +28,7 @@ sys.path.insert(0, str(ROOT))
 from motiontwin import comparison  # noqa: E402
 from motiontwin.harness.excitation import end_effector_point_to_point  # noqa: E402
 from motiontwin.harness.kinematics import CHEUNG_END_POSE, CHEUNG_START_POSE  # noqa: E402
+from motiontwin.harness.fmu_instance import extracted_fmu  # noqa: E402
 from motiontwin.harness.master import Master  # noqa: E402
 from ratios import ratio, smoke  # noqa: E402
 
@@ -52,7 +53,7 @@ def raw_loop(fmus: dict[str, Path], designs: list[dict[str, float]], holding: np
     """The same loop with fmpy's FMU2Slave setReal/doStep/getReal only."""
     def slave(path: Path, name: str) -> tuple[FMU2Slave, dict[str, int]]:
         md = fmpy.read_model_description(str(path))
-        s = FMU2Slave(guid=md.guid, unzipDirectory=fmpy.extract(str(path)),
+        s = FMU2Slave(guid=md.guid, unzipDirectory=extracted_fmu(path),
                       modelIdentifier=md.coSimulation.modelIdentifier, instanceName=name)
         s.instantiate()
         s.setupExperiment(startTime=0.0)
@@ -103,7 +104,7 @@ def direct_loop(fmus: dict[str, Path], designs: list[dict[str, float]], holding:
 
     def slave(path: Path, name: str) -> tuple[FMU2Slave, dict[str, int]]:
         md = fmpy.read_model_description(str(path))
-        s = FMU2Slave(guid=md.guid, unzipDirectory=fmpy.extract(str(path)),
+        s = FMU2Slave(guid=md.guid, unzipDirectory=extracted_fmu(path),
                       modelIdentifier=md.coSimulation.modelIdentifier, instanceName=name)
         s.instantiate()
         s.setupExperiment(startTime=0.0)
