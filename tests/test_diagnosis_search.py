@@ -102,3 +102,40 @@ def test_nominal_refit_is_integrated_as_finely_as_its_values_need(stiff_nominal)
                           work / "offset", SCREEN_NFEV)
     assert trial.loop.substeps == current.loop.substeps
     assert trial.start_cost == pytest.approx(current.fit.cost, rel=VANISHING_RTOL)
+
+
+@pytest.fixture(scope="module")
+def with_coulomb(tmp_path_factory):
+    """The short concealed-Coulomb benchmark bundle, its nominal refit extended by Coulomb friction."""
+    folder = tmp_path_factory.mktemp("nested") / "coulomb"
+    bench.write_bundle(folder, "coulomb_friction", seed=23, durations=(1.5, 0.75), engine="casadi")
+    bundle = read_bundle(folder)
+    bundle.cache = LoopCache()
+    bundle.start = nominal_start(bundle)
+    fit, weights = fit_nominal(bundle)
+    ctx = context(bundle, fit)
+    work = folder.parent / "work"
+    current = fit_structure(bundle, fit, effect_models.VOCABULARY["coulomb_friction"](ctx), ctx, weights,
+                            work / "coulomb", SCREEN_NFEV)
+    return bundle, current, weights, ctx, work
+
+
+@pytest.mark.parametrize("name", sorted(effect_models.NESTED_START))
+def test_richer_form_in_place_of_its_nested_effect_never_above_the_model(with_coulomb, name):
+    """Stribeck, asymmetric, load-dependent, drifting and LuGre friction fitted in place of a kept Coulomb
+    friction start at the Coulomb friction's fitted values (``effects.NESTED_START``), not at their own vanishing
+    point, which drops the friction: the held-out offset + Stribeck audit case printed "stribeck_friction in
+    place of coulomb_friction: extra +1.2e+04" (a richer form ending above the model it contains) and lost it.
+    Reference: the Coulomb model's own training cost; the friction is far above the noise here, so a start
+    without it lies far above that cost."""
+    bundle, current, weights, ctx, work = with_coulomb
+    coulomb = current.effects[-1]
+    assert current.fit.values["coulomb_Fc"] > 0
+    rich = effect_models.VOCABULARY[name](ctx)
+    trial = fit_structure(bundle, current, rich, ctx, weights, work / name, SCREEN_NFEV, replacing=coulomb)
+    assert [e.name for e in trial.effects] == [name]
+    cost = current.fit.cost
+    if name != "lugre_friction":   # its stiffest bristle only approximates the tanh law
+        assert trial.start_cost == pytest.approx(cost, rel=VANISHING_RTOL)   # the richer form is the model
+        assert trial.fit.cost <= cost * (1 + VANISHING_RTOL)
+    assert trial.fit.cost <= trial.start_cost

@@ -475,3 +475,17 @@ VOCABULARY: dict[str, Callable[[Context], Effect]] = {
 NESTED = {"stribeck_friction": "coulomb_friction", "asymmetric_friction": "coulomb_friction",
           "lugre_friction": "coulomb_friction", "load_dependent_friction": "coulomb_friction",
           "friction_drift": "coulomb_friction", "backlash": "resonance"}
+
+#: richer effect -> its values that reproduce the simpler effect it nests, from the simpler one's fitted values:
+#: the start of a fit in place of the simpler one, so that fit cannot end above the model it replaces (exact for
+#: the tanh frictions; LuGre's stiffest bristle only approximates Coulomb friction)
+NESTED_START: dict[str, Callable[[dict[str, float]], dict[str, float]]] = {
+    "stribeck_friction": lambda v: {"stribeck_Fc": v["coulomb_Fc"], "stribeck_Fs": v["coulomb_Fc"],
+                                    "stribeck_v_eps": v["coulomb_v_eps"]},
+    "asymmetric_friction": lambda v: {"asym_Fc_pos": v["coulomb_Fc"], "asym_Fc_neg": v["coulomb_Fc"],
+                                      "asym_v_eps": v["coulomb_v_eps"]},
+    "load_dependent_friction": lambda v: {"load_Fc0": v["coulomb_Fc"], "load_mu": 0.0,
+                                          "load_v_eps": v["coulomb_v_eps"]},
+    "friction_drift": lambda v: {"drift_Fc0": v["coulomb_Fc"], "drift_dFc": 0.0, "drift_v_eps": v["coulomb_v_eps"]},
+    "lugre_friction": lambda v: {"lugre_Fc": v["coulomb_Fc"], "lugre_z0": 0.0},
+}

@@ -39,17 +39,22 @@ def fit_structure(bundle: Bundle, current: ModelFit, candidate: effect_models.Ef
     """Fit the current structure plus ``candidate`` (in place of its effect ``replacing``, when given) from
     its vanishing point and its data-driven starts, these also with the nominal parameters from a joint
     inverse-dynamics estimate (:func:`_joint_start`) and at the plant's own start values (the missing effect
-    may have pulled the nominal refit into a basin the candidate's fit does not leave)."""
+    may have pulled the nominal refit into a basin the candidate's fit does not leave). In place of a nested
+    simpler effect the first start is the richer one at the simpler one's fitted values
+    (``effects.NESTED_START``): the current model exactly, so the fit cannot end above it."""
     effects = ([candidate if e is replacing else e for e in current.effects] if replacing is not None
                else current.effects + [candidate])
     base = dict(current.fit.values) if current.effects else {"plant." + k: v for k, v in current.fit.values.items()}
     if replacing is not None:
         base = {k: v for k, v in base.items() if k not in {p.name for p in replacing.params}}
-    starts = _starts(candidate, ctx)
+    own = _starts(candidate, ctx)
+    first = own[1] if len(own) > 1 else {}
+    starts = own
+    if replacing is not None and candidate.name in effect_models.NESTED_START:
+        starts = [{**own[0], **effect_models.NESTED_START[candidate.name](current.fit.values)}] + own
     values = {**base, **{p.name: float(np.mean(p.bounds)) for p in candidate.params if not p.fitted}, **starts[0]}
     loop, bounds = build_structure(bundle, effects, values, folder, bundle.train.time.size,
                                    min_substeps=current.loop.substeps)
-    first = starts[1] if len(starts) > 1 else {}
     joint = _joint_start(bundle, loop, candidate, {**values, **first})
     prior = {"plant." + k: v for k, v in default_start(bundle).items() if "plant." + k in loop.free}
     starts = starts + ([joint] if joint else []) + ([{**prior, **first}] if prior else [])
