@@ -24,15 +24,20 @@ from motiontwin.ident.diagnosis.screen import SCREEN_NFEV, VANISHING_RTOL, fit_s
 from motiontwin.ident.diagnosis.structure import LoopCache
 
 
-@pytest.fixture(scope="module")
-def nominal(tmp_path_factory):
-    folder = tmp_path_factory.mktemp("search") / "cogging"
-    bench.write_bundle(folder, "cogging", seed=21, durations=(1.5, 0.75), engine="casadi")
+def short_bundle_nominal(folder, case: str, seed: int) -> tuple:
+    """A short benchmark bundle of ``case`` written to ``folder``, its nominal refit, weights and context."""
+    bench.write_bundle(folder, case, seed=seed, durations=(1.5, 0.75), engine="casadi")
     bundle = read_bundle(folder)
     bundle.cache = LoopCache()
     bundle.start = nominal_start(bundle)
     fit, weights = fit_nominal(bundle)
-    return bundle, fit, weights, context(bundle, fit), folder.parent / "work"
+    return bundle, fit, weights, context(bundle, fit)
+
+
+@pytest.fixture(scope="module")
+def nominal(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("search") / "cogging"
+    return (*short_bundle_nominal(folder, "cogging", 21), folder.parent / "work")
 
 
 @pytest.mark.parametrize("name", list(effect_models.VOCABULARY))
@@ -108,12 +113,7 @@ def test_nominal_refit_is_integrated_as_finely_as_its_values_need(stiff_nominal)
 def with_coulomb(tmp_path_factory):
     """The short concealed-Coulomb benchmark bundle, its nominal refit extended by Coulomb friction."""
     folder = tmp_path_factory.mktemp("nested") / "coulomb"
-    bench.write_bundle(folder, "coulomb_friction", seed=23, durations=(1.5, 0.75), engine="casadi")
-    bundle = read_bundle(folder)
-    bundle.cache = LoopCache()
-    bundle.start = nominal_start(bundle)
-    fit, weights = fit_nominal(bundle)
-    ctx = context(bundle, fit)
+    bundle, fit, weights, ctx = short_bundle_nominal(folder, "coulomb_friction", 23)
     work = folder.parent / "work"
     current = fit_structure(bundle, fit, effect_models.VOCABULARY["coulomb_friction"](ctx), ctx, weights,
                             work / "coulomb", SCREEN_NFEV)
