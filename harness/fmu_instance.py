@@ -4,12 +4,10 @@ with a logger that keeps each instance's messages, so errors can say what the FM
 
 from __future__ import annotations
 
-import atexit
 import ctypes
 import itertools
-import multiprocessing.util
 import os
-import shutil
+import tempfile
 import weakref
 from collections import deque
 from pathlib import Path
@@ -19,6 +17,7 @@ import numpy as np
 from fmpy import extract
 
 from motiontwin.fmus.archive import read_description
+from motiontwin.harness.scratch import process_folder
 from fmpy.fmi1 import FMICallException
 from fmpy.fmi2 import (
     FMU2Slave,
@@ -59,31 +58,18 @@ class FMUCallError(RuntimeError):
 # ---------------------------------------------------------------------------------------------
 # extraction cache (once per process)
 
-_EXTRACTED: dict[tuple[str, int, int], tuple[int, str]] = {}   # FMU file version -> (extracting pid, folder)
-
-
-def _cleanup_extracted() -> None:
-    """Remove the folders this process unzipped (a forked worker inherits, but must not remove, its parent's)."""
-    for key, (pid, folder) in list(_EXTRACTED.items()):
-        if pid == os.getpid():
-            shutil.rmtree(folder, ignore_errors=True)
-            del _EXTRACTED[key]
-
-
-atexit.register(_cleanup_extracted)
+_EXTRACTED: dict[tuple[int, str, int, int], str] = {}   # (pid, FMU file version) -> folder
 
 
 def extracted_fmu(path: str | Path) -> str:
-    """Folder holding the unzipped FMU; unzipped at most once per process and FMU file version, removed when
-    the process ends (also a multiprocessing or process-pool worker, which leaves without running atexit)."""
+    """Folder holding the unzipped FMU; unzipped at most once per process and FMU file version, into this
+    process's :func:`harness.scratch.process_folder` (removed when the process ends)."""
     path = Path(path).resolve()
     stat = path.stat()
-    key = (str(path), stat.st_mtime_ns, stat.st_size)
+    key = (os.getpid(), str(path), stat.st_mtime_ns, stat.st_size)
     if key not in _EXTRACTED:
-        if not any(pid == os.getpid() for pid, _ in _EXTRACTED.values()):
-            multiprocessing.util.Finalize(None, _cleanup_extracted, exitpriority=0)
-        _EXTRACTED[key] = (os.getpid(), str(extract(str(path))))
-    return _EXTRACTED[key][1]
+        _EXTRACTED[key] = str(extract(str(path), unzipdir=tempfile.mkdtemp(dir=process_folder())))
+    return _EXTRACTED[key]
 
 
 # ---------------------------------------------------------------------------------------------

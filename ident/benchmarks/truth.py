@@ -5,10 +5,7 @@ CasADi truth of the same loop). :mod:`ident.benchmarks.single_axis` writes bundl
 """
 from __future__ import annotations
 
-import atexit
 import math
-import os
-import shutil
 import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -20,6 +17,7 @@ from motiontwin.fmus import build
 from motiontwin.harness import measurement
 from motiontwin.harness.master import Master
 from motiontwin.harness.recording import make_recording
+from motiontwin.harness.scratch import process_folder
 from motiontwin.harness.system import system_from_dict
 from motiontwin.ident.diagnosis.bundle import Controller
 from motiontwin.ident.diagnosis.plant_roles import PlantRoles
@@ -377,24 +375,12 @@ def with_preroll(r: np.ndarray, u_ext: np.ndarray, start: float = 0.0) -> tuple[
 # -- FMUs and the co-simulated loop ----------------------------------------------------------------
 
 _BUILT: dict[tuple[str, str], Path] = {}
-_SCRATCH: dict[int, str] = {}   # pid -> this process's default FMU folder, removed when it exits
-
-
-def _remove_scratch() -> None:
-    folder = _SCRATCH.pop(os.getpid(), None)   # a forked child inherits, but must not remove, its parent's
-    if folder is not None:
-        shutil.rmtree(folder, ignore_errors=True)
 
 
 def truth_fmus(classes: list[str], folder: Path | None = None) -> dict[str, Path]:
     """FMI 2.0 FMUs of ``classes`` (built once per process and folder by the project's pipeline; by default in
-    a temporary folder of this process, removed when it exits)."""
-    if folder is None:
-        if os.getpid() not in _SCRATCH:
-            _SCRATCH[os.getpid()] = tempfile.mkdtemp(prefix="motiontwin-benchmark-fmus-")
-            atexit.register(_remove_scratch)
-        folder = _SCRATCH[os.getpid()]
-    folder = Path(folder)
+    this process's temporary folder, removed when it exits)."""
+    folder = Path(folder) if folder is not None else process_folder() / "benchmark-fmus"
     missing = [c for c in dict.fromkeys(classes) if (c, str(folder)) not in _BUILT]
     if missing:
         for fmu, class_name in zip(build.build(missing, out_dir=folder, fmi_versions=("2.0",), workers=1), missing):
