@@ -47,11 +47,10 @@ def fit_structure(bundle: Bundle, current: ModelFit, candidate: effect_models.Ef
     base = dict(current.fit.values) if current.effects else {"plant." + k: v for k, v in current.fit.values.items()}
     if replacing is not None:
         base = {k: v for k, v in base.items() if k not in {p.name for p in replacing.params}}
-    own = _starts(candidate, ctx)
-    first = own[1] if len(own) > 1 else {}
-    starts = own
+    starts = _starts(candidate, ctx)
+    first = starts[1] if len(starts) > 1 else {}
     if replacing is not None and candidate.name in effect_models.NESTED_START:
-        starts = [{**own[0], **effect_models.NESTED_START[candidate.name](current.fit.values)}] + own
+        starts = [{**starts[0], **effect_models.NESTED_START[candidate.name](current.fit.values)}] + starts
     values = {**base, **{p.name: float(np.mean(p.bounds)) for p in candidate.params if not p.fitted}, **starts[0]}
     loop, bounds = build_structure(bundle, effects, values, folder, bundle.train.time.size,
                                    min_substeps=current.loop.substeps)
