@@ -35,6 +35,7 @@ import scipy.io
 from motiontwin.fmus.files import atomic_path, atomic_write_texts
 from motiontwin.ident.controller import controller_document
 from motiontwin.ident.benchmarks import single_axis as benchmark
+from motiontwin.ident.controller import Controller
 from motiontwin.harness.excitation import fourier_trajectory
 
 PLANT = "MotionTwin.Plants.PrismaticAxis"
@@ -62,7 +63,7 @@ def coefficients(seed: int) -> tuple[np.ndarray, np.ndarray]:
     return scale * a, scale * b
 
 
-def loop_controller() -> benchmark.Controller:
+def loop_controller() -> Controller:
     """The lab's PID (filtered derivative, Tustin) tuned for the 95 kg axis at 25 Hz."""
     return benchmark.pid_controller(ts=TS, mass=TRUTH["m"], bandwidth=25.0)
 

@@ -16,6 +16,7 @@ from fmpy.fmi2 import FMU2Slave
 from motiontwin.harness import measurement
 from motiontwin.harness.fmu_instance import extracted_fmu
 from motiontwin.ident.benchmarks import single_axis as bench
+from motiontwin.ident.benchmarks.truth import truth_fmus
 from motiontwin.ident.diagnosis.bundle import read_bundle
 
 
@@ -59,7 +60,7 @@ def _fmpy_plant(path: Path, parameters: dict[str, float], u: np.ndarray, ts: flo
 
 
 def test_recorded_position_is_the_plant_fmu_driven_by_the_recorded_force(loop, fmu_dir):
-    path = bench.truth_fmus([loop["plant"].class_name], fmu_dir)[loop["plant"].class_name]
+    path = truth_fmus([loop["plant"].class_name], fmu_dir)[loop["plant"].class_name]
     q_ref = _fmpy_plant(path, loop["plant"].parameters, loop["u"], bench.TS)
     assert np.max(np.abs(q_ref - loop["q_true"])) < 1e-11          # integrator tolerance, not the noise
     assert np.max(np.abs(q_ref - loop["q"]) - np.abs(loop["noise"])) <= bench.RESOLUTION / 2 + 1e-11

@@ -2,7 +2,7 @@
 
 * The decision end to end: a parameters-only bundle gives no effect, and four concealed single-effect
   bundles give exactly their effect. Four bundles are short closed-loop runs of the truth written as the
-  diagnosis' augmented model (``benchmark.casadi_truth``: the ``MotionTwin.Effects`` functions through the
+  diagnosis' augmented model (``benchmarks.truth.casadi_truth``: the ``MotionTwin.Effects`` functions through the
   project's front end, RK4 at 16 substeps, white encoder noise fed back), ~1-2 s each to generate; the
   position-dependent inertia bundle is the FMU co-simulated benchmark truth (cosine mass law, quantised
   encoder), where the validation rule has to reject a significant second candidate.

@@ -4,7 +4,7 @@ main parameter near the truth, and the laws the augmented model writes equal the
 The bundles are short closed-loop runs (3 s + 1.5 s at 2 kHz) of the truth written as the diagnosis' own
 augmented model (``benchmark.write_bundle(..., engine="casadi")``: the ``MotionTwin.Effects`` functions through
 the project's front end, RK4 at 16 substeps, white encoder noise fed back); the truth's parameters are the
-benchmark's (``benchmark.NEW_EFFECT_CASES``), so the reference of each check is the known truth of the case.
+benchmark's (``benchmarks.truth.NEW_EFFECT_CASES``), so the reference of each check is the known truth of the case.
 """
 from __future__ import annotations
 

@@ -7,7 +7,7 @@ The truth of a case is ``MotionTwin.Benchmarks.CheungEffects``: the library's ``
 (library parameter values) with, on every actuator, an opposing force built from the ``MotionTwin.Effects``
 functions (offset + Stribeck/Coulomb friction + position ripple), zero except on the case's axes. It is built
 into an FMI 2.0 FMU by :mod:`fmus.build` and co-simulated by the harness with one ``LoopController`` FMU and one
-``Encoder`` FMU per axis (:func:`benchmark.loop_system`): each axis has its own PID
+``Encoder`` FMU per axis (:func:`benchmarks.truth.loop_system`): each axis has its own PID
 (:func:`benchmark.pid_controller`, its integral holding gravity) tuned for that actuator's effective mass at
 the rest pose at :data:`BANDWIDTH`, a quantised encoder and its own seeded sensor noise. Every axis follows the
 single-axis benchmark's reference (:func:`benchmark.reference`: point-to-point moves, then a swept sine on its
@@ -40,6 +40,7 @@ from motiontwin.fmus import build
 from motiontwin.harness import kinematics, measurement
 from motiontwin.harness.recording import atomic_write_texts, make_recording, write_recording
 from motiontwin.ident.benchmarks import single_axis as single
+from motiontwin.ident.benchmarks.truth import V_EPS, cosimulate_axes, loop_axes
 from motiontwin.ident.diagnosis.bundle import Controller
 
 TS = single.TS
@@ -107,7 +108,7 @@ def truth_parameters(case: str, axes: list[str], scale: float,
     if len(axes) != len(names) or len(set(axes)) != len(axes) or not set(axes) <= set(plant.outputs):
         raise ValueError(f"case {case!r} needs {len(names)} different axes among {', '.join(plant.outputs)}, "
                          f"got {axes}")
-    parameters: dict[str, float] = {"v_eps": single.V_EPS}
+    parameters: dict[str, float] = {"v_eps": V_EPS}
     effects = []
     for name, axis in zip(names, axes):
         plant = single.truth_plant(name, scale * EFFECT_SCALE)
@@ -194,7 +195,7 @@ def simulate(parameters: dict[str, float], r: np.ndarray, u_ext: np.ndarray, noi
     rr, ue = np.column_stack([c[0] for c in cols]), np.column_stack([c[1] for c in cols])
     noise = np.column_stack([measurement.add_noise(np.zeros(rr.shape[0]), noise_std, np.random.default_rng(s))
                              for s in noise_seeds])
-    out = single.cosimulate_axes(plant.truth_class, parameters, single.loop_axes(plant.ports), ctrls, rr, ue, noise,
+    out = cosimulate_axes(plant.truth_class, parameters, loop_axes(plant.ports), ctrls, rr, ue, noise,
                                  resolution, fmu_dir)
     check_workspace(out["q_true"], f"{plant.truth_class} run (pre-roll included)")
     return {k: v[pre:] for k, v in out.items() if k != "time"}

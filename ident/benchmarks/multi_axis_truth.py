@@ -1,7 +1,7 @@
 """Cheap multi-axis bundles whose truth is simulated by CasADi: the diagnosis' own augmented model with the
 true effects on their axes (the ``MotionTwin.Effects`` force laws through the project's front end), RK4
 with 8 substeps per sample, white encoder noise fed back through the controller, no quantisation. The
-multi-axis counterpart of ``benchmark.casadi_truth``, for the decision tests and the budget benchmark until
+multi-axis counterpart of ``benchmarks.truth.casadi_truth``, for the decision tests and the budget benchmark until
 the FMU-truth generator exists. Units: SI (s, m, N).
 """
 from __future__ import annotations

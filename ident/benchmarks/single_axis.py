@@ -36,14 +36,11 @@ from pathlib import Path
 import numpy as np
 
 from motiontwin.harness.recording import atomic_write_texts, make_recording, write_recording
-from motiontwin.ident.diagnosis.bundle import Controller  # noqa: F401  (re-exported: the bundles' controller type)
 from motiontwin.ident.diagnosis.plant_roles import PlantRoles
-from motiontwin.ident.benchmarks.truth import (CASES, NEW_EFFECT_CASES, NOISE, PLANT_CLASS, PLANT_FORMS,
-                                               PLANT_SUBSTEPS, PLANT_TEXT, POLE_PITCH, RESOLUTION, TRUE_D, TRUE_M,
-                                               TS, V_EPS, TruthPlant, casadi_truth, controller_json, cosimulate,
-                                               cosimulate_axes, inertia_range, loop_axes, loop_system,
-                                               pid_controller, plant_form, reference, simulate_truth, truth_fmus,
-                                               truth_plant, with_preroll)
+from motiontwin.ident.benchmarks.truth import (CASES, NOISE, PLANT_CLASS, PLANT_FORMS, PLANT_SUBSTEPS, PLANT_TEXT,
+                                               POLE_PITCH, RESOLUTION, TRUE_D, TRUE_M, TS, TruthPlant,
+                                               controller_json, cosimulate, inertia_range, pid_controller, plant_form,
+                                               reference, simulate_truth, truth_plant, with_preroll)
 
 def write_bundle(folder: Path, case: str, seed: int, scale: float = 1.0, nominal_error: float | None = None,
                  durations: tuple[float, float] = (12.0, 6.0), noise_std: float = NOISE,
