@@ -17,6 +17,7 @@ import numpy as np
 
 from motiontwin.ident import outputerror, startvalues
 from motiontwin.ident.diagnosis import effects as effect_models
+from motiontwin.ident.diagnosis import evidence
 from motiontwin.ident.diagnosis.bundle import Bundle
 from motiontwin.ident.diagnosis.effect_base import vanishing_start
 from motiontwin.ident.diagnosis.nominal import default_start
@@ -30,6 +31,9 @@ SCREEN_STARTS = 1           # data-driven starts fitted in the screening, beside
 FULL_STARTS = 3             # ... and in a full fit
 #: nonlinear in a period or a frequency: every start is screened
 MULTI_START = ("position_ripple", "resonance", "encoder_error", "coulomb_friction")
+#: smooth in their parameters at the vanishing point and the dearest to fit (stiff extra states, the most RK4
+#: substeps): screened only when the score test (:func:`score_test`) beats their bootstrap null
+SCORE_TESTED = ("time_delay",)
 _TOKENS = itertools.count()  # screening-job tokens (itertools.count is thread-safe in CPython)
 
 
@@ -267,6 +271,42 @@ def fit_candidate(bundle: Bundle, current: ModelFit, effect: effect_models.Effec
                                  effect.name, current.fit.shift)
     return ModelFit(current.effects + [placed], loop.with_values(best.values), best, bounds, folder,
                     evidence=dict(current.evidence), axes=current.axes + [axis], start_cost=start_cost)
+
+
+def score_test(bundle: Bundle, current: ModelFit, name: str, axis: str | None, ctx: effect_models.Context,
+               weights: outputerror.Weights, folder: Path) -> tuple[float, np.ndarray, int]:
+    """The score (Lagrange-multiplier) test of ``name`` on the current structure (on ``axis`` of several): the
+    cost reduction that one Gauss-Newton step from the effect's vanishing point predicts (that point's weighted
+    residual projected on the extended model's Jacobian there, against the current model's cost), the extended
+    Jacobian (for the bootstrap null of the same extension) and the effect's fitted parameter count. One free
+    run with its sensitivities, where a screening fit takes several: for an effect smooth in its parameters at
+    the vanishing point, a reduction this test does not predict no fit finds near it either."""
+    effect = effect_models.VOCABULARY[name](ctx)
+    if axis is not None:
+        effect = on_axis(effect, next(a for a in bundle.plant.axes if a.output == axis), bundle.plant.model)
+    start = vanishing_start(effect, effect.initial(ctx))
+    fixed = {p.name: float(np.mean(p.bounds)) for p in effect.params if not p.fitted}
+    if axis is None:
+        base = dict(current.fit.values) if current.effects else {"plant." + k: v for k, v in current.fit.values.items()}
+        loop, bounds = build_structure(bundle, current.effects + [effect], {**base, **fixed, **start}, folder,
+                                       bundle.train.time.size, min_substeps=current.loop.substeps)
+    else:
+        base = dict(current.fit.values)
+        loop, bounds = build_axes(bundle, current.placed + [(axis, effect)], {**base, **fixed, **start}, folder,
+                                  bundle.train.time.size, min_substeps=current.loop.substeps)
+        base = {**loop.values, **base}
+    point = {**base, **{k: float(np.clip(v, *bounds[k])) for k, v in start.items() if k in bounds}}
+    at = outputerror.fit(loop, bundle.train, weights, bounds, start=point, max_nfev=1,
+                         estimate_controller=bundle.observer is None, shift=current.fit.shift)
+    jac = at.jacobian
+    if np.all(np.isfinite(jac)) and np.all(np.isfinite(at.residual)):
+        step = -np.linalg.lstsq(jac, at.residual, rcond=None)[0]
+        held = [loop.free.index(p.name) for p in effect.params if p.fitted and p.name in loop.free
+                and ((point[p.name] <= bounds[p.name][0] and step[loop.free.index(p.name)] < 0)
+                     or (point[p.name] >= bounds[p.name][1] and step[loop.free.index(p.name)] > 0))]
+        jac = np.delete(jac, held, axis=1)    # a step out of its bounds is no step: that parameter stays put
+    gain = float(evidence.projected_gain(jac, at.residual[None, :])[0])
+    return current.fit.cost - (at.cost - gain), at.jacobian, sum(p.fitted for p in effect.params)
 
 
 def placed_structure(bundle: Bundle, current: ModelFit, name: str, axis: str, ctx: effect_models.Context,

@@ -18,9 +18,9 @@ from motiontwin.ident.diagnosis.bounds import WIDEN_ROUNDS, widened_effects
 from motiontwin.ident.diagnosis.axis_units import bundle_units
 from motiontwin.ident.diagnosis.bundle import Bundle
 from motiontwin.ident.diagnosis.locate import AxisEvidence, locate
-from motiontwin.ident.diagnosis.screen import (MAX_NFEV, fit_structure, SCREEN_NFEV, _close_richer, candidates,
-                                               fit_candidate, map_candidates, placed_structure, ranked_with_nested,
-                                               refine, screen)
+from motiontwin.ident.diagnosis.screen import (MAX_NFEV, SCORE_TESTED, SCREEN_NFEV, _close_richer, candidates,
+                                               fit_candidate, fit_structure, map_candidates, placed_structure,
+                                               ranked_with_nested, refine, score_test, screen)
 from motiontwin.ident.diagnosis.structure import ModelFit, _log, build_structure, compiled, validate_any
 
 VALIDATION_GAIN = evidence.VALIDATION_GAIN
@@ -69,6 +69,9 @@ def select(bundle: Bundle, nominal: ModelFit, weights: outputerror.Weights, ctx:
                                             weights.sigma_u, bundle.train.time.size, BOOTSTRAP_COUNT, seed=rounds)
         base_gain = evidence.projected_gain(current.fit.jacobian, null)
         names = [n for n in candidates(ctx, used.setdefault(axis, set())) if n not in (owned or {})]
+        names = [n for n in names if n not in SCORE_TESTED
+                 or _score_passes(bundle, current, n, axis, ctx, weights, null, base_gain, work / f"s{rounds}_{n}",
+                                  progress)]
         if axis is None:
             screened = screen(bundle, current, names, ctx, weights, work / f"r{rounds}", progress)
         else:
@@ -165,6 +168,24 @@ def select(bundle: Bundle, nominal: ModelFit, weights: outputerror.Weights, ctx:
         used[axis].add(chosen.effects[-1].family)
         current = chosen
     return current, log, located
+
+
+def _score_passes(bundle: Bundle, current: ModelFit, name: str, axis: str | None, ctx: effect_models.Context,
+                  weights: outputerror.Weights, null: np.ndarray, base_gain: np.ndarray, folder: Path,
+                  progress) -> bool:
+    """Whether ``name`` goes on to the screening: its score test (:func:`screen.score_test`) predicts a cost
+    reduction above the 99.9 % level of its own extension's bootstrap null, the level its full fit must beat
+    too (or the test cannot be evaluated: a non-finite Jacobian)."""
+    t0 = time.perf_counter()
+    predicted, jac, dof = score_test(bundle, current, name, axis, ctx, weights, folder)
+    if not (math.isfinite(predicted) and np.all(np.isfinite(jac))):
+        return True
+    threshold = evidence.null_threshold(evidence.extension_null(jac, current.fit.jacobian, null, base_gain), dof)
+    on = "" if axis is None else f" on {axis}"
+    passes = predicted > threshold
+    _log(progress, f"  score test {name}{on}: predicted cost {-predicted:+.4g}, null {threshold:.4g} "
+                   f"({'screened' if passes else 'not screened'}, {time.perf_counter() - t0:.1f} s)")
+    return passes
 
 
 def upgrade_nested(bundle: Bundle, final: ModelFit, weights: outputerror.Weights, ctx: effect_models.Context,

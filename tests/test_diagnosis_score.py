@@ -1,0 +1,50 @@
+"""The score test that decides whether the time delay is screened at all (``screen.score_test``): one free run
+with sensitivities at the delay's vanishing point predicts the cost reduction its fit would reach.
+
+References: the full output-error fit of the same structure (``screen.fit_structure``: the vanishing point and
+every data-driven start, 15 free runs each), and the bootstrap null of the same extension, the level a
+candidate's fitted reduction must beat in the selection. Bundles: the short benchmark bundles of a concealed
+0.4 ms input delay and of a concealed Coulomb friction (no delay: the nominal model's residual pulls the delay
+below zero, out of its bounds).
+"""
+from __future__ import annotations
+
+import pytest
+
+from motiontwin.ident.diagnosis import effects as effect_models
+from motiontwin.ident.diagnosis import evidence, noise
+from motiontwin.ident.diagnosis.screen import fit_structure, score_test
+from motiontwin.ident.diagnosis.select import BOOTSTRAP_COUNT
+from tests.test_diagnosis_search import short_bundle_nominal
+
+
+def _scored(tmp_path, case: str, seed: int) -> tuple[float, float, float]:
+    """(predicted reduction, fitted reduction, null threshold) of the time delay on a short ``case`` bundle."""
+    bundle, current, weights, ctx = short_bundle_nominal(tmp_path / case, case, seed)
+    bundle.process_noise = noise.of_bundle(bundle, current.fit.values, weights.sigma_q)
+    noisy = noise.noisy_simulator(current.loop, bundle.train, current.fit.values, bundle.process_noise,
+                                  current.fit.shift)
+    null = evidence.bootstrap_residuals(noisy, current.fit.q_sim, current.fit.u_sim, weights.sigma_q,
+                                        weights.sigma_u, bundle.train.time.size, BOOTSTRAP_COUNT, seed=1)
+    predicted, jac, dof = score_test(bundle, current, "time_delay", None, ctx, weights, tmp_path / "score")
+    threshold = evidence.null_threshold(evidence.extension_null(jac, current.fit.jacobian, null), dof)
+    fitted = fit_structure(bundle, current, effect_models.VOCABULARY["time_delay"](ctx), ctx, weights,
+                           tmp_path / "fit")
+    print(f"{case}: predicted {predicted:.6g}, fitted {current.fit.cost - fitted.fit.cost:.6g}, null {threshold:.6g}")
+    return predicted, current.fit.cost - fitted.fit.cost, threshold
+
+
+def test_score_test_predicts_the_fitted_reduction_of_a_true_delay(tmp_path):
+    predicted, fitted, threshold = _scored(tmp_path, "time_delay", 508)
+    assert fitted > 10 * threshold                       # the delay is there, far above its null
+    assert predicted == pytest.approx(fitted, rel=0.05)  # one Gauss-Newton step from the vanishing point
+    assert predicted > threshold                         # so it is screened
+
+
+def test_score_test_holds_a_delay_that_would_step_below_zero(tmp_path):
+    """Without the bound check the step predicts a reduction of the order of the missing friction's cost, which
+    no delay >= 0 reaches (the fit finds nothing): the delay would be screened for nothing."""
+    predicted, fitted, threshold = _scored(tmp_path, "coulomb_friction", 3)
+    assert fitted < threshold
+    assert predicted <= fitted + threshold
+    assert predicted < threshold                         # not screened
