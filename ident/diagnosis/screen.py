@@ -276,8 +276,10 @@ def fit_candidate(bundle: Bundle, current: ModelFit, effect: effect_models.Effec
 def score_test(bundle: Bundle, current: ModelFit, name: str, axis: str | None, ctx: effect_models.Context,
                weights: outputerror.Weights, folder: Path) -> tuple[float, np.ndarray, int]:
     """The score (Lagrange-multiplier) test of ``name`` on the current structure (on ``axis`` of several): the
-    cost reduction that one Gauss-Newton step from the effect's vanishing point predicts (that point's weighted
-    residual projected on the extended model's Jacobian there, against the current model's cost), the extended
+    cost reduction that one Gauss-Newton step from the effect's vanishing point predicts from the effect's
+    parameters (that point's weighted residual projected on the extended model's Jacobian there, less its
+    projection on the same Jacobian without the effect's columns: the step of the other parameters alone, which
+    the fit's controller-start prior prices and this projection does not, is not credited to it), the extended
     Jacobian (for the bootstrap null of the same extension) and the effect's fitted parameter count. One free
     run with its sensitivities, where a screening fit takes several: for an effect smooth in its parameters at
     the vanishing point, a reduction this test does not predict no fit finds near it either."""
@@ -298,15 +300,24 @@ def score_test(bundle: Bundle, current: ModelFit, name: str, axis: str | None, c
     point = {**base, **{k: float(np.clip(v, *bounds[k])) for k, v in start.items() if k in bounds}}
     at = outputerror.fit(loop, bundle.train, weights, bounds, start=point, max_nfev=1,
                          estimate_controller=bundle.observer is None, shift=current.fit.shift)
-    jac = at.jacobian
-    if np.all(np.isfinite(jac)) and np.all(np.isfinite(at.residual)):
-        step = -np.linalg.lstsq(jac, at.residual, rcond=None)[0]
-        held = [loop.free.index(p.name) for p in effect.params if p.fitted and p.name in loop.free
-                and ((point[p.name] <= bounds[p.name][0] and step[loop.free.index(p.name)] < 0)
-                     or (point[p.name] >= bounds[p.name][1] and step[loop.free.index(p.name)] > 0))]
-        jac = np.delete(jac, held, axis=1)    # a step out of its bounds is no step: that parameter stays put
-    gain = float(evidence.projected_gain(jac, at.residual[None, :])[0])
-    return current.fit.cost - (at.cost - gain), at.jacobian, sum(p.fitted for p in effect.params)
+    columns = {p.name: loop.free.index(p.name) for p in effect.params if p.fitted and p.name in loop.free}
+    if not (np.all(np.isfinite(at.jacobian)) and np.all(np.isfinite(at.residual))):
+        return math.nan, at.jacobian, len(columns)
+    without = np.delete(at.jacobian, list(columns.values()), axis=1)
+    lowest_without = float(at.residual @ at.residual - evidence.projected_gain(without, at.residual[None, :])[0])
+    lowest = _quadratic_minimum(at.jacobian, at.residual, columns, point, bounds)
+    return lowest_without - lowest, at.jacobian, sum(p.fitted for p in effect.params)
+
+
+def _quadratic_minimum(jac: np.ndarray, residual: np.ndarray, columns: dict[str, int], point: dict[str, float],
+                       bounds: dict[str, tuple[float, float]]) -> float:
+    """The lowest cost of the Gauss-Newton model |r + J d|^2 from ``point``, where the effect's parameters
+    (``columns``: name -> column of ``jac``) that the free step would take out of their bounds stay put."""
+    step = -np.linalg.lstsq(jac, residual, rcond=None)[0]
+    held = [k for name, k in columns.items()
+            if (point[name] <= bounds[name][0] and step[k] < 0) or (point[name] >= bounds[name][1] and step[k] > 0)]
+    rest = np.delete(jac, held, axis=1)
+    return float(residual @ residual - evidence.projected_gain(rest, residual[None, :])[0])
 
 
 def placed_structure(bundle: Bundle, current: ModelFit, name: str, axis: str, ctx: effect_models.Context,
