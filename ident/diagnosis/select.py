@@ -178,12 +178,13 @@ def _score_passes(bundle: Bundle, current: ModelFit, name: str, axis: str | None
     too (or the test cannot be evaluated: a non-finite Jacobian)."""
     t0 = time.perf_counter()
     predicted, jac, dof = score_test(bundle, current, name, axis, ctx, weights, folder)
+    on = "" if axis is None else f" on {axis}"
     if not (math.isfinite(predicted) and np.all(np.isfinite(jac))):
+        _log(progress, f"  score test {name}{on}: not finite (a free run that diverges), screened")
         return True
     threshold = evidence.null_threshold(evidence.extension_null(jac, current.fit.jacobian, null, base_gain), dof)
-    on = "" if axis is None else f" on {axis}"
     passes = predicted > threshold
-    _log(progress, f"  score test {name}{on}: predicted cost {-predicted:+.4g}, null {threshold:.4g} "
+    _log(progress, f"  score test {name}{on}: predicted cost {0.0 - predicted:+.4g}, null {threshold:.4g} "
                    f"({'screened' if passes else 'not screened'}, {time.perf_counter() - t0:.1f} s)")
     return passes
 
