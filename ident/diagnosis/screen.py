@@ -280,9 +280,10 @@ def score_test(bundle: Bundle, current: ModelFit, name: str, axis: str | None, c
     parameters (that point's weighted residual projected on the extended model's Jacobian there, less its
     projection on the same Jacobian without the effect's columns: the step of the other parameters alone, which
     the fit's controller-start prior prices and this projection does not, is not credited to it), the extended
-    Jacobian (for the bootstrap null of the same extension) and the effect's fitted parameter count. One free
-    run with its sensitivities, where a screening fit takes several: for an effect smooth in its parameters at
-    the vanishing point, a reduction this test does not predict no fit finds near it either."""
+    Jacobian (for the bootstrap null of the same extension) and the effect's fitted parameter count. One
+    Jacobian and a few free runs at one point, where a screening fit takes several Jacobians from two starts:
+    for an effect smooth in its parameters at the vanishing point, a reduction this test does not predict no
+    fit finds near it either."""
     effect = effect_models.VOCABULARY[name](ctx)
     if axis is not None:
         effect = on_axis(effect, next(a for a in bundle.plant.axes if a.output == axis), bundle.plant.model)
