@@ -345,12 +345,17 @@ def test_robust_residual_limits_keep_the_friction_step():
 
 
 def test_location_in_words():
+    """A linear axis moves in x (mm, mm/s), a rotary one turns in q (deg, deg/s)."""
     from motiontwin.ident.diagnosis import report
+    from motiontwin.ident.diagnosis.axis_units import AxisUnits
 
     text = report.location_text({"velocity_range": [-0.02, -0.01], "position_range": [0.234, 0.246],
                                  "frequency_peak_hz": 12.0, "time_windows": [(1.0, 2.5)]})
     assert "while moving in -x at 10 to 20 mm/s between 234 and 246 mm" in text
     assert "12 Hz" in text and "1-2.5 s" in text
+    turning = report.location_text({"velocity_range": [-0.2, -0.1], "position_range": [0.5, 1.0],
+                                    "frequency_peak_hz": 12.0}, units=AxisUnits(rotary=True))
+    assert "while turning in -q at 5.73 to 11.5 deg/s between 28.65 and 57.3 deg" in turning
 
 
 def test_every_contract_parameter_has_a_unit():

@@ -53,15 +53,16 @@ def plant_units(result: dict) -> dict[str, str]:
 def location_text(loc: dict, axis: str | None = None, units: AxisUnits = AxisUnits()) -> str:
     """The location of an effect in words and physical units (mm, mm/s or deg, deg/s; s, Hz); ``axis``: the
     output of the axis it acts on (several axes: the sentence names it and its direction), None for the one
-    axis x."""
+    axis (x, or q when it turns)."""
     parts = [] if axis is None else [f"on axis {axis}"]
     v_lo, v_hi = loc["velocity_range"]
-    direction = axis or "x"
+    direction = axis or ("q" if units.rotary else "x")
+    moving = "turning" if units.rotary else "moving"
     k, speed = units.shown_velocity
     if v_lo >= 0:
-        parts.append(f"while moving in +{direction} at {v_lo * k:.3g} to {v_hi * k:.3g} {speed}")
+        parts.append(f"while {moving} in +{direction} at {v_lo * k:.3g} to {v_hi * k:.3g} {speed}")
     elif v_hi <= 0:
-        parts.append(f"while moving in -{direction} at {-v_hi * k:.3g} to {-v_lo * k:.3g} {speed}")
+        parts.append(f"while {moving} in -{direction} at {-v_hi * k:.3g} to {-v_lo * k:.3g} {speed}")
     else:
         parts.append(f"around standstill ({v_lo * k:.3g} to {v_hi * k:.3g} {speed})")
     x_lo, x_hi = loc["position_range"]
