@@ -41,7 +41,10 @@ def coulomb_q2(tmp_path_factory) -> tuple[dict, Path]:
     folder = _bundle(tmp_path_factory.mktemp("coulomb") / "bundle",
                      [truth.TrueEffect("coulomb_friction", "q2", {"coulomb_Fc": FC_TRUE, "coulomb_v_eps": 1e-4})], 3)
     out = folder.parent / "out"
-    return diagnose_bundle(folder, out), out
+    lines: list[str] = []
+    doc = diagnose_bundle(folder, out, progress=lines.append)
+    (folder.parent / "progress.txt").write_text("\n".join(lines))
+    return doc, out
 
 
 def test_mimo_loop_matches_exact_discrete_closed_loop(tmp_path):
@@ -180,6 +183,17 @@ def test_coulomb_on_one_axis_found_on_that_axis(coulomb_q2):
     assert "coulomb_friction on axis q2" in (out / "report.md").read_text()
     assert {entry["round"] for entry in doc["candidates"]} == {1}     # no axis left above 1.5x its noise level
     assert max(doc["location"][1]["scores"].values()) < 1.5
+
+
+def test_time_delay_score_tested_on_the_located_axis(coulomb_q2):
+    """The multi-axis selection runs the time delay's score test on the located axis inside the screening (its
+    line logged by the main process) and screens the delay only when it passes: no delay here, so no
+    screening line of it."""
+    _, out = coulomb_q2
+    lines = (out.parent / "progress.txt").read_text().splitlines()
+    assert any(line.startswith("  score test time_delay on q2: predicted cost") and "(not screened" in line
+               for line in lines)
+    assert not any(line.startswith("  screen time_delay") for line in lines)
 
 
 def test_written_fmu_is_self_contained_and_carries_the_fit(coulomb_q2):

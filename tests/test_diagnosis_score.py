@@ -50,3 +50,23 @@ def test_score_test_predicts_nothing_where_the_fit_finds_nothing(tmp_path, case,
     assert fitted < threshold
     assert predicted <= fitted + threshold
     assert predicted < threshold                         # not screened
+
+
+def test_the_selection_screens_the_delay_only_when_its_score_test_passes(tmp_path, monkeypatch):
+    """The selection runs the score test in the screening (in a worker when there are several; its line is
+    logged by the main process) and does not screen the delay when it fails: on the Coulomb bundle the log says
+    'not screened', has no screening line of the delay, and the selection finds the friction."""
+    from motiontwin.ident.diagnosis import select
+
+    vocabulary = {n: effect_models.VOCABULARY[n] for n in ("coulomb_friction", "time_delay")}
+    monkeypatch.setattr(effect_models, "VOCABULARY", vocabulary)
+    bundle, current, weights, ctx = short_bundle_nominal(tmp_path / "coulomb", "coulomb_friction", 3)
+    bundle.process_noise = noise.of_bundle(bundle, current.fit.values, weights.sigma_q)
+    lines: list[str] = []
+    final, _, _ = select.select(bundle, current, weights, ctx, tmp_path / "work", lines.append)
+    print("\n".join(lines))
+    assert any(line.startswith("  score test time_delay: predicted cost +0,") and "(not screened" in line
+               for line in lines)
+    assert not any(line.startswith("  screen time_delay") for line in lines)
+    assert any(line.startswith("  screen coulomb_friction") for line in lines)
+    assert [e.name for e in final.effects] == ["coulomb_friction"]

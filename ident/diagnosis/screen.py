@@ -160,15 +160,22 @@ def map_candidates(job: Callable[[str], object], names: list[str]) -> list:
         del _JOBS[token]
 
 
-def _screen_one(fit_one: Callable[[str], ModelFit], name: str
-                ) -> tuple[str, outputerror.Fit | None, int, float, str, float]:
-    """Cheap fit of the current structure plus the effect ``name`` (run in a worker or in-process)."""
+def _screen_one(fit_one: Callable[[str], ModelFit], name: str, score: Callable[[str], tuple[bool, str]] | None
+                ) -> tuple[str, outputerror.Fit | None, int, float, str, float, str]:
+    """Cheap fit of the current structure plus the effect ``name`` (run in a worker or in-process), after its
+    score test for an effect in ``SCORE_TESTED`` when ``score`` is given (name -> (passes, progress line)):
+    (name, fit or None, RK4 substeps, seconds, error, cost at the vanishing start, score-test line)."""
     t0 = time.perf_counter()
+    note = ""
+    if score is not None and name in SCORE_TESTED:
+        passes, note = score(name)
+        if not passes:
+            return name, None, 0, time.perf_counter() - t0, "", math.nan, note
     try:
         trial = fit_one(name)
     except (RuntimeError, ValueError, np.linalg.LinAlgError) as exc:
-        return name, None, 0, time.perf_counter() - t0, str(exc), math.nan
-    return name, trial.fit, trial.loop.substeps, time.perf_counter() - t0, "", trial.start_cost
+        return name, None, 0, time.perf_counter() - t0, str(exc), math.nan, note
+    return name, trial.fit, trial.loop.substeps, time.perf_counter() - t0, "", trial.start_cost, note
 
 
 def screen_workers() -> int:
@@ -184,18 +191,26 @@ def screen_workers() -> int:
 
 def screen(bundle: Bundle, current: ModelFit, names: list[str], ctx: effect_models.Context,
            weights: outputerror.Weights, folder: Path, progress=None,
-           fit_one: Callable[[str], ModelFit] | None = None) -> dict[str, tuple[outputerror.Fit, int]]:
+           fit_one: Callable[[str], ModelFit] | None = None,
+           score: Callable[[str], tuple[bool, str]] | None = None) -> dict[str, tuple[outputerror.Fit, int]]:
     """Screen every candidate effect with a few Gauss-Newton steps, in parallel processes
     (:func:`map_candidates`): name -> (fit, RK4 substeps of its loop). ``fit_one``: the
     cheap fit of one candidate by name (default: :func:`fit_structure` with ``SCREEN_NFEV``; the multi-axis
-    diagnosis places the effect on its located axis)."""
+    diagnosis places the effect on its located axis). ``score``: the score test of an effect in
+    ``SCORE_TESTED`` (name -> (passes, progress line)), run in the same worker before its fit, which follows
+    only when it passes (the test of the 4-DOF bundle's delay takes 30 s: beside the other screenings, not
+    before them)."""
     if fit_one is None:
         def fit_one(name: str) -> ModelFit:
             return fit_structure(bundle, current, effect_models.VOCABULARY[name](ctx), ctx, weights, folder / name,
                                  SCREEN_NFEV)
-    results = map_candidates(lambda name: _screen_one(fit_one, name), names)
+    results = map_candidates(lambda name: _screen_one(fit_one, name, score), names)
     out: dict[str, tuple[outputerror.Fit, int]] = {}
-    for name, result, substeps, seconds, error, start_cost in results:
+    for name, result, substeps, seconds, error, start_cost, note in results:
+        if note:
+            _log(progress, note)
+        if result is None and not error:
+            continue
         if result is None:
             _log(progress, f"  {name}: fit failed ({error})")
             continue

@@ -18,7 +18,7 @@ from motiontwin.ident.diagnosis.bounds import WIDEN_ROUNDS, widened_effects
 from motiontwin.ident.diagnosis.axis_units import bundle_units
 from motiontwin.ident.diagnosis.bundle import Bundle
 from motiontwin.ident.diagnosis.locate import AxisEvidence, locate
-from motiontwin.ident.diagnosis.screen import (MAX_NFEV, SCORE_TESTED, SCREEN_NFEV, _close_richer, candidates,
+from motiontwin.ident.diagnosis.screen import (MAX_NFEV, SCREEN_NFEV, _close_richer, candidates,
                                                fit_candidate, fit_structure, map_candidates, placed_structure,
                                                ranked_with_nested, refine, score_test, screen)
 from motiontwin.ident.diagnosis.structure import ModelFit, _log, build_structure, compiled, validate_any
@@ -69,18 +69,20 @@ def select(bundle: Bundle, nominal: ModelFit, weights: outputerror.Weights, ctx:
                                             weights.sigma_u, bundle.train.time.size, BOOTSTRAP_COUNT, seed=rounds)
         base_gain = evidence.projected_gain(current.fit.jacobian, null)
         names = [n for n in candidates(ctx, used.setdefault(axis, set())) if n not in (owned or {})]
-        names = [n for n in names if n not in SCORE_TESTED
-                 or _score_passes(bundle, current, n, axis, ctx, weights, null, base_gain, work / f"s{rounds}_{n}",
-                                  progress)]
+
+        def score(name: str, c: ModelFit = current, a: str | None = axis, x: effect_models.Context = ctx,
+                  n: np.ndarray = null, g: np.ndarray = base_gain, r: int = rounds) -> tuple[bool, str]:
+            return _score_passes(bundle, c, name, a, x, weights, n, g, work / f"s{r}_{name}")
+
         if axis is None:
-            screened = screen(bundle, current, names, ctx, weights, work / f"r{rounds}", progress)
+            screened = screen(bundle, current, names, ctx, weights, work / f"r{rounds}", progress, score=score)
         else:
             def fit_one(name: str, c: ModelFit = current, a: str = axis, x: effect_models.Context = ctx,
                         r: int = rounds) -> ModelFit:
                 return fit_candidate(bundle, c, effect_models.VOCABULARY[name](x), a, x, weights,
                                      work / f"r{r}_{name}", SCREEN_NFEV)
 
-            screened = screen(bundle, current, names, ctx, weights, work, progress, fit_one)
+            screened = screen(bundle, current, names, ctx, weights, work, progress, fit_one, score)
         order = sorted(screened, key=lambda n: screened[n][0].cost)
         ranked = ranked_with_nested(order, screened)
         ranked += _close_richer(ranked, screened, current.fit.cost)
@@ -171,22 +173,21 @@ def select(bundle: Bundle, nominal: ModelFit, weights: outputerror.Weights, ctx:
 
 
 def _score_passes(bundle: Bundle, current: ModelFit, name: str, axis: str | None, ctx: effect_models.Context,
-                  weights: outputerror.Weights, null: np.ndarray, base_gain: np.ndarray, folder: Path,
-                  progress) -> bool:
-    """Whether ``name`` goes on to the screening: its score test (:func:`screen.score_test`) predicts a cost
-    reduction above the 99.9 % level of its own extension's bootstrap null, the level its full fit must beat
-    too (or the test cannot be evaluated: a non-finite Jacobian)."""
+                  weights: outputerror.Weights, null: np.ndarray, base_gain: np.ndarray, folder: Path
+                  ) -> tuple[bool, str]:
+    """Whether ``name`` goes on to the screening, and the progress line that says why: its score test
+    (:func:`screen.score_test`) predicts a cost reduction above the 99.9 % level of its own extension's
+    bootstrap null, the level its full fit must beat too (or the test cannot be evaluated: a non-finite
+    Jacobian). Run in a screening worker: the line is logged by the main process."""
     t0 = time.perf_counter()
     predicted, jac, dof = score_test(bundle, current, name, axis, ctx, weights, folder)
     on = "" if axis is None else f" on {axis}"
     if not (math.isfinite(predicted) and np.all(np.isfinite(jac))):
-        _log(progress, f"  score test {name}{on}: not finite (a free run that diverges), screened")
-        return True
+        return True, f"  score test {name}{on}: not finite (a free run that diverges), screened"
     threshold = evidence.null_threshold(evidence.extension_null(jac, current.fit.jacobian, null, base_gain), dof)
     passes = predicted > threshold
-    _log(progress, f"  score test {name}{on}: predicted cost {0.0 - predicted:+.4g}, null {threshold:.4g} "
-                   f"({'screened' if passes else 'not screened'}, {time.perf_counter() - t0:.1f} s)")
-    return passes
+    return passes, (f"  score test {name}{on}: predicted cost {0.0 - predicted:+.4g}, null {threshold:.4g} "
+                    f"({'screened' if passes else 'not screened'}, {time.perf_counter() - t0:.1f} s)")
 
 
 def upgrade_nested(bundle: Bundle, final: ModelFit, weights: outputerror.Weights, ctx: effect_models.Context,
