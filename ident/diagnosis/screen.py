@@ -3,12 +3,7 @@
 effects go on to the full fit. Units: SI (s, m, N)."""
 from __future__ import annotations
 
-import concurrent.futures
-import itertools
 import math
-import multiprocessing
-import os
-import threading
 import time
 from pathlib import Path
 from typing import Callable
@@ -23,6 +18,7 @@ from motiontwin.ident.diagnosis.effect_base import vanishing_start
 from motiontwin.ident.diagnosis.nominal import default_start
 from motiontwin.ident.plant_states import alias_state
 from motiontwin.ident.diagnosis.structure import ModelFit, _log, build_axes, build_structure, on_axis
+from motiontwin.ident.diagnosis.workers import map_jobs
 
 SCREEN_NFEV = 4             # cheap fit of every candidate, to rank them
 MAX_NFEV = 15               # full fit of the best-ranked candidates
@@ -34,7 +30,6 @@ MULTI_START = ("position_ripple", "resonance", "encoder_error", "coulomb_frictio
 #: smooth in their parameters at the vanishing point and the dearest to fit (stiff extra states, the most RK4
 #: substeps): screened only when the score test (:func:`score_test`) beats their bootstrap null
 SCORE_TESTED = ("time_delay",)
-_TOKENS = itertools.count()  # screening-job tokens (itertools.count is thread-safe in CPython)
 
 
 def fit_structure(bundle: Bundle, current: ModelFit, candidate: effect_models.Effect, ctx: effect_models.Context,
@@ -134,32 +129,6 @@ def refine(bundle: Bundle, structure: ModelFit, weights: outputerror.Weights, ma
                     structure.folder, evidence=structure.evidence, axes=structure.axes)
 
 
-#: jobs by token (a function of a candidate's name): forked workers inherit the table and are sent only
-#: (token, name); every call adds its own token and removes it, so concurrent diagnoses do not collide
-_JOBS: dict[int, Callable] = {}
-
-
-def _run_job(token: int, name: str):
-    return _JOBS[token](name)
-
-
-def map_candidates(job: Callable[[str], object], names: list[str]) -> list:
-    """``[job(name) for name in names]`` in forked worker processes (:func:`screen_workers`; they share the
-    bundle and the current fit), in the order of ``names``; in-process with one worker. ``job`` returns
-    what pickles (fits, numbers), not compiled loops."""
-    token = next(_TOKENS)
-    _JOBS[token] = job
-    workers = min(screen_workers(), len(names))
-    try:
-        if workers > 1:
-            with concurrent.futures.ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("fork")) \
-                    as pool:
-                return list(pool.map(_run_job, [token] * len(names), names))
-        return [job(name) for name in names]
-    finally:
-        del _JOBS[token]
-
-
 def _screen_one(fit_one: Callable[[str], ModelFit], name: str, score: Callable[[str], tuple[bool, str]] | None
                 ) -> tuple[str, outputerror.Fit | None, int, float, str, float, str]:
     """Cheap fit of the current structure plus the effect ``name`` (run in a worker or in-process), after its
@@ -178,23 +147,12 @@ def _screen_one(fit_one: Callable[[str], ModelFit], name: str, score: Callable[[
     return name, trial.fit, trial.loop.substeps, time.perf_counter() - t0, "", trial.start_cost, note
 
 
-def screen_workers() -> int:
-    """Processes for the candidate screening: ``MOTIONTWIN_DIAGNOSIS_WORKERS`` or the machine's cores
-    (at most 4); 1 runs in-process, as does every diagnosis outside the main thread (forking a threaded
-    process can deadlock). The results do not depend on it (each fit is deterministic)."""
-    if threading.current_thread() is not threading.main_thread():
-        return 1
-    value = os.environ.get("MOTIONTWIN_DIAGNOSIS_WORKERS")
-    count = int(value) if value and value.isdigit() else min(4, os.cpu_count() or 1)
-    return max(1, count) if "fork" in multiprocessing.get_all_start_methods() else 1
-
-
 def screen(bundle: Bundle, current: ModelFit, names: list[str], ctx: effect_models.Context,
            weights: outputerror.Weights, folder: Path, progress=None,
            fit_one: Callable[[str], ModelFit] | None = None,
            score: Callable[[str], tuple[bool, str]] | None = None) -> dict[str, tuple[outputerror.Fit, int]]:
     """Screen every candidate effect with a few Gauss-Newton steps, in parallel processes
-    (:func:`map_candidates`): name -> (fit, RK4 substeps of its loop). ``fit_one``: the
+    (:func:`map_jobs`): name -> (fit, RK4 substeps of its loop). ``fit_one``: the
     cheap fit of one candidate by name (default: :func:`fit_structure` with ``SCREEN_NFEV``; the multi-axis
     diagnosis places the effect on its located axis). ``score``: the score test of an effect in
     ``SCORE_TESTED`` (name -> (passes, progress line)), run in the same worker before its fit, which follows
@@ -204,7 +162,7 @@ def screen(bundle: Bundle, current: ModelFit, names: list[str], ctx: effect_mode
         def fit_one(name: str) -> ModelFit:
             return fit_structure(bundle, current, effect_models.VOCABULARY[name](ctx), ctx, weights, folder / name,
                                  SCREEN_NFEV)
-    results = map_candidates(lambda name: _screen_one(fit_one, name, score), names)
+    results = map_jobs(lambda name: _screen_one(fit_one, name, score), names)
     out: dict[str, tuple[outputerror.Fit, int]] = {}
     for name, result, substeps, seconds, error, start_cost, note in results:
         if note:

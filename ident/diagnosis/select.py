@@ -19,9 +19,10 @@ from motiontwin.ident.diagnosis.axis_units import bundle_units
 from motiontwin.ident.diagnosis.bundle import Bundle
 from motiontwin.ident.diagnosis.locate import AxisEvidence, locate
 from motiontwin.ident.diagnosis.screen import (MAX_NFEV, SCREEN_NFEV, _close_richer, candidates,
-                                               fit_candidate, fit_structure, map_candidates, placed_structure,
+                                               fit_candidate, fit_structure, placed_structure,
                                                ranked_with_nested, refine, score_test, screen)
 from motiontwin.ident.diagnosis.structure import ModelFit, _log, build_structure, compiled, validate_any
+from motiontwin.ident.diagnosis.workers import map_jobs
 
 VALIDATION_GAIN = evidence.VALIDATION_GAIN
 MAX_EFFECTS = 3
@@ -97,7 +98,7 @@ def select(bundle: Bundle, nominal: ModelFit, weights: outputerror.Weights, ctx:
             return trial.fit, time.perf_counter() - t0
 
         # the full fits are independent: in the screening's worker processes (several axes: 25-50 s each)
-        for name, (result, seconds) in zip(ranked, map_candidates(refined, ranked)):
+        for name, (result, seconds) in zip(ranked, map_jobs(refined, ranked)):
             t0 = time.perf_counter() - seconds
             trial = _screened_structure(bundle, current, name, axis, ctx, result, screened[name][1],
                                         work / f"r{rounds}_{name}")

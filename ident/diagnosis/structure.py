@@ -22,6 +22,7 @@ from motiontwin.ident.diagnosis.augmented import (AUGMENTED_CLASS, axis_prefix, 
 from motiontwin.ident.diagnosis.bundle import Bundle, PlantInfo
 from motiontwin.ident.diagnosis.noise import ProcessNoise, noisy_simulator
 from motiontwin.ident.diagnosis.plant_roles import PlantRoles
+from motiontwin.ident.diagnosis.workers import map_jobs
 
 FLOOR_REPLICATES = 5         # noise re-simulations for the validation noise floor
 ESTIMATION_NFEV = 6           # free runs of each replicate's refit in estimation_rms
@@ -269,7 +270,7 @@ def estimation_rms(train_loop: outputerror.Loop, train: Recording, fit: outputer
     simulate = noisy_simulator(train_loop, train, fit.values, process, fit.shift if train_loop.axes else None)
     q_val, u_val = outputerror.simulate(val_loop, validation, val_values)
     rng = np.random.default_rng(1)
-    shifts, forces, moved = [], [], False
+    replicates = []      # drawn here, in one sequence: the same replicates for any worker count
     sigma_q = np.broadcast_to(np.asarray(weights.sigma_q, float), (n_ax,))
     for _ in range(count):
         encoder = (rng.normal(0.0, 1.0, (n_ax, train.time.size)) * sigma_q[:, None]).reshape((*shape, -1))
@@ -278,13 +279,21 @@ def estimation_rms(train_loop: outputerror.Loop, train: Recording, fit: outputer
         for k, sig in enumerate(train_loop.channels):
             columns.update({sig.output: np.reshape(q + encoder, (n_ax, -1))[k],
                             sig.input: np.reshape(u, (n_ax, -1))[k]})
-        refit = outputerror.fit(train_loop, Recording(train.time, columns), weights, bounds, start=fit.values,
+        replicates.append(Recording(train.time, columns))
+
+    def refit_one(index: str) -> tuple[bool, np.ndarray, np.ndarray]:
+        """Whether the replicate's refit moved, and its validation run's mean square position and force
+        differences from the fitted model's."""
+        refit = outputerror.fit(train_loop, replicates[int(index)], weights, bounds, start=fit.values,
                                 max_nfev=max_nfev)     # a replicate's noise-free force fixes its start exactly
-        moved = moved or any(refit.values[k] != fit.values[k] for k in refit.values)
         refitted = {k if k in val_values else "plant." + k: v for k, v in refit.values.items()}
         q_moved, u_moved = outputerror.simulate(val_loop, validation, {**val_values, **refitted})
-        shifts.append(np.mean((q_moved - q_val) ** 2, axis=-1))
-        forces.append(np.mean((u_moved - u_val) ** 2, axis=-1))
+        return (any(refit.values[k] != fit.values[k] for k in refit.values),
+                np.mean((q_moved - q_val) ** 2, axis=-1), np.mean((u_moved - u_val) ** 2, axis=-1))
+
+    outcomes = map_jobs(refit_one, [str(k) for k in range(count)])   # in the diagnosis' worker processes
+    moved = any(m for m, _, _ in outcomes)
+    shifts, forces = [s for _, s, _ in outcomes], [f for _, _, f in outcomes]
     if not moved:
         return np.full(shape, math.nan)[()], np.full(shape, math.nan)[()]
     shifts, forces = np.reshape(shifts, (count, n_ax)), np.reshape(forces, (count, n_ax))

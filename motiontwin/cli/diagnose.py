@@ -15,6 +15,10 @@ finishes, OUT/fleet.json the manifest (failures per bundle), OUT/summary.csv and
 bundle (effects, verdict, validation RMS and gain, seconds, status); --resume keeps the bundles already
 committed and verified, --overwrite replaces the fleet.
   motiontwin diagnose bundles/ --out fleet --executor dask --workers 2
+
+within one diagnosis, the independent fits (the candidates' screenings and full fits, the floor's noise
+replicates) run side by side in forked processes: MOTIONTWIN_DIAGNOSIS_WORKERS of them (default: the cores, at
+most 4; 1 runs them in-process). The results do not depend on it.
 """
 
 
