@@ -69,28 +69,22 @@ def initial_state(loop: Loop, rec: Recording, values: dict[str, float] | None = 
     the state an output expression is affine in (an alias, gear ratio or offset) such that the output = q_0,
     outputs that are expressions of several states (leg lengths of a pose) all at q_0 by Newton on those states,
     and their rates at the first samples' slopes (:func:`_states_for_outputs`; then, as for a loop moving at t = 0, the controller state from the first samples: a pose held against
-    gravity need not have settled when the recording starts), other plant states at their start values, tracked states at that position or u_0 (clipped to +-P for ``"u<=P"``: a force held only up
-    to a parameter's level, after the shift below), states in ``initial`` at those
+    gravity need not have settled when the recording starts), other plant states at their start values, tracked states at that position or u_0, states in ``initial`` at those
     values, and in closed loop the controller state giving the recorded force u_0 (least-norm solution of
     C z = u_0 - u_ext_0 - D y_0), plus ``shift`` (the correction a joint fit estimates, :func:`fit`,
     :func:`controller_shift`; states tracking u_0 then hold the force the shifted controller holds).
     Multi-axis: the same for every axis; a tracking signal may name its axis by output (``"dq:q3"``,
     ``"q:q3"``, ``"u:q3"``; without it, the first axis)."""
     s0 = _start_state(loop, rec, values, initial)
-    names = [v.name for v in loop.model.states]
     if shift is not None and len(shift):
         s0[s0.size - len(shift):] += shift
         held = loop.controller.C @ shift     # the force each axis's shifted controller holds in addition
+        names = [v.name for v in loop.model.states]
         outputs = [sig.output for sig in loop.channels]
         for state, tracked in loop.tracking.items():
             signal, _, axis = tracked.partition(":")
-            if signal.partition("<=")[0] == "u" and state not in (initial or {}):
+            if signal == "u" and state not in (initial or {}):
                 s0[names.index(state)] += float(held[outputs.index(axis) if axis else 0])
-    for state, tracked in loop.tracking.items():   # a force a state can hold only up to a parameter's level
-        limit = tracked.partition(":")[0].partition("<=")[2]
-        if limit and state not in (initial or {}):
-            bound = abs(float((values or loop.values)[limit]))
-            s0[names.index(state)] = np.clip(s0[names.index(state)], -bound, bound)
     return s0
 
 
@@ -120,7 +114,6 @@ def _start_state(loop: Loop, rec: Recording, values: dict[str, float] | None,
     by_output = {sig.output: sig for sig in loop.channels}
     for state, tracked in loop.tracking.items():
         signal, _, axis = tracked.partition(":")
-        signal = signal.partition("<=")[0]
         sig = by_output[axis] if axis else loop.channels[0]
         output = sig.output if loop.axes else loop.position_state
         if signal == "dq":      # a velocity state: the slope of the first samples (a loop moving at t = 0)

@@ -54,8 +54,7 @@ class Loop:
     n_samples: int
     sim: Callable = field(repr=False)   # (s0, W[3xN], theta, pfix) -> (Q[1xN], U[1xN])
     jac: Callable | None = field(repr=False)   # (s0, W, theta, pfix) -> (dQ/dtheta, dU/dtheta, dQ/ds0, dU/ds0)
-    #: state -> "q" or "u": starts at q_0 or u_0 ("u<=P": u_0 clipped to +-parameter P; ":q3": of that axis)
-    tracking: dict[str, str] = field(default_factory=dict)
+    tracking: dict[str, str] = field(default_factory=dict)  # state -> "q" or "u": starts at q_0 or u_0
     signals: Signals = field(default_factory=Signals)
     ts: float = 0.0                     # sample period [s]
     step: ca.Function | None = field(default=None, repr=False)  # (s, w, theta, pfix) -> (s_next, q, u), one sample

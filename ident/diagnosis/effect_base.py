@@ -60,7 +60,6 @@ class Effect:
     delays_input: bool = False             # replaces u by a delayed u
     tracks_position: list[str] = field(default_factory=list)   # states starting at the measured position
     tracks_force: list[str] = field(default_factory=list)      # states starting at the held force
-    holds_at_most: str = ""                # parameter bounding that force: they start at u_0 clipped to +-it
     applicable: bool = True                # False: the bundle lacks what the effect needs (not screened)
     min_substeps: int = 1                  # RK4 substeps per sample its fastest state needs at the top speed
     #: force per unit level at small amplitude, of position and velocity (states): compared with the plant's

@@ -281,10 +281,8 @@ LUGRE_STEP = 4       # the bristle state's rate |v|/z0 times Ts stays below this
 
 def lugre_friction(ctx: Context) -> Effect:
     """LuGre friction in Dahl's form (Fs = Fc, sigma1 = sigma2 = 0; the plant's d is the viscous part) with
-    the bristle state written as the bristle force F_z = sigma0*z, so that it starts at the held force, up to
-    the Coulomb level (bristles hold at most Fc, and |F_z| <= Fc then holds for the whole run): its vanishing
-    point Fc -> 0 is the current model from t = 0 (started at the held force itself, a bristle force of u_0
-    with Fc = 1e-6 stayed until the axis moved a few z0: up to 1.6 times the model's cost)."""
+    the bristle state written as the bristle force F_z = sigma0*z, so that it starts at the held force (its
+    vanishing point Fc -> 0 is then the current model only after the first few z0 of travel)."""
     z0_min = max(1e-6 / _scale(ctx), ctx.v_max * ctx.ts / LUGRE_STEP)
 
     def init(c: Context) -> list[dict[str, float]]:
@@ -308,7 +306,7 @@ def lugre_friction(ctx: Context) -> Effect:
                   "the friction force builds up over a displacement of about z0 instead of switching with the "
                   "velocity, so the residual is a hysteresis loop in position around every reversal and the "
                   "axis behaves like a spring of stiffness sigma0 = Fc/z0 at rest.",
-                  tracks_force=["lugre_Fz"], holds_at_most="lugre_Fc", min_substeps=math.ceil(ctx.v_max * ctx.ts / z0_min),
+                  tracks_force=["lugre_Fz"], min_substeps=math.ceil(ctx.v_max * ctx.ts / z0_min),
                   unphysical=lambda v: "" if v["lugre_z0"] < 0.99 * z0_max else "its pre-sliding displacement "
                   "reaches the largest one allowed (a spring holding a force over the stroke, not friction)")
 

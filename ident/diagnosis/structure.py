@@ -153,8 +153,7 @@ def build_structure(bundle: Bundle, effects: list[effect_models.Effect], values:
         model = cache.models[names] = load_augmented(folder, AUGMENTED_CLASS)
     free, bounds, all_values = structure_parameters(model, effects, *_nominal_bounds(bundle, "plant."), values)
     tracking = {s: "q" for e in effects for s in e.tracks_position} | _moving_start(bundle, "plant.")
-    tracking.update({s: "u" + (f"<={e.holds_at_most}" if e.holds_at_most else "") for e in effects
-                     for s in e.tracks_force})
+    tracking.update({s: "u" for e in effects for s in e.tracks_force})
     min_substeps = max([min_substeps] + [e.min_substeps for e in effects])
     substeps = substeps or max(min_substeps, outputerror.stable_substeps(model, all_values, bundle.controller.sample_time))
     key = (names, n_samples, substeps, with_jacobian)
@@ -342,8 +341,7 @@ def on_axis(effect: effect_models.Effect, roles: PlantRoles,
                                equations=[rename(e) for e in effect.equations],
                                initial=initial, contract=contract,
                                tracks_position=[prefix + s for s in effect.tracks_position],
-                               tracks_force=[prefix + s for s in effect.tracks_force],
-                               holds_at_most=prefix + effect.holds_at_most if effect.holds_at_most else "")
+                               tracks_force=[prefix + s for s in effect.tracks_force])
 
 
 def axes_signals(plant: PlantInfo) -> list[outputerror.Signals]:
@@ -357,8 +355,7 @@ def _tracking(bundle: Bundle, effects: list[tuple[str, effect_models.Effect]]) -
     tracking = {f"plant.{a.velocity}": f"dq:{a.output}" for a in bundle.plant.axes if not a.expression}
     for axis, e in effects:
         tracking.update({s: f"q:{axis}" for s in e.tracks_position})
-        limit = f"<={e.holds_at_most}" if e.holds_at_most else ""
-        tracking.update({s: f"u{limit}:{axis}" for s in e.tracks_force})
+        tracking.update({s: f"u:{axis}" for s in e.tracks_force})
     return tracking
 
 
