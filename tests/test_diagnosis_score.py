@@ -13,7 +13,7 @@ import pytest
 from motiontwin.ident.diagnosis import effects as effect_models
 from motiontwin.ident.diagnosis import evidence, noise
 from motiontwin.ident.diagnosis.screen import fit_structure, score_test
-from motiontwin.ident.diagnosis.select import BOOTSTRAP_COUNT
+from motiontwin.ident.diagnosis.select import bootstrap_null
 from tests.test_diagnosis_search import short_bundle_nominal
 
 
@@ -21,12 +21,9 @@ def _scored(tmp_path, case: str, seed: int) -> tuple[float, float, float]:
     """(predicted reduction, fitted reduction, null threshold) of the time delay on a short ``case`` bundle."""
     bundle, current, weights, ctx = short_bundle_nominal(tmp_path / case, case, seed)
     bundle.process_noise = noise.of_bundle(bundle, current.fit.values, weights.sigma_q)
-    noisy = noise.noisy_simulator(current.loop, bundle.train, current.fit.values, bundle.process_noise,
-                                  current.fit.shift)
-    null = evidence.bootstrap_residuals(noisy, current.fit.q_sim, current.fit.u_sim, weights.sigma_q,
-                                        weights.sigma_u, bundle.train.time.size, BOOTSTRAP_COUNT, seed=1)
+    null, base_gain = bootstrap_null(bundle, current, weights, seed=1)
     predicted, jac, dof = score_test(bundle, current, "time_delay", None, ctx, weights, tmp_path / "score")
-    threshold = evidence.null_threshold(evidence.extension_null(jac, current.fit.jacobian, null), dof)
+    threshold = evidence.null_threshold(evidence.extension_null(jac, current.fit.jacobian, null, base_gain), dof)
     fitted = fit_structure(bundle, current, effect_models.VOCABULARY["time_delay"](ctx), ctx, weights,
                            tmp_path / "fit")
     print(f"{case}: predicted {predicted:.6g}, fitted {current.fit.cost - fitted.fit.cost:.6g}, null {threshold:.6g}")

@@ -64,11 +64,7 @@ def select(bundle: Bundle, nominal: ModelFit, weights: outputerror.Weights, ctx:
             current = ModelFit(current.effects, loop.with_values(result.values), result, bounds,
                                work / f"c{rounds}", evidence=current.evidence, axes=current.axes)
             validate_any(bundle, current, work / f"v{rounds}_refined")
-        noisy = noise.noisy_simulator(current.loop, bundle.train, current.fit.values, bundle.process_noise,
-                                      current.fit.shift)
-        null = evidence.bootstrap_residuals(noisy, current.fit.q_sim, current.fit.u_sim, weights.sigma_q,
-                                            weights.sigma_u, bundle.train.time.size, BOOTSTRAP_COUNT, seed=rounds)
-        base_gain = evidence.projected_gain(current.fit.jacobian, null)
+        null, base_gain = bootstrap_null(bundle, current, weights, seed=rounds)
         names = [n for n in candidates(ctx, used.setdefault(axis, set())) if n not in (owned or {})]
 
         def score(name: str, c: ModelFit = current, a: str | None = axis, x: effect_models.Context = ctx,
@@ -171,6 +167,19 @@ def select(bundle: Bundle, nominal: ModelFit, weights: outputerror.Weights, ctx:
         used[axis].add(chosen.effects[-1].family)
         current = chosen
     return current, log, located
+
+
+def bootstrap_null(bundle: Bundle, current: ModelFit, weights: outputerror.Weights, seed: int
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """The round's bootstrap null reference (:func:`evidence.bootstrap_residuals`: the current model re-simulated
+    with the estimated encoder and process noise, ``BOOTSTRAP_COUNT`` replicates) and its projection on the
+    current model's own Jacobian (:func:`evidence.projected_gain`), against which every candidate's extension
+    is measured (:func:`evidence.extension_null`)."""
+    noisy = noise.noisy_simulator(current.loop, bundle.train, current.fit.values, bundle.process_noise,
+                                  current.fit.shift)
+    null = evidence.bootstrap_residuals(noisy, current.fit.q_sim, current.fit.u_sim, weights.sigma_q,
+                                        weights.sigma_u, bundle.train.time.size, BOOTSTRAP_COUNT, seed=seed)
+    return null, evidence.projected_gain(current.fit.jacobian, null)
 
 
 def _score_passes(bundle: Bundle, current: ModelFit, name: str, axis: str | None, ctx: effect_models.Context,
