@@ -167,7 +167,7 @@ def screen(bundle: Bundle, current: ModelFit, names: list[str], ctx: effect_mode
     for name, result, substeps, seconds, error, start_cost, note in results:
         if note:
             _log(progress, note)
-        if result is None and not error:
+        if result is None and not error:     # not screened: its score test failed (its note says so)
             continue
         if result is None:
             _log(progress, f"  {name}: fit failed ({error})")

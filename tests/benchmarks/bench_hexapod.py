@@ -16,7 +16,8 @@ screens the whole vocabulary (874 s of CPU for the L3 bundle, docs/diagnose-mult
 Run: MOTIONTWIN_DIAGNOSIS_WORKERS=1 .venv/bin/python tests/benchmarks/bench_hexapod.py [--train 1.5]
 [--case hexapod_coulomb_L3|hexapod_params_only] [--full] [--write] [--smoke]
 (--smoke: the L3 case only, 0.3 s + 0.2 s, the vocabulary cut to coulomb_friction, plant.free cut to mE: only
-proves the generate-diagnose-print path runs; about 20 s on a warm compile cache, 75 s on a cold one).
+proves the generate-diagnose-print path runs; 42-51 s on a warm compile cache in session 28, where the widened
+Coulomb smoothing velocity and the floor's replicates take 16 s and 9.5 s; about 20 s sessions before).
 Ratios: each case's wall time over the 300 s multi-axis budget, the augmented refit's mE over the truth's, and
 on the L3 case the found Coulomb level over 15 N (when an effect is named on L3).
 """
