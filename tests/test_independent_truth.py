@@ -125,6 +125,22 @@ def test_written_bundles_are_read_by_the_diagnosis_reader(short_bundles: Path) -
     assert truth["expected"] == ["coulomb_friction"] and truth["laws"][0]["main"]["value"] > 0
 
 
+def test_a_rotary_case_writes_its_plant_in_rotary_units(short_bundles: Path) -> None:
+    """Both short cases are rotary axes (the recording in rad and N.m): their plant.mo declares the same units
+    for its input and output and rotary ones for its inertia and damping (written in the linear units before,
+    so diagnosis.json gave a rotary axis's inertia in kg)."""
+    for name in ("params_quiet", "coulomb"):
+        truth = json.loads((short_bundles / f"{name}.truth.json").read_text())
+        assert truth["axis"]["rotary"]
+        bundle = read_bundle(short_bundles / name)
+        units = {v.name: v.unit for v in bundle.plant.model.parameters}
+        assert bundle.train.units["q"] == "rad" and bundle.train.units["u"] == "N.m"
+        flat = bundle.plant.model.flat
+        model_units = {v.name: v.unit for v in flat.states + flat.algebraics + flat.inputs}
+        assert model_units[bundle.plant.input_name] == "N.m" and model_units[bundle.plant.output_name] == "rad"
+        assert units[truth["mass_parameter"]] == "kg.m2"
+
+
 def test_floor_of_a_quiet_parameters_only_case_is_the_encoder_noise(short_bundles: Path) -> None:
     """No process noise: the truth re-simulated noise-free differs from the recording by the encoder's white
     noise and quantisation only, sqrt(std^2 + q^2/12), reshaped by the loop that feeds it back (the

@@ -40,7 +40,7 @@ import numpy as np
 from motiontwin.harness.recording import atomic_write_texts, make_recording, write_recording
 from motiontwin.ident.benchmarks.independent_laws import EXPECTED, MAIN_PARAMETER, coloured_noise, make_law
 from motiontwin.ident.benchmarks.independent_sim import Axis, Loop, simulate
-from motiontwin.ident.benchmarks.truth import PLANT_FORMS, controller_json, pid_controller
+from motiontwin.ident.benchmarks.truth import PLANT_FORMS, controller_json, pid_controller, rotary_text
 
 TS = 5e-4
 PRE_S, PRE_MOVE_S = 2.5, 2.0   # pre-roll cut off the recordings: a slow move from x = 0 to r[0], then a dwell [s]
@@ -375,8 +375,8 @@ def write_bundle(folder: Path, case: Case) -> dict:
              "force_floor_spread": sim["force_floor_spread"],
              "force_without_effect_rms": sim["force_without_effect_rms"]}
     atomic_write_texts({
-        folder / "plant.mo": form.text.format(a=float(round(case.nominal[0], 4)) * form.scale,
-                                              b=float(round(case.nominal[1], 4)) * form.scale),
+        folder / "plant.mo": (rotary_text(form.text) if case.axis.rotary else form.text).format(
+            a=float(round(case.nominal[0], 4)) * form.scale, b=float(round(case.nominal[1], 4)) * form.scale),
         folder / "experiment.json": json.dumps(experiment, indent=2),
         folder.parent / f"{folder.name}.truth.json": json.dumps(truth, indent=2),
     })

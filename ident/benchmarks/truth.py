@@ -6,6 +6,7 @@ CasADi truth of the same loop). :mod:`ident.benchmarks.single_axis` writes bundl
 from __future__ import annotations
 
 import math
+import re
 import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -96,6 +97,16 @@ end BallScrewAxis;
 end Machines;
 ''', "Machines.Carriage", input="F", output="y", mass="mass", damping="damping"),
 }
+
+
+#: the Modelica units of a linear plant form and those of the same form on a rotary axis (a gear-ratio form: a
+#: joint angle geared down from the motor's, its torque geared up)
+ROTARY_UNITS = {"kg": "kg.m2", "N.s/m": "N.m.s/rad", "N": "N.m", "m": "rad", "m/s": "rad/s"}
+
+
+def rotary_text(text: str) -> str:
+    """A plant form's Modelica text with the units of a rotary axis (``unit = "..."`` attributes only)."""
+    return re.sub(r'unit = "([^"]*)"', lambda m: f'unit = "{ROTARY_UNITS.get(m.group(1), m.group(1))}"', text)
 
 
 def plant_form(which: str, seed: int) -> str:
