@@ -6,7 +6,7 @@ from __future__ import annotations
 import math
 import time
 from pathlib import Path
-from typing import Callable
+from typing import Callable, NamedTuple
 
 import numpy as np
 
@@ -129,22 +129,34 @@ def refine(bundle: Bundle, structure: ModelFit, weights: outputerror.Weights, ma
                     structure.folder, evidence=structure.evidence, axes=structure.axes)
 
 
+class Screened(NamedTuple):
+    """One candidate's screening, as a worker returns it."""
+
+    name: str
+    fit: outputerror.Fit | None   # None: not screened (``error`` says why, or its score test failed)
+    substeps: int                 # RK4 substeps per sample of its loop
+    seconds: float
+    error: str = ""               # why the fit failed
+    start_cost: float = math.nan  # the cost at its vanishing start
+    note: str = ""                # its score test's progress line
+
+
 def _screen_one(fit_one: Callable[[str], ModelFit], name: str, score: Callable[[str], tuple[bool, str]] | None
-                ) -> tuple[str, outputerror.Fit | None, int, float, str, float, str]:
+                ) -> Screened:
     """Cheap fit of the current structure plus the effect ``name`` (run in a worker or in-process), after its
-    score test for an effect in ``SCORE_TESTED`` when ``score`` is given (name -> (passes, progress line)):
-    (name, fit or None, RK4 substeps, seconds, error, cost at the vanishing start, score-test line)."""
+    score test for an effect in ``SCORE_TESTED`` when ``score`` is given (name -> (passes, progress line))."""
     t0 = time.perf_counter()
     note = ""
     if score is not None and name in SCORE_TESTED:
         passes, note = score(name)
         if not passes:
-            return name, None, 0, time.perf_counter() - t0, "", math.nan, note
+            return Screened(name, None, 0, time.perf_counter() - t0, note=note)
     try:
         trial = fit_one(name)
     except (RuntimeError, ValueError, np.linalg.LinAlgError) as exc:
-        return name, None, 0, time.perf_counter() - t0, str(exc), math.nan, note
-    return name, trial.fit, trial.loop.substeps, time.perf_counter() - t0, "", trial.start_cost, note
+        return Screened(name, None, 0, time.perf_counter() - t0, error=str(exc), note=note)
+    return Screened(name, trial.fit, trial.loop.substeps, time.perf_counter() - t0, start_cost=trial.start_cost,
+                    note=note)
 
 
 def screen(bundle: Bundle, current: ModelFit, names: list[str], ctx: effect_models.Context,
@@ -162,21 +174,20 @@ def screen(bundle: Bundle, current: ModelFit, names: list[str], ctx: effect_mode
         def fit_one(name: str) -> ModelFit:
             return fit_structure(bundle, current, effect_models.VOCABULARY[name](ctx), ctx, weights, folder / name,
                                  SCREEN_NFEV)
-    results = map_jobs(lambda name: _screen_one(fit_one, name, score), names)
     out: dict[str, tuple[outputerror.Fit, int]] = {}
-    for name, result, substeps, seconds, error, start_cost, note in results:
-        if note:
-            _log(progress, note)
-        if result is None and not error:     # not screened: its score test failed (its note says so)
+    for one in map_jobs(lambda name: _screen_one(fit_one, name, score), names):
+        if one.note:
+            _log(progress, one.note)
+        if one.error:
+            _log(progress, f"  {one.name}: fit failed ({one.error})")
+        if one.fit is None:
             continue
-        if result is None:
-            _log(progress, f"  {name}: fit failed ({error})")
-            continue
-        out[name] = (result, substeps)
-        _log(progress, f"  screen {name}: cost {result.cost - current.fit.cost:+.4g} ({seconds:.1f} s)")
-        defect = screening_defect(current.fit.cost, start_cost, result.cost, (current.loop.substeps, substeps))
+        out[one.name] = (one.fit, one.substeps)
+        _log(progress, f"  screen {one.name}: cost {one.fit.cost - current.fit.cost:+.4g} ({one.seconds:.1f} s)")
+        defect = screening_defect(current.fit.cost, one.start_cost, one.fit.cost,
+                                  (current.loop.substeps, one.substeps))
         if defect:
-            _log(progress, f"  defect: {name} {defect}")
+            _log(progress, f"  defect: {one.name} {defect}")
     return out
 
 
