@@ -29,3 +29,24 @@ def test_offset_and_stribeck_are_both_named_with_their_parameters(combination) -
     assert abs(found["gravity_offset"]["F0"]) == pytest.approx(laws["offset"]["main"]["value"], rel=0.1)
     assert found["stribeck_friction"]["Fs"] == pytest.approx(laws["stribeck"]["main"]["value"], rel=0.1)
     assert doc["unexplained"] is None
+
+
+@pytest.mark.parametrize("case, seed", [("coulomb_friction", 3), ("stribeck_friction", 6)])
+def test_a_richer_friction_kept_beside_another_effect_is_simplified_only_when_it_earns_nothing(tmp_path, case,
+                                                                                             seed) -> None:
+    """A Stribeck friction kept beside a second effect (a round judged it before the second was in) is refitted
+    as Coulomb friction with the second one in: on a short Coulomb truth its extra parameters do not beat their
+    null and Coulomb takes its place; on a short Stribeck truth it stays. Reference: the truth's law."""
+    from motiontwin.ident.diagnosis import effects as effect_models
+    from motiontwin.ident.diagnosis import noise
+    from motiontwin.ident.diagnosis.screen import fit_structure
+    from motiontwin.ident.diagnosis.select import simplify_nested
+    from tests.test_diagnosis_search import short_bundle_nominal
+
+    bundle, nominal, weights, ctx = short_bundle_nominal(tmp_path / case, case, seed)
+    bundle.process_noise = noise.of_bundle(bundle, nominal.fit.values, weights.sigma_q)
+    current = nominal
+    for name in ("stribeck_friction", "gravity_offset"):
+        current = fit_structure(bundle, current, effect_models.VOCABULARY[name](ctx), ctx, weights, tmp_path / name)
+    final = simplify_nested(bundle, current, weights, ctx, tmp_path / "simplify", print)
+    assert [e.name for e in final.effects] == [case, "gravity_offset"]

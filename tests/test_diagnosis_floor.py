@@ -5,6 +5,7 @@ of an independently simulated bundle (its recording against its truth re-simulat
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -140,6 +141,32 @@ def coloured_control(control_bundle, tmp_path_factory) -> tuple[dict, dict]:
     """The control, diagnosed, and its truth."""
     truth = json.loads((control_bundle.parent / "params_coloured_a.truth.json").read_text())
     return diagnose_bundle(control_bundle, tmp_path_factory.mktemp("out") / "out"), truth
+
+
+def test_a_null_never_leaves_more_cost_than_the_model_leaves_on_the_data(control_bundle) -> None:
+    """The bootstrap null of a model whose noise replicates leave 10x the cost it leaves on the data (as a
+    nominal refit whose mass a missing friction pulled 20x light: its closed loop echoes the encoder noise far
+    more than the axis does) is scaled to that cost, every replicate by the same factor; a model that leaves
+    more cost than its replicates keeps them as drawn. Reference: the mean replicate cost, the same seed."""
+    import dataclasses
+
+    from motiontwin.ident.diagnosis.select import model_null
+
+    b = read_bundle(control_bundle)
+    b.cache = LoopCache()
+    b.start = nominal_start(b)
+    nominal, weights = fit_nominal(b)
+    b.process_noise = noise.of_bundle(b, nominal.fit.values, weights.sigma_q)
+
+    def credited(cost: float) -> structure.ModelFit:
+        return dataclasses.replace(nominal, fit=dataclasses.replace(nominal.fit, cost=cost))
+
+    drawn = model_null(b, credited(math.inf), weights, seed=3)
+    cost = float(np.mean(np.sum(drawn ** 2, axis=1)))
+    assert cost == pytest.approx(nominal.fit.cost, rel=0.5)       # the control's model is right: about its own cost
+    np.testing.assert_array_equal(model_null(b, credited(2 * cost), weights, seed=3), drawn)
+    scaled = model_null(b, credited(cost / 10), weights, seed=3)
+    np.testing.assert_allclose(scaled, drawn / np.sqrt(10), rtol=1e-12)
 
 
 def test_estimation_error_matches_converged_refits(control_bundle, tmp_path, monkeypatch) -> None:

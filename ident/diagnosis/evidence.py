@@ -176,6 +176,17 @@ def bootstrap_residuals(simulate_noisy, q_model: np.ndarray, u_model: np.ndarray
     return np.array(out)
 
 
+def consistent_null(null: np.ndarray, fitted_cost: float) -> tuple[np.ndarray, float]:
+    """The bootstrap residual replicates ``null`` (rows) scaled so that their mean cost is at most the cost the
+    model leaves on the data (``fitted_cost``), and the factor applied to that cost (1: none). Noise cannot leave
+    more residual than a fitted model has: where the replicates do, the model's closed loop echoes the noise more
+    than the data shows (a mass a twentieth of the true one, taken up by a missing friction, echoes the encoder
+    noise 9x more), or the noise estimate holds structure; a null drawn from it would hide every effect."""
+    cost = float(np.mean(np.sum(null ** 2, axis=1)))
+    factor = min(1.0, fitted_cost / cost) if cost > 0 and math.isfinite(fitted_cost) else 1.0
+    return null * math.sqrt(factor), factor
+
+
 def _basis(jac: np.ndarray) -> np.ndarray:
     """An orthonormal basis of the column space of ``jac`` (columns scaled to unit norm; dependent ones dropped)."""
     if jac.shape[1] == 0:

@@ -28,7 +28,8 @@ from motiontwin.ident.diagnosis.locate import context
 from motiontwin.ident.diagnosis.nominal import (_divergence_hint, check_plant_form, fit_nominal, fit_nominal_axes,
                                                 nominal_free, nominal_start, plant_physics)
 from motiontwin.ident.diagnosis.remainder import EMPIRICAL_EFFECT, explain_remainder, explain_remainder_axes
-from motiontwin.ident.diagnosis.select import VALIDATION_GAIN, select, upgrade_nested, widen_search_bounds
+from motiontwin.ident.diagnosis.select import (VALIDATION_GAIN, select, simplify_nested, upgrade_nested,
+                                              widen_search_bounds)
 from motiontwin.ident.diagnosis.structure import (FLOOR_REPLICATES, LoopCache, ModelFit, _log,
                                                   _nominal_bounds, build_axes, build_structure, estimation_rms,
                                                   floor_rms, floors, validate, validate_axes, validation_floor,
@@ -66,6 +67,7 @@ def run(bundle: Bundle, work: Path, progress=None) -> dict:
     for effect, name in owned.items():
         _log(progress, f"{effect}: not offered, the plant's own {name} carries this force and is refitted")
     final, log, _ = select(bundle, nominal, weights, ctx, work / "trials", progress, owned)
+    final = simplify_nested(bundle, final, weights, ctx, work / "simplify", progress)
     final = upgrade_nested(bundle, final, weights, ctx, work / "upgrade", progress)
     final = widen_search_bounds(bundle, final, weights, work / "widen", progress)
     final, remainder = explain_remainder(bundle, final, weights, ctx, work / "remainder", progress)

@@ -12,13 +12,13 @@ from motiontwin.fmus import symbolic
 from motiontwin.ident import outputerror
 from motiontwin.ident.diagnosis import effects as effect_models
 from motiontwin.ident.diagnosis import empirical
-from motiontwin.ident.diagnosis import evidence, noise
+from motiontwin.ident.diagnosis import evidence
 from motiontwin.ident.diagnosis.axis_units import bundle_units
 from motiontwin.ident.diagnosis.bundle import Bundle
 from motiontwin.ident.diagnosis.locate import _in_state_coordinates, locate
 from motiontwin.ident.diagnosis.plant_roles import output_map
 from motiontwin.ident.diagnosis.screen import MAX_NFEV, fit_candidate, fit_structure, refine
-from motiontwin.ident.diagnosis.select import BOOTSTRAP_COUNT, MAX_EFFECTS, NEXT_ROUND_SCORE, VALIDATION_GAIN
+from motiontwin.ident.diagnosis.select import MAX_EFFECTS, NEXT_ROUND_SCORE, VALIDATION_GAIN, model_null
 from motiontwin.ident.diagnosis.structure import ModelFit, _log, build_structure, validate, validate_axes
 
 EMPIRICAL_EFFECT = empirical.EMPIRICAL   # the data-driven term added after the catalogue (not in VOCABULARY)
@@ -167,10 +167,7 @@ def _null_test(bundle: Bundle, final: ModelFit, trial: ModelFit, weights: output
                dof: int) -> tuple[np.ndarray, float, float]:
     """The parametric-bootstrap null residuals of the final model (seeded after the selection's rounds), the
     empirical term's cost reduction and its 99.9 % null threshold for ``dof`` fitted parameters."""
-    noisy = noise.noisy_simulator(final.loop, bundle.train, final.fit.values, bundle.process_noise,
-                                  final.fit.shift)
-    null = evidence.bootstrap_residuals(noisy, final.fit.q_sim, final.fit.u_sim, weights.sigma_q, weights.sigma_u,
-                                        bundle.train.time.size, BOOTSTRAP_COUNT, seed=MAX_EFFECTS + 1)
+    null = model_null(bundle, final, weights, MAX_EFFECTS + 1)
     null_gain = evidence.extension_null(trial.fit.jacobian, final.fit.jacobian, null)
     return null, final.fit.cost - trial.fit.cost, evidence.null_threshold(null_gain, dof)
 

@@ -64,7 +64,7 @@ def select(bundle: Bundle, nominal: ModelFit, weights: outputerror.Weights, ctx:
             current = ModelFit(current.effects, loop.with_values(result.values), result, bounds,
                                work / f"c{rounds}", evidence=current.evidence, axes=current.axes)
             validate_any(bundle, current, work / f"v{rounds}_refined")
-        null, base_gain = bootstrap_null(bundle, current, weights, seed=rounds)
+        null, base_gain = bootstrap_null(bundle, current, weights, seed=rounds, progress=progress)
         names = [n for n in candidates(ctx, used.setdefault(axis, set())) if n not in (owned or {})]
 
         def score(name: str, c: ModelFit = current, a: str | None = axis, x: effect_models.Context = ctx,
@@ -169,17 +169,28 @@ def select(bundle: Bundle, nominal: ModelFit, weights: outputerror.Weights, ctx:
     return current, log, located
 
 
-def bootstrap_null(bundle: Bundle, current: ModelFit, weights: outputerror.Weights, seed: int
+def bootstrap_null(bundle: Bundle, current: ModelFit, weights: outputerror.Weights, seed: int, progress=None
                    ) -> tuple[np.ndarray, np.ndarray]:
-    """The round's bootstrap null reference (:func:`evidence.bootstrap_residuals`: the current model re-simulated
-    with the estimated encoder and process noise, ``BOOTSTRAP_COUNT`` replicates) and its projection on the
-    current model's own Jacobian (:func:`evidence.projected_gain`), against which every candidate's extension
-    is measured (:func:`evidence.extension_null`)."""
-    noisy = noise.noisy_simulator(current.loop, bundle.train, current.fit.values, bundle.process_noise,
-                                  current.fit.shift)
-    null = evidence.bootstrap_residuals(noisy, current.fit.q_sim, current.fit.u_sim, weights.sigma_q,
-                                        weights.sigma_u, bundle.train.time.size, BOOTSTRAP_COUNT, seed=seed)
+    """The round's bootstrap null reference (:func:`model_null`) and its projection on the current model's own
+    Jacobian (:func:`evidence.projected_gain`), against which every candidate's extension is measured
+    (:func:`evidence.extension_null`)."""
+    null = model_null(bundle, current, weights, seed, progress)
     return null, evidence.projected_gain(current.fit.jacobian, null)
+
+
+def model_null(bundle: Bundle, model: ModelFit, weights: outputerror.Weights, seed: int, progress=None
+               ) -> np.ndarray:
+    """``BOOTSTRAP_COUNT`` weighted residual replicates of ``model`` re-simulated with the estimated encoder and
+    process noise (:func:`evidence.bootstrap_residuals`), scaled to leave no more cost than the model leaves on
+    the training recording (:func:`evidence.consistent_null`; logged when they are)."""
+    noisy = noise.noisy_simulator(model.loop, bundle.train, model.fit.values, bundle.process_noise, model.fit.shift)
+    null = evidence.bootstrap_residuals(noisy, model.fit.q_sim, model.fit.u_sim, weights.sigma_q,
+                                        weights.sigma_u, bundle.train.time.size, BOOTSTRAP_COUNT, seed=seed)
+    null, factor = evidence.consistent_null(null, model.fit.cost)
+    if factor < 1:
+        _log(progress, f"  bootstrap null scaled x{factor:.3g}: the noise re-simulated through the current model "
+                       f"leaves {1 / factor:.3g} times the cost it leaves on the data")
+    return null
 
 
 def _score_passes(bundle: Bundle, current: ModelFit, name: str, axis: str | None, ctx: effect_models.Context,
@@ -200,6 +211,48 @@ def _score_passes(bundle: Bundle, current: ModelFit, name: str, axis: str | None
                     f"({'screened' if passes else 'not screened'}, {time.perf_counter() - t0:.1f} s)")
 
 
+def simplify_nested(bundle: Bundle, final: ModelFit, weights: outputerror.Weights, ctx: effect_models.Context,
+                    work: Path, progress=None) -> ModelFit:
+    """After the rounds (one axis): each kept richer nested effect (``NESTED``) is refitted in its simpler form
+    with every other kept effect in the model, and the simpler form replaces it when the richer one's extra
+    parameters no longer beat their bootstrap null (drawn from the simpler model, :func:`model_null`). Why: a
+    round judges the richer form against the simpler one before the later rounds' effects are in, so a richer
+    law can take up part of an effect found later (a Stribeck hump standing in for part of a cogging force
+    that the next round adds). The mirror of :func:`upgrade_nested`."""
+    if bundle.multi_axis or len(final.effects) < 2:
+        return final
+    current = final
+    for rich in [e for e in final.effects if e.name in effect_models.NESTED]:
+        simple = effect_models.VOCABULARY[effect_models.NESTED[rich.name]](ctx)
+        if not simple.applicable:
+            continue
+        try:
+            trial = refine(bundle, fit_structure(bundle, current, simple, ctx, weights,
+                                                 work / f"simplify_{rich.name}", replacing=rich), weights)
+        except (RuntimeError, ValueError, np.linalg.LinAlgError) as exc:
+            _log(progress, f"  {simple.name} in place of {rich.name}: fit failed ({exc})")
+            continue
+        extra = trial.fit.cost - current.fit.cost
+        null = model_null(bundle, trial, weights, 98, progress)
+        dof = sum(p.fitted for p in rich.params) - sum(p.fitted for p in simple.params)
+        threshold = evidence.null_threshold(evidence.extension_null(current.fit.jacobian, trial.fit.jacobian, null),
+                                            dof)
+        kept = extra > threshold
+        _log(progress, f"  {rich.name} with the other effects in: extra {-extra:+.4g} over {simple.name}, null "
+                     f"{threshold:.4g} ({'kept' if kept else f'{simple.name} in its place'})")
+        if kept:
+            continue
+        validate_any(bundle, trial, work / f"v_simplify_{rich.name}")
+        found = dict(current.evidence.get(rich.name, {}))
+        found.update({"validation_rms_after": trial.val_rms, "simplified_from": rich.name,
+                      "simplify_cost_increase": extra, "simplify_null_threshold": threshold,
+                      "rule": f"nested simpler form of {rich.name}: with the other effects in, the richer law's extra "
+                              f"parameters no longer beat their null threshold ({extra:.4g} <= {threshold:.4g})"})
+        trial.evidence = {**{k: v for k, v in current.evidence.items() if k != rich.name}, simple.name: found}
+        current = trial
+    return current
+
+
 def upgrade_nested(bundle: Bundle, final: ModelFit, weights: outputerror.Weights, ctx: effect_models.Context,
                    work: Path, progress=None) -> ModelFit:
     """After the rounds (one axis): each kept simpler effect is tried in its richer nested forms (``NESTED``:
@@ -216,10 +269,7 @@ def upgrade_nested(bundle: Bundle, final: ModelFit, weights: outputerror.Weights
                               if s == simple.name) if e.applicable]
         if not richer:
             continue
-        noisy = noise.noisy_simulator(current.loop, bundle.train, current.fit.values, bundle.process_noise,
-                                      current.fit.shift)
-        null = evidence.bootstrap_residuals(noisy, current.fit.q_sim, current.fit.u_sim, weights.sigma_q,
-                                            weights.sigma_u, bundle.train.time.size, BOOTSTRAP_COUNT, seed=99)
+        null = model_null(bundle, current, weights, 99, progress)
         base_gain = evidence.projected_gain(current.fit.jacobian, null)
         best = None
         for rich in richer:
