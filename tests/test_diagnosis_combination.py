@@ -40,7 +40,7 @@ def test_a_richer_friction_kept_beside_another_effect_is_simplified_only_when_it
     from motiontwin.ident.diagnosis import effects as effect_models
     from motiontwin.ident.diagnosis import noise
     from motiontwin.ident.diagnosis.screen import fit_structure
-    from motiontwin.ident.diagnosis.select import simplify_nested
+    from motiontwin.ident.diagnosis.nested import simplify_nested
     from tests.test_diagnosis_search import short_bundle_nominal
 
     bundle, nominal, weights, ctx = short_bundle_nominal(tmp_path / case, case, seed)

@@ -438,3 +438,37 @@ def test_diagnose_help_documents_the_multi_axis_format(capsys):
                  '"inputs": ["r_q1", "r_q2", "q1", "q2"]', '"pole_pitch": 0.032}]', '"free":',
                  "r_<output> [m], <input> [N], <output> [m]", "u_ext_<input>"):
         assert part in text, part
+
+
+def test_kept_friction_is_judged_in_its_nested_forms_on_its_axis(tmp_path, monkeypatch):
+    """The nested stages on several axes: a Stribeck friction kept on q2 beside a constant force on q2 (the
+    truth: Coulomb friction and that force, 2 s + 1 s) is refitted as Coulomb friction with the force in, its
+    extra parameters earn nothing, and Coulomb takes its place on q2; tried again in its richer form, Stribeck
+    does not come back. The nested table is cut to Stribeck over Coulomb (each multi-axis structure compiles
+    its own loop)."""
+    from motiontwin.ident.diagnosis import effects as effect_models
+    from motiontwin.ident.diagnosis.locate import locate
+    from motiontwin.ident.diagnosis.nested import simplify_nested, upgrade_nested
+    from motiontwin.ident.diagnosis.nominal import fit_nominal_axes, nominal_free
+    from motiontwin.ident.diagnosis.screen import MAX_NFEV, fit_candidate
+
+    monkeypatch.setattr(effect_models, "NESTED", {"stribeck_friction": "coulomb_friction"})
+    folder = _bundle(tmp_path / "bundle", [
+        truth.TrueEffect("coulomb_friction", "q2", {"coulomb_Fc": FC_TRUE, "coulomb_v_eps": 1e-4}),
+        truth.TrueEffect("gravity_offset", "q2", {"gravity_F0": 0.8})], 5)
+    bundle = read_bundle(folder)
+    bundle.cache = structure.LoopCache()
+    bundle.start = {v.name: float(v.start) for v in bundle.plant.model.parameters} | bundle.plant.parameters
+    bundle.nominal_free = nominal_free(bundle)
+    current, weights = fit_nominal_axes(bundle, tmp_path / "nominal")
+    ctx = next(e for e in locate(bundle, current, weights, seed=1) if e.axis == "q2").context
+    for name in ("gravity_offset", "stribeck_friction"):
+        current = fit_candidate(bundle, current, effect_models.VOCABULARY[name](ctx), "q2", ctx, weights,
+                                tmp_path / name, MAX_NFEV)
+        current.evidence[f"{name}@q2"] = {"context": ctx}
+    lines: list[str] = []
+    simple = simplify_nested(bundle, current, weights, None, tmp_path / "simplify", lines.append)
+    assert [(a, e.name) for a, e in simple.placed] == [("q2", "gravity_offset"), ("q2", "coulomb_friction")], lines
+    final = upgrade_nested(bundle, simple, weights, None, tmp_path / "upgrade", lines.append)
+    assert [e.name for e in final.effects] == ["gravity_offset", "coulomb_friction"], lines
+    assert any(line.startswith("  stribeck_friction in place of coulomb_friction on q2: extra") for line in lines)

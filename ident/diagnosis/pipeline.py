@@ -28,8 +28,8 @@ from motiontwin.ident.diagnosis.locate import context
 from motiontwin.ident.diagnosis.nominal import (_divergence_hint, check_plant_form, fit_nominal, fit_nominal_axes,
                                                 nominal_free, nominal_start, plant_physics)
 from motiontwin.ident.diagnosis.remainder import EMPIRICAL_EFFECT, explain_remainder, explain_remainder_axes
-from motiontwin.ident.diagnosis.select import (VALIDATION_GAIN, select, simplify_nested, upgrade_nested,
-                                              widen_search_bounds)
+from motiontwin.ident.diagnosis.nested import simplify_nested, upgrade_nested
+from motiontwin.ident.diagnosis.select import VALIDATION_GAIN, select, widen_search_bounds
 from motiontwin.ident.diagnosis.structure import (FLOOR_REPLICATES, LoopCache, ModelFit, _log,
                                                   _nominal_bounds, build_axes, build_structure, estimation_rms,
                                                   floor_rms, floors, validate, validate_axes, validation_floor,
@@ -283,6 +283,8 @@ def run_axes(bundle: Bundle, work: Path, progress=None) -> dict:
                                    f"axis {a.output}", {n: nominal.fit.values[n] for n in nominal.loop.free},
                                    _divergence_hint(bundle))
     final, log, located = select(bundle, nominal, weights, None, work / "trials", progress)
+    final = simplify_nested(bundle, final, weights, None, work / "simplify", progress)
+    final = upgrade_nested(bundle, final, weights, None, work / "upgrade", progress)
     final = widen_search_bounds(bundle, final, weights, work / "widen", progress)
     final, remainder = explain_remainder_axes(bundle, final, weights, work / "remainder", progress)
     final = with_final_start(bundle, final, weights, work / "v_start", progress)

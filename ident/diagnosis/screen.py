@@ -14,6 +14,7 @@ from motiontwin.ident import outputerror, startvalues
 from motiontwin.ident.diagnosis import effects as effect_models
 from motiontwin.ident.diagnosis import evidence
 from motiontwin.ident.diagnosis.bundle import Bundle
+from motiontwin.ident.diagnosis.augmented import axis_prefix
 from motiontwin.ident.diagnosis.effect_base import vanishing_start
 from motiontwin.ident.diagnosis.nominal import default_start
 from motiontwin.ident.plant_states import alias_state
@@ -241,20 +242,31 @@ def _close_richer(ranked: list[str], screened: dict, cost: float) -> list[str]:
 
 def fit_candidate(bundle: Bundle, current: ModelFit, effect: effect_models.Effect, axis: str,
                   ctx: effect_models.Context, weights: outputerror.Weights, folder: Path,
-                  max_nfev: int) -> ModelFit:
-    """The current structure plus ``effect`` on ``axis``, fitted from each of its starting points."""
+                  max_nfev: int, replacing: effect_models.Effect | None = None) -> ModelFit:
+    """The current structure plus ``effect`` on ``axis`` (in place of the placed effect ``replacing``, when
+    given: first from the richer effect at the simpler one's fitted values, ``effects.NESTED_START``, as
+    :func:`fit_structure`), fitted from each of its starting points."""
     roles = next(a for a in bundle.plant.axes if a.output == axis)
     placed = on_axis(effect, roles, bundle.plant.model)
-    effects = current.placed + [(axis, placed)]
     starts = _starts(placed, ctx)
     base = dict(current.fit.values)
+    if replacing is None:
+        pairs = current.placed + [(axis, placed)]
+    else:
+        pairs = [(a, placed if e is replacing else e) for a, e in current.placed]
+        base = {k: v for k, v in base.items() if k not in {p.name for p in replacing.params}}
+        prefix = axis_prefix(axis)
+        if effect.name in effect_models.NESTED_START:
+            own = {k[len(prefix):]: v for k, v in current.fit.values.items() if k.startswith(prefix)}
+            nested = effect_models.NESTED_START[effect.name](own)
+            starts = [{**starts[0], **{prefix + k: v for k, v in nested.items()}}] + starts
     values = {**base, **{p.name: float(np.mean(p.bounds)) for p in placed.params if not p.fitted}, **starts[0]}
-    loop, bounds = build_axes(bundle, effects, values, folder, bundle.train.time.size,
+    loop, bounds = build_axes(bundle, pairs, values, folder, bundle.train.time.size,
                               min_substeps=current.loop.substeps)
     best, start_cost = _best_fit(bundle, loop, bounds, weights, {**loop.values, **base}, starts, max_nfev,
                                  effect.name, current.fit.shift)
-    return ModelFit(current.effects + [placed], loop.with_values(best.values), best, bounds, folder,
-                    evidence=dict(current.evidence), axes=current.axes + [axis], start_cost=start_cost)
+    return ModelFit([e for _, e in pairs], loop.with_values(best.values), best, bounds, folder,
+                    evidence=dict(current.evidence), axes=[a for a, _ in pairs], start_cost=start_cost)
 
 
 def score_test(bundle: Bundle, current: ModelFit, name: str, axis: str | None, ctx: effect_models.Context,

@@ -15,11 +15,12 @@ from motiontwin.ident import outputerror
 from motiontwin.ident.diagnosis import effects as effect_models
 from motiontwin.ident.diagnosis import evidence, noise
 from motiontwin.ident.diagnosis.bounds import WIDEN_ROUNDS, widened_effects
+from motiontwin.ident.diagnosis.augmented import axis_prefix
 from motiontwin.ident.diagnosis.axis_units import bundle_units
 from motiontwin.ident.diagnosis.bundle import Bundle
 from motiontwin.ident.diagnosis.locate import AxisEvidence, locate
 from motiontwin.ident.diagnosis.screen import (MAX_NFEV, SCREEN_NFEV, _close_richer, candidates,
-                                               fit_candidate, fit_structure, placed_structure,
+                                               fit_candidate, placed_structure,
                                                ranked_with_nested, refine, score_test, screen)
 from motiontwin.ident.diagnosis.structure import ModelFit, _log, build_structure, compiled, validate_any
 from motiontwin.ident.diagnosis.workers import map_jobs
@@ -211,103 +212,6 @@ def _score_passes(bundle: Bundle, current: ModelFit, name: str, axis: str | None
                     f"({'screened' if passes else 'not screened'}, {time.perf_counter() - t0:.1f} s)")
 
 
-def simplify_nested(bundle: Bundle, final: ModelFit, weights: outputerror.Weights, ctx: effect_models.Context,
-                    work: Path, progress=None) -> ModelFit:
-    """After the rounds (one axis): each kept richer nested effect (``NESTED``) is refitted in its simpler form
-    with every other kept effect in the model, and the simpler form replaces it when the richer one's extra
-    parameters no longer beat their bootstrap null (drawn from the simpler model, :func:`model_null`). Why: a
-    round judges the richer form against the simpler one before the later rounds' effects are in, so a richer
-    law can take up part of an effect found later (a Stribeck hump standing in for part of a cogging force
-    that the next round adds). The mirror of :func:`upgrade_nested`."""
-    if bundle.multi_axis or len(final.effects) < 2:
-        return final
-    current = final
-    for rich in [e for e in final.effects if e.name in effect_models.NESTED]:
-        simple = effect_models.VOCABULARY[effect_models.NESTED[rich.name]](ctx)
-        if not simple.applicable:
-            continue
-        try:
-            trial = refine(bundle, fit_structure(bundle, current, simple, ctx, weights,
-                                                 work / f"simplify_{rich.name}", replacing=rich), weights)
-        except (RuntimeError, ValueError, np.linalg.LinAlgError) as exc:
-            _log(progress, f"  {simple.name} in place of {rich.name}: fit failed ({exc})")
-            continue
-        extra = trial.fit.cost - current.fit.cost
-        null = model_null(bundle, trial, weights, 98, progress)
-        dof = sum(p.fitted for p in rich.params) - sum(p.fitted for p in simple.params)
-        threshold = evidence.null_threshold(evidence.extension_null(current.fit.jacobian, trial.fit.jacobian, null),
-                                            dof)
-        kept = extra > threshold
-        _log(progress, f"  {rich.name} with the other effects in: extra {-extra:+.4g} over {simple.name}, null "
-                     f"{threshold:.4g} ({'kept' if kept else f'{simple.name} in its place'})")
-        if kept:
-            continue
-        validate_any(bundle, trial, work / f"v_simplify_{rich.name}")
-        found = dict(current.evidence.get(rich.name, {}))
-        found.update({"validation_rms_after": trial.val_rms, "simplified_from": rich.name,
-                      "simplify_cost_increase": extra, "simplify_null_threshold": threshold,
-                      "rule": f"nested simpler form of {rich.name}: with the other effects in, the richer law's extra "
-                              f"parameters no longer beat their null threshold ({extra:.4g} <= {threshold:.4g})"})
-        trial.evidence = {**{k: v for k, v in current.evidence.items() if k != rich.name}, simple.name: found}
-        current = trial
-    return current
-
-
-def upgrade_nested(bundle: Bundle, final: ModelFit, weights: outputerror.Weights, ctx: effect_models.Context,
-                   work: Path, progress=None) -> ModelFit:
-    """After the rounds (one axis): each kept simpler effect is tried in its richer nested forms (``NESTED``:
-    Stribeck, asymmetric, LuGre, load-dependent or drifting friction in place of Coulomb; backlash in place
-    of resonance) with every other kept effect in the model. A richer form replaces it when its extra
-    parameters beat their own bootstrap null (process noise included), its values are that physics, and the
-    validation fit is not worse: a second effect can hide the richer law in the round that found the simpler
-    one (an offset taken up by the Coulomb level hides the Stribeck hump)."""
-    if bundle.multi_axis or len(final.effects) < 2:
-        return final
-    current = final
-    for simple in [e for e in final.effects if e.name in effect_models.NESTED.values()]:
-        richer = [e for e in (effect_models.VOCABULARY[r](ctx) for r, s in effect_models.NESTED.items()
-                              if s == simple.name) if e.applicable]
-        if not richer:
-            continue
-        null = model_null(bundle, current, weights, 99, progress)
-        base_gain = evidence.projected_gain(current.fit.jacobian, null)
-        best = None
-        for rich in richer:
-            try:
-                trial = refine(bundle, fit_structure(bundle, current, rich, ctx, weights,
-                                                     work / f"upgrade_{rich.name}", replacing=simple), weights)
-            except (RuntimeError, ValueError, np.linalg.LinAlgError) as exc:
-                _log(progress, f"  {rich.name} in place of {simple.name}: fit failed ({exc})")
-                continue
-            extra = current.fit.cost - trial.fit.cost
-            dof = sum(p.fitted for p in rich.params) - sum(p.fitted for p in simple.params)
-            threshold = evidence.null_threshold(
-                evidence.extension_null(trial.fit.jacobian, current.fit.jacobian, null, base_gain), dof)
-            _log(progress, f"  {rich.name} in place of {simple.name}: extra {-extra:+.4g}, null {threshold:.4g}")
-            if extra > threshold and not _unphysical(trial, progress, rich) and \
-                    (best is None or extra > best[1]):
-                best = (trial, extra, threshold, rich)
-        if best is None:
-            continue
-        trial, extra, threshold, rich = best
-        validate_any(bundle, trial, work / f"v_upgrade_{rich.name}")
-        if not current.validated:
-            validate_any(bundle, current, work / "v_before_upgrade")
-        kept = trial.val_rms <= current.val_rms
-        _log(progress, f"  {rich.name} in place of {simple.name}: validation rms {current.val_rms:.4g} -> "
-                       f"{trial.val_rms:.4g} ({'kept' if kept else 'rejected'})")
-        if not kept:
-            continue
-        found = dict(current.evidence.get(simple.name, {}))
-        found.update({"validation_rms_after": trial.val_rms, "upgraded_from": simple.name,
-                      "upgrade_cost_reduction": extra, "upgrade_null_threshold": threshold,
-                      "rule": f"richer nested form of {simple.name}: its extra parameters beat their null "
-                              f"threshold ({extra:.4g} > {threshold:.4g}) once the other effects were in"})
-        trial.evidence = {**{k: v for k, v in current.evidence.items() if k != simple.name}, rich.name: found}
-        current = trial
-    return current
-
-
 def widen_search_bounds(bundle: Bundle, final: ModelFit, weights: outputerror.Weights, work: Path,
                         progress=None, rounds: int = WIDEN_ROUNDS) -> ModelFit:
     """The chosen structure refitted with every effect parameter that ended on a search limit of its effect
@@ -352,14 +256,17 @@ def _stroke_quarters(bundle: Bundle, before: ModelFit, after: ModelFit, axis: st
     return evidence.stroke_ratios(position, before.val_force_error[k], after.val_force_error[k])
 
 
-def _unphysical(trial: ModelFit, progress, effect: effect_models.Effect | None = None) -> bool:
+def _unphysical(trial: ModelFit, progress, effect: effect_models.Effect | None = None,
+                axis: str | None = None) -> bool:
     """True (and logged) when the fitted values of ``effect`` (default: the trial's last, placed on its axis
-    when the trial has axes, :func:`structure.on_axis`) are not the physics it names."""
-    placed = effect is None and bool(trial.axes)
+    when the trial has axes, :func:`structure.on_axis`; given, placed on ``axis`` when that is given) are not
+    the physics it names."""
+    if effect is None and trial.axes:
+        axis = trial.axes[-1]
     effect = effect or trial.effects[-1]
     if effect.unphysical is None:
         return False
-    prefix = f"{trial.axes[-1]}_" if placed else ""
+    prefix = axis_prefix(axis) if axis is not None else ""
     reason = effect.unphysical({p.name[len(prefix):]: trial.fit.values[p.name] for p in effect.params})
     if reason:
         _log(progress, f"  {effect.name}: not reported as this physics, {reason}")

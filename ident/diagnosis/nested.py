@@ -1,0 +1,150 @@
+"""After the rounds: the kept effects of the friction family (and backlash over resonance) judged again in their
+nested forms with every other kept effect in the model (``effects.NESTED``), one axis or several. A round judges
+a richer law against its simpler form before the later rounds' effects are in, so the answer can change once
+they are: :func:`simplify_nested` then :func:`upgrade_nested`. Units: SI (s, m, N)."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from motiontwin.ident import outputerror
+from motiontwin.ident.diagnosis import effects as effect_models
+from motiontwin.ident.diagnosis import evidence
+from motiontwin.ident.diagnosis.bundle import Bundle
+from motiontwin.ident.diagnosis.screen import MAX_NFEV, fit_candidate, fit_structure, refine
+from motiontwin.ident.diagnosis.select import _unphysical, model_null
+from motiontwin.ident.diagnosis.structure import ModelFit, _log, validate_any
+
+
+def _key(name: str, axis: str | None) -> str:
+    """An effect's entry in a structure's evidence (several axes: ``name@axis``)."""
+    return name if axis is None else f"{name}@{axis}"
+
+
+def _kept(final: ModelFit, ctx: effect_models.Context | None) -> list[tuple[str | None, effect_models.Effect,
+                                                                          effect_models.Context]]:
+    """(axis, kept effect, its axis's context) of a final structure; several axes: the context the round that
+    kept the effect located (its evidence), one axis: ``ctx``."""
+    if not final.axes:
+        return [(None, e, ctx) for e in final.effects]
+    return [(a, e, final.evidence.get(_key(e.name, a), {}).get("context")) for a, e in final.placed]
+
+
+def _in_place(bundle: Bundle, current: ModelFit, new: effect_models.Effect, old: effect_models.Effect,
+              axis: str | None, ctx: effect_models.Context, weights: outputerror.Weights, folder: Path) -> ModelFit:
+    """``current`` with ``new`` fitted in place of its effect ``old`` (placed on ``axis`` of several)."""
+    if axis is None:
+        fitted = fit_structure(bundle, current, new, ctx, weights, folder, replacing=old)
+    else:
+        fitted = fit_candidate(bundle, current, new, axis, ctx, weights, folder, MAX_NFEV, replacing=old)
+    return refine(bundle, fitted, weights)
+
+
+def _placed(trial: ModelFit, current: ModelFit, old: effect_models.Effect) -> effect_models.Effect:
+    """The effect of ``trial`` that took the place of ``current``'s ``old``."""
+    return trial.effects[next(k for k, e in enumerate(current.effects) if e is old)]
+
+
+def simplify_nested(bundle: Bundle, final: ModelFit, weights: outputerror.Weights,
+                    ctx: effect_models.Context | None, work: Path, progress=None) -> ModelFit:
+    """Each kept richer nested effect (``NESTED``) refitted in its simpler form with every other kept effect in
+    the model; the simpler form replaces it when the richer one's extra parameters no longer beat their
+    bootstrap null (drawn from the simpler model, :func:`select.model_null`). Why: a richer law judged before a
+    later round's effect was in can take up part of it (a Stribeck hump standing in for part of a cogging
+    force that the next round adds). The mirror of :func:`upgrade_nested`."""
+    if len(final.effects) < 2:
+        return final
+    current = final
+    for axis, rich, axis_ctx in _kept(final, ctx):
+        if rich.name not in effect_models.NESTED or axis_ctx is None:
+            continue
+        simple = effect_models.VOCABULARY[effect_models.NESTED[rich.name]](axis_ctx)
+        on = "" if axis is None else f" on {axis}"
+        if not simple.applicable:
+            continue
+        try:
+            trial = _in_place(bundle, current, simple, rich, axis, axis_ctx, weights,
+                              work / f"simplify_{_key(rich.name, axis)}")
+        except (RuntimeError, ValueError, np.linalg.LinAlgError) as exc:
+            _log(progress, f"  {simple.name} in place of {rich.name}{on}: fit failed ({exc})")
+            continue
+        extra = trial.fit.cost - current.fit.cost
+        null = model_null(bundle, trial, weights, 98, progress)
+        dof = sum(p.fitted for p in rich.params) - sum(p.fitted for p in simple.params)
+        threshold = evidence.null_threshold(evidence.extension_null(current.fit.jacobian, trial.fit.jacobian, null),
+                                            dof)
+        kept = extra > threshold
+        _log(progress, f"  {rich.name}{on} with the other effects in: extra {-extra:+.4g} over {simple.name}, null "
+                       f"{threshold:.4g} ({'kept' if kept else f'{simple.name} in its place'})")
+        if kept:
+            continue
+        validate_any(bundle, trial, work / f"v_simplify_{_key(rich.name, axis)}")
+        found = dict(current.evidence.get(_key(rich.name, axis), {}))
+        found.update({"validation_rms_after": trial.axis_rms(axis), "simplified_from": rich.name,
+                      "simplify_cost_increase": extra, "simplify_null_threshold": threshold,
+                      "rule": f"nested simpler form of {rich.name}: with the other effects in, the richer law's extra "
+                              f"parameters no longer beat their null threshold ({extra:.4g} <= {threshold:.4g})"})
+        trial.evidence = {**{k: v for k, v in current.evidence.items() if k != _key(rich.name, axis)},
+                          _key(simple.name, axis): found}
+        current = trial
+    return current
+
+
+def upgrade_nested(bundle: Bundle, final: ModelFit, weights: outputerror.Weights,
+                   ctx: effect_models.Context | None, work: Path, progress=None) -> ModelFit:
+    """Each kept simpler effect tried in its richer nested forms (``NESTED``: Stribeck, asymmetric, LuGre,
+    load-dependent or drifting friction in place of Coulomb; backlash in place of resonance) with every other
+    kept effect in the model. A richer form replaces it when its extra parameters beat their own bootstrap null
+    (process noise included), its values are that physics, and the validation fit on its axis is not worse: a
+    second effect can hide the richer law in the round that found the simpler one (an offset taken up by the
+    Coulomb level hides the Stribeck hump)."""
+    if len(final.effects) < 2:
+        return final
+    current = final
+    for axis, simple, axis_ctx in _kept(final, ctx):
+        if simple.name not in effect_models.NESTED.values() or axis_ctx is None:
+            continue
+        richer = [e for e in (effect_models.VOCABULARY[r](axis_ctx) for r, s in effect_models.NESTED.items()
+                              if s == simple.name) if e.applicable]
+        if not richer:
+            continue
+        on = "" if axis is None else f" on {axis}"
+        null = model_null(bundle, current, weights, 99, progress)
+        base_gain = evidence.projected_gain(current.fit.jacobian, null)
+        best = None
+        for rich in richer:
+            try:
+                trial = _in_place(bundle, current, rich, simple, axis, axis_ctx, weights,
+                                  work / f"upgrade_{_key(rich.name, axis)}")
+            except (RuntimeError, ValueError, np.linalg.LinAlgError) as exc:
+                _log(progress, f"  {rich.name} in place of {simple.name}{on}: fit failed ({exc})")
+                continue
+            extra = current.fit.cost - trial.fit.cost
+            dof = sum(p.fitted for p in rich.params) - sum(p.fitted for p in simple.params)
+            threshold = evidence.null_threshold(
+                evidence.extension_null(trial.fit.jacobian, current.fit.jacobian, null, base_gain), dof)
+            _log(progress, f"  {rich.name} in place of {simple.name}{on}: extra {-extra:+.4g}, null {threshold:.4g}")
+            if extra > threshold and not _unphysical(trial, progress, _placed(trial, current, simple), axis) and \
+                    (best is None or extra > best[1]):
+                best = (trial, extra, threshold, rich)
+        if best is None:
+            continue
+        trial, extra, threshold, rich = best
+        validate_any(bundle, trial, work / f"v_upgrade_{_key(rich.name, axis)}")
+        if not current.validated:
+            validate_any(bundle, current, work / "v_before_upgrade")
+        kept = trial.axis_rms(axis) <= current.axis_rms(axis)
+        _log(progress, f"  {rich.name} in place of {simple.name}{on}: validation rms {current.axis_rms(axis):.4g} -> "
+                       f"{trial.axis_rms(axis):.4g} ({'kept' if kept else 'rejected'})")
+        if not kept:
+            continue
+        found = dict(current.evidence.get(_key(simple.name, axis), {}))
+        found.update({"validation_rms_after": trial.axis_rms(axis), "upgraded_from": simple.name,
+                      "upgrade_cost_reduction": extra, "upgrade_null_threshold": threshold,
+                      "rule": f"richer nested form of {simple.name}: its extra parameters beat their null "
+                              f"threshold ({extra:.4g} > {threshold:.4g}) once the other effects were in"})
+        trial.evidence = {**{k: v for k, v in current.evidence.items() if k != _key(simple.name, axis)},
+                          _key(rich.name, axis): found}
+        current = trial
+    return current
