@@ -32,18 +32,34 @@ def _kept(final: ModelFit, ctx: effect_models.Context | None) -> list[tuple[str 
 
 
 def _in_place(bundle: Bundle, current: ModelFit, new: effect_models.Effect, old: effect_models.Effect,
-              axis: str | None, ctx: effect_models.Context, weights: outputerror.Weights, folder: Path) -> ModelFit:
-    """``current`` with ``new`` fitted in place of its effect ``old`` (placed on ``axis`` of several)."""
-    if axis is None:
-        fitted = fit_structure(bundle, current, new, ctx, weights, folder, replacing=old)
-    else:
-        fitted = fit_candidate(bundle, current, new, axis, ctx, weights, folder, MAX_NFEV, replacing=old)
-    return refine(bundle, fitted, weights)
+              axis: str | None, ctx: effect_models.Context, weights: outputerror.Weights, folder: Path,
+              progress=None) -> ModelFit | None:
+    """``current`` with ``new`` fitted in place of its effect ``old`` (placed on ``axis`` of several); None, and
+    logged, when the fit fails."""
+    try:
+        if axis is None:
+            fitted = fit_structure(bundle, current, new, ctx, weights, folder, replacing=old)
+        else:
+            fitted = fit_candidate(bundle, current, new, axis, ctx, weights, folder, MAX_NFEV, replacing=old)
+        return refine(bundle, fitted, weights)
+    except (RuntimeError, ValueError, np.linalg.LinAlgError) as exc:
+        _log(progress, f"  {new.name} in place of {old.name}{'' if axis is None else f' on {axis}'}: fit failed "
+                       f"({exc})")
+        return None
 
 
 def _placed(trial: ModelFit, current: ModelFit, old: effect_models.Effect) -> effect_models.Effect:
     """The effect of ``trial`` that took the place of ``current``'s ``old``."""
     return trial.effects[next(k for k, e in enumerate(current.effects) if e is old)]
+
+
+def _moved_evidence(trial: ModelFit, current: ModelFit, old: str, new: str, axis: str | None,
+                    entries: dict) -> ModelFit:
+    """``trial`` carrying ``current``'s evidence, the entry of the replaced effect ``old`` moved to ``new``
+    with its validation figure after the change and ``entries`` (the rule that replaced it)."""
+    found = {**current.evidence.get(_key(old, axis), {}), "validation_rms_after": trial.axis_rms(axis), **entries}
+    trial.evidence = {**{k: v for k, v in current.evidence.items() if k != _key(old, axis)}, _key(new, axis): found}
+    return trial
 
 
 def simplify_nested(bundle: Bundle, final: ModelFit, weights: outputerror.Weights,
@@ -63,11 +79,9 @@ def simplify_nested(bundle: Bundle, final: ModelFit, weights: outputerror.Weight
         on = "" if axis is None else f" on {axis}"
         if not simple.applicable:
             continue
-        try:
-            trial = _in_place(bundle, current, simple, rich, axis, axis_ctx, weights,
-                              work / f"simplify_{_key(rich.name, axis)}")
-        except (RuntimeError, ValueError, np.linalg.LinAlgError) as exc:
-            _log(progress, f"  {simple.name} in place of {rich.name}{on}: fit failed ({exc})")
+        trial = _in_place(bundle, current, simple, rich, axis, axis_ctx, weights,
+                          work / f"simplify_{_key(rich.name, axis)}", progress)
+        if trial is None:
             continue
         extra = trial.fit.cost - current.fit.cost
         null = model_null(bundle, trial, weights, 98, progress)
@@ -80,14 +94,10 @@ def simplify_nested(bundle: Bundle, final: ModelFit, weights: outputerror.Weight
         if kept:
             continue
         validate_any(bundle, trial, work / f"v_simplify_{_key(rich.name, axis)}")
-        found = dict(current.evidence.get(_key(rich.name, axis), {}))
-        found.update({"validation_rms_after": trial.axis_rms(axis), "simplified_from": rich.name,
-                      "simplify_cost_increase": extra, "simplify_null_threshold": threshold,
-                      "rule": f"nested simpler form of {rich.name}: with the other effects in, the richer law's extra "
-                              f"parameters no longer beat their null threshold ({extra:.4g} <= {threshold:.4g})"})
-        trial.evidence = {**{k: v for k, v in current.evidence.items() if k != _key(rich.name, axis)},
-                          _key(simple.name, axis): found}
-        current = trial
+        current = _moved_evidence(trial, current, rich.name, simple.name, axis, {
+            "simplified_from": rich.name, "simplify_cost_increase": extra, "simplify_null_threshold": threshold,
+            "rule": f"nested simpler form of {rich.name}: with the other effects in, the richer law's extra "
+                    f"parameters no longer beat their null threshold ({extra:.4g} <= {threshold:.4g})"})
     return current
 
 
@@ -114,11 +124,9 @@ def upgrade_nested(bundle: Bundle, final: ModelFit, weights: outputerror.Weights
         base_gain = evidence.projected_gain(current.fit.jacobian, null)
         best = None
         for rich in richer:
-            try:
-                trial = _in_place(bundle, current, rich, simple, axis, axis_ctx, weights,
-                                  work / f"upgrade_{_key(rich.name, axis)}")
-            except (RuntimeError, ValueError, np.linalg.LinAlgError) as exc:
-                _log(progress, f"  {rich.name} in place of {simple.name}{on}: fit failed ({exc})")
+            trial = _in_place(bundle, current, rich, simple, axis, axis_ctx, weights,
+                              work / f"upgrade_{_key(rich.name, axis)}", progress)
+            if trial is None:
                 continue
             extra = current.fit.cost - trial.fit.cost
             dof = sum(p.fitted for p in rich.params) - sum(p.fitted for p in simple.params)
@@ -139,12 +147,8 @@ def upgrade_nested(bundle: Bundle, final: ModelFit, weights: outputerror.Weights
                        f"{trial.axis_rms(axis):.4g} ({'kept' if kept else 'rejected'})")
         if not kept:
             continue
-        found = dict(current.evidence.get(_key(simple.name, axis), {}))
-        found.update({"validation_rms_after": trial.axis_rms(axis), "upgraded_from": simple.name,
-                      "upgrade_cost_reduction": extra, "upgrade_null_threshold": threshold,
-                      "rule": f"richer nested form of {simple.name}: its extra parameters beat their null "
-                              f"threshold ({extra:.4g} > {threshold:.4g}) once the other effects were in"})
-        trial.evidence = {**{k: v for k, v in current.evidence.items() if k != _key(simple.name, axis)},
-                          _key(rich.name, axis): found}
-        current = trial
+        current = _moved_evidence(trial, current, simple.name, rich.name, axis, {
+            "upgraded_from": simple.name, "upgrade_cost_reduction": extra, "upgrade_null_threshold": threshold,
+            "rule": f"richer nested form of {simple.name}: its extra parameters beat their null "
+                    f"threshold ({extra:.4g} > {threshold:.4g}) once the other effects were in"})
     return current
