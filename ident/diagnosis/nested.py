@@ -14,7 +14,8 @@ from motiontwin.ident.diagnosis import evidence
 from motiontwin.ident.diagnosis.bundle import Bundle
 from motiontwin.ident.diagnosis.screen import MAX_NFEV, fit_candidate, fit_structure, refine
 from motiontwin.ident.diagnosis.select import _unphysical, model_null
-from motiontwin.ident.diagnosis.structure import ModelFit, _log, validate_any
+from motiontwin.ident.diagnosis.structure import ModelFit, _log, build_axes, build_structure, on_axis, validate_any
+from motiontwin.ident.diagnosis.workers import map_jobs
 
 
 def _key(name: str, axis: str | None) -> str:
@@ -46,6 +47,44 @@ def _in_place(bundle: Bundle, current: ModelFit, new: effect_models.Effect, old:
         _log(progress, f"  {new.name} in place of {old.name}{'' if axis is None else f' on {axis}'}: fit failed "
                        f"({exc})")
         return None
+
+
+def _side_by_side(bundle: Bundle, current: ModelFit, news: list[effect_models.Effect], old: effect_models.Effect,
+                  axis: str | None, ctx: effect_models.Context, weights: outputerror.Weights, work: Path,
+                  progress=None) -> list[ModelFit | None]:
+    """:func:`_in_place` of each of ``news`` in place of ``old``, fitted side by side in the worker processes
+    (:func:`workers.map_jobs`: a Hexapod or 4-DOF fit takes tens of seconds); each structure is rebuilt here at
+    its fit (the compiled library is on disk), a failed fit logged here."""
+    by_name = {e.name: e for e in news}
+
+    def folder(name: str) -> Path:
+        return work / f"upgrade_{_key(name, axis)}"
+
+    def job(name: str) -> tuple[outputerror.Fit, int] | str:
+        failed: list[str] = []
+        trial = _in_place(bundle, current, by_name[name], old, axis, ctx, weights, folder(name), failed.append)
+        return failed[0] if trial is None else (trial.fit, trial.loop.substeps)
+
+    out: list[ModelFit | None] = []
+    for new, result in zip(news, map_jobs(job, list(by_name))):
+        if isinstance(result, str):
+            _log(progress, result)
+            out.append(None)
+            continue
+        fit, substeps = result
+        if axis is None:
+            effects = [new if e is old else e for e in current.effects]
+            loop, bounds = build_structure(bundle, effects, fit.values, folder(new.name), bundle.train.time.size,
+                                           substeps=substeps)
+            out.append(ModelFit(effects, loop.with_values(fit.values), fit, bounds, folder(new.name)))
+            continue
+        roles = next(a for a in bundle.plant.axes if a.output == axis)
+        pairs = [(a, on_axis(new, roles, bundle.plant.model) if e is old else e) for a, e in current.placed]
+        loop, bounds = build_axes(bundle, pairs, fit.values, folder(new.name), bundle.train.time.size,
+                                  min_substeps=substeps)
+        out.append(ModelFit([e for _, e in pairs], loop.with_values(fit.values), fit, bounds, folder(new.name),
+                            evidence=dict(current.evidence), axes=[a for a, _ in pairs]))
+    return out
 
 
 def _placed(trial: ModelFit, current: ModelFit, old: effect_models.Effect) -> effect_models.Effect:
@@ -123,9 +162,8 @@ def upgrade_nested(bundle: Bundle, final: ModelFit, weights: outputerror.Weights
         null = model_null(bundle, current, weights, 99, progress)
         base_gain = evidence.projected_gain(current.fit.jacobian, null)
         best = None
-        for rich in richer:
-            trial = _in_place(bundle, current, rich, simple, axis, axis_ctx, weights,
-                              work / f"upgrade_{_key(rich.name, axis)}", progress)
+        for rich, trial in zip(richer, _side_by_side(bundle, current, richer, simple, axis, axis_ctx, weights,
+                                                      work, progress)):
             if trial is None:
                 continue
             extra = current.fit.cost - trial.fit.cost
