@@ -10,7 +10,12 @@ import json
 import pytest
 
 from motiontwin.ident.benchmarks import independent
-from motiontwin.ident.diagnosis import diagnose_bundle
+from motiontwin.ident.diagnosis import diagnose_bundle, noise
+from motiontwin.ident.diagnosis import effects as effect_models
+from motiontwin.ident.diagnosis.nested import simplify_nested
+from motiontwin.ident.diagnosis.prune import prune
+from motiontwin.ident.diagnosis.screen import fit_structure
+from tests.test_diagnosis_search import short_bundle_nominal
 
 
 @pytest.fixture(scope="module")
@@ -37,12 +42,6 @@ def test_a_richer_friction_kept_beside_another_effect_is_simplified_only_when_it
     """A Stribeck friction kept beside a second effect (a round judged it before the second was in) is refitted
     as Coulomb friction with the second one in: on a short Coulomb truth its extra parameters do not beat their
     null and Coulomb takes its place; on a short Stribeck truth it stays. Reference: the truth's law."""
-    from motiontwin.ident.diagnosis import effects as effect_models
-    from motiontwin.ident.diagnosis import noise
-    from motiontwin.ident.diagnosis.screen import fit_structure
-    from motiontwin.ident.diagnosis.nested import simplify_nested
-    from tests.test_diagnosis_search import short_bundle_nominal
-
     bundle, nominal, weights, ctx = short_bundle_nominal(tmp_path / case, case, seed)
     bundle.process_noise = noise.of_bundle(bundle, nominal.fit.values, weights.sigma_q)
     current = nominal
@@ -50,3 +49,16 @@ def test_a_richer_friction_kept_beside_another_effect_is_simplified_only_when_it
         current = fit_structure(bundle, current, effect_models.VOCABULARY[name](ctx), ctx, weights, tmp_path / name)
     final = simplify_nested(bundle, current, weights, ctx, tmp_path / "simplify", print)
     assert [e.name for e in final.effects] == [case, "gravity_offset"]
+
+
+def test_an_effect_the_later_one_makes_redundant_is_dropped(tmp_path) -> None:
+    """Backward elimination after the rounds, one axis: on a short Coulomb-friction truth, a constant force kept
+    first (it takes up part of the friction's force) saves nothing once the friction is in, and is dropped; the
+    friction is kept. Reference: the truth's law."""
+    bundle, current, weights, ctx = short_bundle_nominal(tmp_path / "coulomb", "coulomb_friction", 3)
+    bundle.process_noise = noise.of_bundle(bundle, current.fit.values, weights.sigma_q)
+    for name in ("gravity_offset", "coulomb_friction"):
+        current = fit_structure(bundle, current, effect_models.VOCABULARY[name](ctx), ctx, weights, tmp_path / name)
+    lines: list[str] = []
+    final = prune(bundle, current, weights, tmp_path / "prune", lines.append)
+    assert [e.name for e in final.effects] == ["coulomb_friction"], lines

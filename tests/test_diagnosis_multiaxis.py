@@ -440,6 +440,17 @@ def test_diagnose_help_documents_the_multi_axis_format(capsys):
         assert part in text, part
 
 
+def _nominal_of(folder: Path, work: Path) -> tuple:
+    """The bundle in ``folder`` read as the multi-axis engine reads it, and its nominal refit and weights."""
+    from motiontwin.ident.diagnosis.nominal import fit_nominal_axes, nominal_free
+
+    bundle = read_bundle(folder)
+    bundle.cache = structure.LoopCache()
+    bundle.start = {v.name: float(v.start) for v in bundle.plant.model.parameters} | bundle.plant.parameters
+    bundle.nominal_free = nominal_free(bundle)
+    return (bundle, *fit_nominal_axes(bundle, work))
+
+
 def test_kept_friction_is_judged_in_its_nested_forms_on_its_axis(tmp_path, monkeypatch):
     """The nested stages on several axes: a Stribeck friction kept on q2 beside a constant force on q2 (the
     truth: Coulomb friction and that force, 2 s + 1 s) is refitted as Coulomb friction with the force in, its
@@ -449,18 +460,13 @@ def test_kept_friction_is_judged_in_its_nested_forms_on_its_axis(tmp_path, monke
     from motiontwin.ident.diagnosis import effects as effect_models
     from motiontwin.ident.diagnosis.locate import locate
     from motiontwin.ident.diagnosis.nested import simplify_nested, upgrade_nested
-    from motiontwin.ident.diagnosis.nominal import fit_nominal_axes, nominal_free
     from motiontwin.ident.diagnosis.screen import MAX_NFEV, fit_candidate
 
     monkeypatch.setattr(effect_models, "NESTED", {"stribeck_friction": "coulomb_friction"})
     folder = _bundle(tmp_path / "bundle", [
         truth.TrueEffect("coulomb_friction", "q2", {"coulomb_Fc": FC_TRUE, "coulomb_v_eps": 1e-4}),
         truth.TrueEffect("gravity_offset", "q2", {"gravity_F0": 0.8})], 5)
-    bundle = read_bundle(folder)
-    bundle.cache = structure.LoopCache()
-    bundle.start = {v.name: float(v.start) for v in bundle.plant.model.parameters} | bundle.plant.parameters
-    bundle.nominal_free = nominal_free(bundle)
-    current, weights = fit_nominal_axes(bundle, tmp_path / "nominal")
+    bundle, current, weights = _nominal_of(folder, tmp_path / "nominal")
     ctx = next(e for e in locate(bundle, current, weights, seed=1) if e.axis == "q2").context
     for name in ("gravity_offset", "stribeck_friction"):
         current = fit_candidate(bundle, current, effect_models.VOCABULARY[name](ctx), "q2", ctx, weights,
@@ -472,3 +478,27 @@ def test_kept_friction_is_judged_in_its_nested_forms_on_its_axis(tmp_path, monke
     final = upgrade_nested(bundle, simple, weights, None, tmp_path / "upgrade", lines.append)
     assert [e.name for e in final.effects] == ["gravity_offset", "coulomb_friction"], lines
     assert any(line.startswith("  stribeck_friction in place of coulomb_friction on q2: extra") for line in lines)
+
+
+def test_an_effect_a_later_one_makes_redundant_is_dropped(tmp_path):
+    """Coupled axes, Coulomb friction on q2 and a constant force on q1 (2 s + 1 s): the coupling carries the force
+    to q2, whose force residual stands highest, so a greedy selection adds a constant force on q2 before the
+    one on q1 (measured on this bundle). With all three in, the force on q2 saves nothing (its null is not
+    beaten) and is dropped; the two true effects are kept."""
+    from motiontwin.ident.diagnosis import effects as effect_models
+    from motiontwin.ident.diagnosis.locate import locate
+    from motiontwin.ident.diagnosis.prune import prune
+    from motiontwin.ident.diagnosis.screen import MAX_NFEV, fit_candidate
+
+    folder = _bundle(tmp_path / "bundle", [
+        truth.TrueEffect("coulomb_friction", "q2", {"coulomb_Fc": FC_TRUE, "coulomb_v_eps": 1e-4}),
+        truth.TrueEffect("gravity_offset", "q1", {"gravity_F0": 0.8})], 5)
+    bundle, current, weights = _nominal_of(folder, tmp_path / "nominal")
+    contexts = {e.axis: e.context for e in locate(bundle, current, weights, seed=1)}
+    for name, axis in (("coulomb_friction", "q2"), ("gravity_offset", "q2"), ("gravity_offset", "q1")):
+        current = fit_candidate(bundle, current, effect_models.VOCABULARY[name](contexts[axis]), axis,
+                                contexts[axis], weights, tmp_path / f"{name}@{axis}", MAX_NFEV)
+    lines: list[str] = []
+    final = prune(bundle, current, weights, tmp_path / "prune", lines.append)
+    assert [(a, e.name) for a, e in final.placed] == [("q2", "coulomb_friction"), ("q1", "gravity_offset")], lines
+    assert any("gravity_offset on q2 with the other effects in" in line and "(dropped)" in line for line in lines)

@@ -29,6 +29,7 @@ from motiontwin.ident.diagnosis.nominal import (_divergence_hint, check_plant_fo
                                                 nominal_free, nominal_start, plant_physics)
 from motiontwin.ident.diagnosis.remainder import EMPIRICAL_EFFECT, explain_remainder, explain_remainder_axes
 from motiontwin.ident.diagnosis.nested import simplify_nested, upgrade_nested
+from motiontwin.ident.diagnosis.prune import prune
 from motiontwin.ident.diagnosis.select import VALIDATION_GAIN, select, widen_search_bounds
 from motiontwin.ident.diagnosis.structure import (FLOOR_REPLICATES, LoopCache, ModelFit, _log,
                                                   _nominal_bounds, build_axes, build_structure, estimation_rms,
@@ -67,6 +68,7 @@ def run(bundle: Bundle, work: Path, progress=None) -> dict:
     for effect, name in owned.items():
         _log(progress, f"{effect}: not offered, the plant's own {name} carries this force and is refitted")
     final, log, _ = select(bundle, nominal, weights, ctx, work / "trials", progress, owned)
+    final = prune(bundle, final, weights, work / "prune", progress)
     final = simplify_nested(bundle, final, weights, ctx, work / "simplify", progress)
     final = upgrade_nested(bundle, final, weights, ctx, work / "upgrade", progress)
     final = widen_search_bounds(bundle, final, weights, work / "widen", progress)
@@ -283,6 +285,7 @@ def run_axes(bundle: Bundle, work: Path, progress=None) -> dict:
                                    f"axis {a.output}", {n: nominal.fit.values[n] for n in nominal.loop.free},
                                    _divergence_hint(bundle))
     final, log, located = select(bundle, nominal, weights, None, work / "trials", progress)
+    final = prune(bundle, final, weights, work / "prune", progress)
     final = simplify_nested(bundle, final, weights, None, work / "simplify", progress)
     final = upgrade_nested(bundle, final, weights, None, work / "upgrade", progress)
     final = widen_search_bounds(bundle, final, weights, work / "widen", progress)
