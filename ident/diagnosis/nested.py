@@ -14,13 +14,9 @@ from motiontwin.ident.diagnosis import evidence
 from motiontwin.ident.diagnosis.bundle import Bundle
 from motiontwin.ident.diagnosis.screen import MAX_NFEV, fit_candidate, fit_structure, refine
 from motiontwin.ident.diagnosis.select import _unphysical, model_null
-from motiontwin.ident.diagnosis.structure import ModelFit, _log, build_axes, build_structure, on_axis, validate_any
+from motiontwin.ident.diagnosis.structure import (ModelFit, _log, build_axes, build_structure, evidence_key, on_axis,
+                                                  validate_any)
 from motiontwin.ident.diagnosis.workers import map_jobs
-
-
-def _key(name: str, axis: str | None) -> str:
-    """An effect's entry in a structure's evidence (several axes: ``name@axis``)."""
-    return name if axis is None else f"{name}@{axis}"
 
 
 def _kept(final: ModelFit, ctx: effect_models.Context | None) -> list[tuple[str | None, effect_models.Effect,
@@ -29,7 +25,7 @@ def _kept(final: ModelFit, ctx: effect_models.Context | None) -> list[tuple[str 
     kept the effect located (its evidence), one axis: ``ctx``."""
     if not final.axes:
         return [(None, e, ctx) for e in final.effects]
-    return [(a, e, final.evidence.get(_key(e.name, a), {}).get("context")) for a, e in final.placed]
+    return [(a, e, final.evidence.get(evidence_key(e.name, a), {}).get("context")) for a, e in final.placed]
 
 
 def _in_place(bundle: Bundle, current: ModelFit, new: effect_models.Effect, old: effect_models.Effect,
@@ -58,7 +54,7 @@ def _side_by_side(bundle: Bundle, current: ModelFit, news: list[effect_models.Ef
     by_name = {e.name: e for e in news}
 
     def folder(name: str) -> Path:
-        return work / f"upgrade_{_key(name, axis)}"
+        return work / f"upgrade_{evidence_key(name, axis)}"
 
     def job(name: str) -> tuple[outputerror.Fit, int] | str:
         failed: list[str] = []
@@ -96,8 +92,9 @@ def _moved_evidence(trial: ModelFit, current: ModelFit, old: str, new: str, axis
                     entries: dict) -> ModelFit:
     """``trial`` carrying ``current``'s evidence, the entry of the replaced effect ``old`` moved to ``new``
     with its validation figure after the change and ``entries`` (the rule that replaced it)."""
-    found = {**current.evidence.get(_key(old, axis), {}), "validation_rms_after": trial.axis_rms(axis), **entries}
-    trial.evidence = {**{k: v for k, v in current.evidence.items() if k != _key(old, axis)}, _key(new, axis): found}
+    before = evidence_key(old, axis)
+    found = {**current.evidence.get(before, {}), "validation_rms_after": trial.axis_rms(axis), **entries}
+    trial.evidence = {**{k: v for k, v in current.evidence.items() if k != before}, evidence_key(new, axis): found}
     return trial
 
 
@@ -119,7 +116,7 @@ def simplify_nested(bundle: Bundle, final: ModelFit, weights: outputerror.Weight
         if not simple.applicable:
             continue
         trial = _in_place(bundle, current, simple, rich, axis, axis_ctx, weights,
-                          work / f"simplify_{_key(rich.name, axis)}", progress)
+                          work / f"simplify_{evidence_key(rich.name, axis)}", progress)
         if trial is None:
             continue
         extra = trial.fit.cost - current.fit.cost
@@ -132,7 +129,7 @@ def simplify_nested(bundle: Bundle, final: ModelFit, weights: outputerror.Weight
                        f"{threshold:.4g} ({'kept' if kept else f'{simple.name} in its place'})")
         if kept:
             continue
-        validate_any(bundle, trial, work / f"v_simplify_{_key(rich.name, axis)}")
+        validate_any(bundle, trial, work / f"v_simplify_{evidence_key(rich.name, axis)}")
         current = _moved_evidence(trial, current, rich.name, simple.name, axis, {
             "simplified_from": rich.name, "simplify_cost_increase": extra, "simplify_null_threshold": threshold,
             "rule": f"nested simpler form of {rich.name}: with the other effects in, the richer law's extra "
@@ -177,7 +174,7 @@ def upgrade_nested(bundle: Bundle, final: ModelFit, weights: outputerror.Weights
         if best is None:
             continue
         trial, extra, threshold, rich = best
-        validate_any(bundle, trial, work / f"v_upgrade_{_key(rich.name, axis)}")
+        validate_any(bundle, trial, work / f"v_upgrade_{evidence_key(rich.name, axis)}")
         if not current.validated:
             validate_any(bundle, current, work / "v_before_upgrade")
         kept = trial.axis_rms(axis) <= current.axis_rms(axis)

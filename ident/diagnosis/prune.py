@@ -12,7 +12,7 @@ from motiontwin.ident.diagnosis import evidence
 from motiontwin.ident.diagnosis.bundle import Bundle
 from motiontwin.ident.diagnosis.screen import MAX_NFEV
 from motiontwin.ident.diagnosis.select import model_null
-from motiontwin.ident.diagnosis.structure import ModelFit, _log, build_axes, build_structure
+from motiontwin.ident.diagnosis.structure import ModelFit, _log, build_axes, build_structure, evidence_key
 
 
 def _without(bundle: Bundle, current: ModelFit, effect: effect_models.Effect, folder: Path,
@@ -43,7 +43,7 @@ def prune(bundle: Bundle, final: ModelFit, weights: outputerror.Weights, work: P
             break
         k = next(i for i, e in enumerate(current.effects) if e is effect)
         axis = current.axes[k] if current.axes else None
-        key = effect.name if axis is None else f"{effect.name}@{axis}"
+        key = evidence_key(effect.name, axis)
         on = "" if axis is None else f" on {axis}"
         without = _without(bundle, current, effect, work / f"prune_{key}", weights)
         saved = without.fit.cost - current.fit.cost

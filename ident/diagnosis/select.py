@@ -22,7 +22,7 @@ from motiontwin.ident.diagnosis.locate import AxisEvidence, locate
 from motiontwin.ident.diagnosis.screen import (MAX_NFEV, SCREEN_NFEV, _close_richer, candidates,
                                                fit_candidate, placed_structure,
                                                ranked_with_nested, refine, score_test, screen)
-from motiontwin.ident.diagnosis.structure import ModelFit, _log, build_structure, compiled, validate_any
+from motiontwin.ident.diagnosis.structure import ModelFit, _log, build_structure, compiled, evidence_key, validate_any
 from motiontwin.ident.diagnosis.workers import map_jobs
 
 VALIDATION_GAIN = evidence.VALIDATION_GAIN
@@ -164,7 +164,7 @@ def select(bundle: Bundle, nominal: ModelFit, weights: outputerror.Weights, ctx:
         if axis is not None:
             found.update({"axis": axis, "score": target.score, "force_residual": target.force, "context": ctx,
                           "previous_q": current.fit.q_sim, "sigma_q": weights.sigma_q})
-        chosen.evidence = {**current.evidence, name if axis is None else f"{name}@{axis}": found}
+        chosen.evidence = {**current.evidence, evidence_key(name, axis): found}
         used[axis].add(chosen.effects[-1].family)
         current = chosen
     return current, log, located

@@ -88,6 +88,11 @@ def _nominal_bounds(bundle: Bundle, prefix: str = "") -> tuple[list[str], dict[s
     return free, bounds
 
 
+def evidence_key(name: str, axis: str | None) -> str:
+    """An effect's entry in a structure's evidence: its name (several axes: ``name@axis``)."""
+    return name if axis is None else f"{name}@{axis}"
+
+
 def _log(progress, message: str) -> None:
     if progress:
         progress(message)
