@@ -47,8 +47,9 @@ def test_a_richer_friction_kept_beside_another_effect_is_simplified_only_when_it
     current = nominal
     for name in ("stribeck_friction", "gravity_offset"):
         current = fit_structure(bundle, current, effect_models.VOCABULARY[name](ctx), ctx, weights, tmp_path / name)
-    final = simplify_nested(bundle, current, weights, ctx, tmp_path / "simplify", print)
-    assert [e.name for e in final.effects] == [case, "gravity_offset"]
+    lines: list[str] = []
+    final = simplify_nested(bundle, current, weights, ctx, tmp_path / "simplify", lines.append)
+    assert [e.name for e in final.effects] == [case, "gravity_offset"], lines
 
 
 def test_an_effect_the_later_one_makes_redundant_is_dropped(tmp_path) -> None:

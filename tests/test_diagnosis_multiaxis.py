@@ -471,7 +471,7 @@ def test_kept_friction_is_judged_in_its_nested_forms_on_its_axis(tmp_path, monke
     for name in ("gravity_offset", "stribeck_friction"):
         current = fit_candidate(bundle, current, effect_models.VOCABULARY[name](ctx), "q2", ctx, weights,
                                 tmp_path / name, MAX_NFEV)
-        current.evidence[f"{name}@q2"] = {"context": ctx}
+        current.evidence[structure.evidence_key(name, "q2")] = {"context": ctx}   # as the round records it
     lines: list[str] = []
     simple = simplify_nested(bundle, current, weights, None, tmp_path / "simplify", lines.append)
     assert [(a, e.name) for a, e in simple.placed] == [("q2", "gravity_offset"), ("q2", "coulomb_friction")], lines

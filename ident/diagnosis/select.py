@@ -189,8 +189,8 @@ def model_null(bundle: Bundle, model: ModelFit, weights: outputerror.Weights, se
                                         weights.sigma_u, bundle.train.time.size, BOOTSTRAP_COUNT, seed=seed)
     null, factor = evidence.consistent_null(null, model.fit.cost)
     if factor < 1:
-        _log(progress, f"  bootstrap null scaled x{factor:.3g}: the noise re-simulated through the current model "
-                       f"leaves {1 / factor:.3g} times the cost it leaves on the data")
+        _log(progress, f"  bootstrap null scaled x{factor:.3g}: the noise re-simulated through this model leaves "
+                       f"{1 / factor:.3g} times the cost it leaves on the data")
     return null
 
 
