@@ -16,7 +16,7 @@ from motiontwin.fmus import symbolic
 from motiontwin.ident import chain as native_chain
 from motiontwin.ident import plant_states
 from motiontwin.ident.controller import Controller
-from motiontwin.ident.plant_states import output_state
+from motiontwin.ident.plant_states import output_state, per_model
 
 _LOG = logging.getLogger("motiontwin.ident.outputerror")
 JIT_OPTIONS = {"jit": True, "compiler": "shell", "jit_options": {"flags": ["-O2"]}}
@@ -138,13 +138,23 @@ def _output_gain(model: symbolic.SymbolicModel, name: str, x0: np.ndarray, p: np
     no single state carries it)."""
     if name in [v.name for v in model.states]:
         return 1.0
-    i = output_state(model, name, affine=False)
+    i, fn = _output_function(model, name)
     if i is None:
         return 1.0
-    expr = _output_expression(model, name)
-    slope = float(ca.Function("g", [model.x, model.u, model.p], [ca.jacobian(expr, model.x[i])])(
-        x0, np.zeros(model.u.numel()), p))
+    slope = float(fn(x0, np.zeros(model.u.numel()), p)[1])
     return slope or 1.0
+
+
+def _output_function(model: symbolic.SymbolicModel, name: str) -> tuple[int | None, ca.Function | None]:
+    """The state the output ``name`` is carried by (None: no single state) and the function (x, u, p) -> (output,
+    its derivative in that state)."""
+    def build() -> tuple[int | None, ca.Function | None]:
+        i = output_state(model, name, affine=False)
+        if i is None:
+            return None, None
+        expr = _output_expression(model, name)
+        return i, ca.Function("h", [model.x, model.u, model.p], [expr, ca.jacobian(expr, model.x[i])])
+    return per_model(model, ("output_function", name), build)
 
 
 NEWTON_STEPS = 20      # most Newton steps for the state of an output nonlinear in it (one when affine)
@@ -155,11 +165,9 @@ def _state_for_output(model: symbolic.SymbolicModel, name: str, x0: np.ndarray, 
     """``x0`` with the state the output ``name`` depends on set so that the output equals ``target``: one
     Newton step when the output is affine in it, until the step vanishes when not (a position read with a
     small sensor error periodic in it: the step shrinks by the error's slope, about 1e-2, each time)."""
-    i = output_state(model, name, affine=False)
+    i, fn = _output_function(model, name)
     if i is None:
         return x0
-    expr = _output_expression(model, name)
-    fn = ca.Function("h", [model.x, model.u, model.p], [expr, ca.jacobian(expr, model.x[i])])
     x0 = x0.copy()
     for _ in range(NEWTON_STEPS):
         value, slope = (float(o) for o in fn(x0, np.zeros(model.u.numel()), p))

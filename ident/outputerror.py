@@ -45,8 +45,9 @@ from motiontwin.ident import multipleshooting, plant_states, startvalues
 from motiontwin.ident.controller import Controller, at_recording_step
 from motiontwin.ident.leastsquares import (LeastSquaresResult, UnidentifiableError, check_identifiability,
                                           hac_covariance)
-from motiontwin.ident.oefit import (Fit, Weights, _column, _interior, bound_arrays, controller_shift,
-                                    controller_states, drive, fit, initial_state,
+from motiontwin.ident.loopstart import _column, initial_state
+from motiontwin.ident.oefit import (Fit, Weights, _interior, bound_arrays, controller_shift,
+                                    controller_states, drive, fit,
                                     measured, relation_shift, residuals, simulate, simulate_states,
                                     squared_norm, state_indices, weighted_jacobian)
 from motiontwin.ident.oeloop import (Loop, Signals, _check_names, axis_signals, build_loop, default_bounds,

@@ -6,11 +6,30 @@ velocity is the state the position's derivative equals (``der(x) = v``).
 """
 from __future__ import annotations
 
+import weakref
+from typing import Callable
+
 import casadi as ca
 
 from motiontwin.fmus import symbolic
 
-__all__ = ["output_expression", "output_state", "alias_state", "velocity_state"]
+__all__ = ["output_expression", "output_state", "alias_state", "velocity_state", "per_model"]
+
+_PER_MODEL: dict[int, tuple[weakref.ref, dict]] = {}    # id(model) -> (the model, what was derived by key)
+
+
+def per_model(model: symbolic.SymbolicModel, key: object, build: Callable[[], object]) -> object:
+    """``build()`` once per model and ``key``, then kept as long as the model lives: what every fit evaluation
+    derives from the model's equations (which state carries an output, the start-state function) is the same
+    each time. A model's equations are not changed after it is built (:meth:`symbolic.SymbolicModel.with_start_values`
+    makes a new one)."""
+    entry = _PER_MODEL.get(id(model))
+    if entry is None or entry[0]() is not model:
+        entry = (weakref.ref(model, lambda _, k=id(model): _PER_MODEL.pop(k, None)), {})
+        _PER_MODEL[id(model)] = entry
+    if key not in entry[1]:
+        entry[1][key] = build()
+    return entry[1][key]
 
 
 def output_expression(model: symbolic.SymbolicModel, name: str) -> ca.SX | None:
@@ -26,6 +45,10 @@ def output_state(model: symbolic.SymbolicModel, name: str, affine: bool = True) 
     """Index of the state the output ``name`` is affine in when it depends on exactly one state and on no
     input (a position state, an alias, a gear ratio or an offset of one), else None. ``affine=False``: also
     when the output is nonlinear in that one state (a position read with a sensor error periodic in it)."""
+    return per_model(model, ("output_state", name, affine), lambda: _output_state(model, name, affine))
+
+
+def _output_state(model: symbolic.SymbolicModel, name: str, affine: bool) -> int | None:
     expr = output_expression(model, name)
     if expr is None or ca.depends_on(expr, model.u):
         return None

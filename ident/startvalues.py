@@ -80,6 +80,19 @@ def first_samples(q: np.ndarray, ts: float) -> tuple[float, float]:
     (a jerk-limited onset is cubic): a quadratic over 10 ms gave 1.8 mm/s for a start at rest."""
     q = np.asarray(q, float)
     longest = int(min(q.size, max(8, round(FIRST_SAMPLES_SECONDS / ts))))
+    key = q[:max(longest, 16)].tobytes() + repr((longest, float(ts))).encode()
+    if key not in _FIRST_SAMPLES:
+        if len(_FIRST_SAMPLES) >= 64:
+            _FIRST_SAMPLES.clear()
+        _FIRST_SAMPLES[key] = _first_samples(q, ts, longest)
+    return _FIRST_SAMPLES[key]
+
+
+_FIRST_SAMPLES: dict[bytes, tuple[float, float]] = {}  # by the samples it reads: every fit evaluation asks again
+
+
+def _first_samples(q: np.ndarray, ts: float, longest: int) -> tuple[float, float]:
+    """:func:`first_samples` over the first ``longest`` samples of ``q``."""
     if longest < 8:                      # a very short record: one polynomial through all of it
         if q.size < 2:
             return float(q[0]), 0.0

@@ -14,7 +14,7 @@ from motiontwin.fmus import frontend, symbolic
 from motiontwin.fmus.build import MODELICA_DIR
 from motiontwin.harness import kinematics
 from motiontwin.harness.recording import make_recording
-from motiontwin.ident import oefit, oeloop, startvalues
+from motiontwin.ident import loopstart, oeloop, startvalues
 from motiontwin.ident.benchmarks import multi_axis_truth as truth
 from motiontwin.ident.diagnosis import axis_kinematics, structure
 from motiontwin.ident.diagnosis import augmented
@@ -154,7 +154,7 @@ def test_acceleration_term_on_a_leg_is_the_leg_acceleration(hexapod, tmp_path: P
 
 
 def test_loop_starts_at_the_recorded_pose(hexapod) -> None:
-    """The output-error loop's start (:func:`oefit.initial_state`) on a Hexapod recording that does not begin at
+    """The output-error loop's start (:func:`loopstart.initial_state`) on a Hexapod recording that does not begin at
     the plant's start pose: the pose whose numpy leg lengths are the first recorded ones and the twist whose leg
     rates are their slopes (a recording that starts while the loop still settles against gravity was simulated
     from the start pose, tens of micrometres off on every leg), and a finite controller state."""
@@ -165,7 +165,7 @@ def test_loop_starts_at_the_recorded_pose(hexapod) -> None:
     legs = np.column_stack([kinematics.hexapod_inverse(POSE + POSE_DOT * tk) for tk in t])
     targets = {f"L{j + 1}": startvalues.first_samples(legs[j], ts) for j in range(6)}
     x = x0.copy()
-    assert oefit._states_for_outputs(model, targets, x, p)
+    assert loopstart._states_for_outputs(model, targets, x, p)
     signals = structure.axes_signals(hexapod)
     ctrl = read_axes_controller({"kind": "per_axis", "axes": [truth.pid_document(ts, 33.0, 10.0)] * 6}, "test",
                                 hexapod.axes)
@@ -175,7 +175,7 @@ def test_loop_starts_at_the_recorded_pose(hexapod) -> None:
     values = {v.name: float(v.start) for v in model.parameters}
     loop = oeloop.Loop(model, ctrl, signals[0].output, [], values, 2, t.size, sim=None, jac=None, ts=ts,
                        axes=tuple(signals))
-    s0 = oefit.initial_state(loop, make_recording(t, columns))
+    s0 = loopstart.initial_state(loop, make_recording(t, columns))
     expected = _state(POSE, POSE_DOT)
     for start in (x, s0[:model.x.numel()]):
         np.testing.assert_allclose(start[:6], expected[:6], atol=1e-10)
