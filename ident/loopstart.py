@@ -74,9 +74,7 @@ def initial_state(loop: Loop, rec: Recording, values: dict[str, float] | None = 
     C z = u_0 - u_ext_0 - D y_0), plus ``shift`` (the correction a joint fit estimates, :func:`fit`,
     :func:`controller_shift`; states tracking u_0 then hold the force the shifted controller holds).
     Multi-axis: the same for every axis; a tracking signal may name its axis by output (``"dq:q3"``,
-    ``"q:q3"``, ``"u:q3"``; without it, the first axis); a force-tracking state may be bounded in magnitude by
-    a parameter (``"u|lugre_Fc"``, ``"u:q3|q3_lugre_Fc"``: a bristle force cannot exceed its friction level,
-    so a larger held force is not its own)."""
+    ``"q:q3"``, ``"u:q3"``; without it, the first axis)."""
     s0 = unshifted_start_state(loop, rec, values, initial)
     if shift is not None and len(shift):
         s0[s0.size - len(shift):] += shift
@@ -84,28 +82,10 @@ def initial_state(loop: Loop, rec: Recording, values: dict[str, float] | None = 
         names = [v.name for v in loop.model.states]
         outputs = [sig.output for sig in loop.channels]
         for state, tracked in loop.tracking.items():
-            signal, axis, bound = tracking_spec(tracked)
+            signal, _, axis = tracked.partition(":")
             if signal == "u" and state not in (initial or {}):
-                i = names.index(state)
-                s0[i] = _within(s0[i] + float(held[outputs.index(axis) if axis else 0]), bound,
-                                values or loop.values)
+                s0[names.index(state)] += float(held[outputs.index(axis) if axis else 0])
     return s0
-
-
-def tracking_spec(tracked: str) -> tuple[str, str, str]:
-    """A tracking entry's signal ("q", "dq" or "u"), axis output ("" for the first axis) and the parameter
-    bounding its magnitude ("" for none)."""
-    spec, _, bound = tracked.partition("|")
-    signal, _, axis = spec.partition(":")
-    return signal, axis, bound
-
-
-def _within(value: float, bound: str, values: dict[str, float]) -> float:
-    """``value`` limited to +-``values[bound]`` (as it is when ``bound`` is "")."""
-    if not bound:
-        return value
-    limit = abs(float(values[bound]))
-    return float(np.clip(value, -limit, limit))
 
 
 def unshifted_start_state(loop: Loop, rec: Recording, values: dict[str, float] | None,
@@ -133,15 +113,14 @@ def unshifted_start_state(loop: Loop, rec: Recording, values: dict[str, float] |
     solved = bool(joint) and _states_for_outputs(model, joint, x0, p)
     by_output = {sig.output: sig for sig in loop.channels}
     for state, tracked in loop.tracking.items():
-        signal, axis, bound = tracking_spec(tracked)
+        signal, _, axis = tracked.partition(":")
         sig = by_output[axis] if axis else loop.channels[0]
         output = sig.output if loop.axes else loop.position_state
         if signal == "dq":      # a velocity state: the slope of the first samples (a loop moving at t = 0)
             slope = startvalues.first_samples(_column(rec, sig.output), _median_step(rec))[1]
             x0[names.index(state)] = slope / _output_gain(model, output, x0, p)
         else:
-            x0[names.index(state)] = (positions[sig.output] if signal == "q"
-                                      else _within(_column(rec, sig.input)[0], bound, values))
+            x0[names.index(state)] = positions[sig.output] if signal == "q" else _column(rec, sig.input)[0]
     for state, value in (initial or {}).items():
         x0[names.index(state)] = value
     if ctrl is None or not ctrl.n_states:
@@ -149,7 +128,7 @@ def unshifted_start_state(loop: Loop, rec: Recording, values: dict[str, float] |
     refs = np.array([_column(rec, sig.reference) for sig in loop.channels])
     meas = np.array([_column(rec, sig.output) for sig in loop.channels])
     forces = np.array([_column(rec, sig.input) - _column(rec, sig.disturbance, True) for sig in loop.channels])
-    if solved or any(tracking_spec(t)[0] == "dq" for t in loop.tracking.values()):   # moving at t = 0 (or a
+    if solved or any(t.partition(":")[0] == "dq" for t in loop.tracking.values()):   # moving at t = 0 (or a
         # pose found from the outputs, whose loop need not have settled at rest): the controller
         count = min(rec.time.size, max(20, 4 * ctrl.n_states))            # state from its first outputs
         return np.concatenate([x0, _controller_start(ctrl, np.vstack([refs[:, :count], meas[:, :count]]),

@@ -288,7 +288,6 @@ def test_multivariable_controller_reads_as_block_diagonal(small_bundle, tmp_path
 
 def test_effect_on_axis_renames_parameters_and_states():
     """An effect placed on an axis uses that axis's states and prefixed parameters; the contract reads them."""
-    from motiontwin.ident.diagnosis import effect_base
     from motiontwin.ident.diagnosis import effects as effect_models
     from motiontwin.ident.diagnosis.plant_roles import PlantRoles
 
@@ -300,8 +299,6 @@ def test_effect_on_axis_renames_parameters_and_states():
     assert placed.contract({"q3_coulomb_Fc": 0.7}, ctx) == {"Fc": 0.7}
     delay = structure.on_axis(effect_models.VOCABULARY["resonance"](ctx), roles)
     assert "der(q3_resonance_x2) = q3_resonance_v2" in delay.equations
-    lugre = structure.on_axis(effect_models.VOCABULARY["lugre_friction"](ctx), roles)
-    assert effect_base.force_tracking(lugre, "q3") == {"q3_lugre_Fz": "u:q3|q3_lugre_Fc"}   # within its level
 
 
 def test_in_memory_multi_axis_bundle_equals_folder(small_bundle):

@@ -60,9 +60,6 @@ class Effect:
     delays_input: bool = False             # replaces u by a delayed u
     tracks_position: list[str] = field(default_factory=list)   # states starting at the measured position
     tracks_force: list[str] = field(default_factory=list)      # states starting at the held force
-    #: a force-tracking state -> the parameter its magnitude cannot exceed (a bristle force, its friction level):
-    #: it starts at the held force limited to that, so the effect at its vanishing point holds no force either
-    force_bounds: dict[str, str] = field(default_factory=dict)
     applicable: bool = True                # False: the bundle lacks what the effect needs (not screened)
     min_substeps: int = 1                  # RK4 substeps per sample its fastest state needs at the top speed
     #: force per unit level at small amplitude, of position and velocity (states): compared with the plant's
@@ -74,13 +71,6 @@ class Effect:
     #: Modelica expression added to the measured output (a sensor error, "" if none): the loop feeds it back,
     #: so it moves the plant through the controller instead of acting on it as a force
     sensor: str = ""
-
-
-def force_tracking(effect: Effect, axis: str = "") -> dict[str, str]:
-    """The loop's tracking entries of ``effect``'s force-tracking states (``"u"``, on ``axis`` ``"u:axis"``,
-    with ``"|parameter"`` where a parameter bounds the state's magnitude)."""
-    signal = f"u:{axis}" if axis else "u"
-    return {s: signal + (f"|{effect.force_bounds[s]}" if s in effect.force_bounds else "") for s in effect.tracks_force}
 
 
 def _p(name: str, unit: str, text: str, lo: float, hi: float, fitted: bool = True, zero: float | None = None,

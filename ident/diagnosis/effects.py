@@ -281,10 +281,8 @@ LUGRE_STEP = 4       # the bristle state's rate |v|/z0 times Ts stays below this
 
 def lugre_friction(ctx: Context) -> Effect:
     """LuGre friction in Dahl's form (Fs = Fc, sigma1 = sigma2 = 0; the plant's d is the viscous part) with
-    the bristle state written as the bristle force F_z = sigma0*z, so that it starts at the held force within
-    +-Fc (Dahl's bristle force never exceeds it): its vanishing point Fc -> 0 holds no force from the start,
-    so it is the current model (a bristle started at the whole held force kept that force until it had
-    travelled a few z0: 0.12 % of the cost on the held-out Coulomb bundle, logged as a screening defect)."""
+    the bristle state written as the bristle force F_z = sigma0*z, so that it starts at the held force (its
+    vanishing point Fc -> 0 is then the current model only after the first few z0 of travel)."""
     z0_min = max(1e-6 / _scale(ctx), ctx.v_max * ctx.ts / LUGRE_STEP)
 
     def init(c: Context) -> list[dict[str, float]]:
@@ -308,7 +306,7 @@ def lugre_friction(ctx: Context) -> Effect:
                   "the friction force builds up over a displacement of about z0 instead of switching with the "
                   "velocity, so the residual is a hysteresis loop in position around every reversal and the "
                   "axis behaves like a spring of stiffness sigma0 = Fc/z0 at rest.",
-                  tracks_force=["lugre_Fz"], force_bounds={"lugre_Fz": "lugre_Fc"}, min_substeps=math.ceil(ctx.v_max * ctx.ts / z0_min),
+                  tracks_force=["lugre_Fz"], min_substeps=math.ceil(ctx.v_max * ctx.ts / z0_min),
                   unphysical=lambda v: "" if v["lugre_z0"] < 0.99 * z0_max else "its pre-sliding displacement "
                   "reaches the largest one allowed (a spring holding a force over the stroke, not friction)")
 

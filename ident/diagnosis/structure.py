@@ -17,7 +17,6 @@ from motiontwin.harness.recording import Recording
 from motiontwin.ident import outputerror
 from motiontwin.ident.diagnosis import axis_kinematics
 from motiontwin.ident.diagnosis import effects as effect_models
-from motiontwin.ident.diagnosis.effect_base import force_tracking
 from motiontwin.ident.diagnosis.augmented import (AUGMENTED_CLASS, axis_prefix, load_augmented, load_structure,
                                                   write_axes_structure, write_structure)
 from motiontwin.ident.diagnosis.bundle import Bundle, PlantInfo
@@ -159,7 +158,7 @@ def build_structure(bundle: Bundle, effects: list[effect_models.Effect], values:
         model = cache.models[names] = load_augmented(folder, AUGMENTED_CLASS)
     free, bounds, all_values = structure_parameters(model, effects, *_nominal_bounds(bundle, "plant."), values)
     tracking = {s: "q" for e in effects for s in e.tracks_position} | _moving_start(bundle, "plant.")
-    tracking.update({s: u for e in effects for s, u in force_tracking(e).items()})
+    tracking.update({s: "u" for e in effects for s in e.tracks_force})
     min_substeps = max([min_substeps] + [e.min_substeps for e in effects])
     substeps = substeps or max(min_substeps, outputerror.stable_substeps(model, all_values, bundle.controller.sample_time))
     key = (names, n_samples, substeps, with_jacobian)
@@ -347,8 +346,7 @@ def on_axis(effect: effect_models.Effect, roles: PlantRoles,
                                equations=[rename(e) for e in effect.equations],
                                initial=initial, contract=contract,
                                tracks_position=[prefix + s for s in effect.tracks_position],
-                               tracks_force=[prefix + s for s in effect.tracks_force],
-                               force_bounds={prefix + s: prefix + b for s, b in effect.force_bounds.items()})
+                               tracks_force=[prefix + s for s in effect.tracks_force])
 
 
 def axes_signals(plant: PlantInfo) -> list[outputerror.Signals]:
@@ -362,7 +360,7 @@ def _tracking(bundle: Bundle, effects: list[tuple[str, effect_models.Effect]]) -
     tracking = {f"plant.{a.velocity}": f"dq:{a.output}" for a in bundle.plant.axes if not a.expression}
     for axis, e in effects:
         tracking.update({s: f"q:{axis}" for s in e.tracks_position})
-        tracking.update(force_tracking(e, axis))
+        tracking.update({s: f"u:{axis}" for s in e.tracks_force})
     return tracking
 
 
