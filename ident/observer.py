@@ -2,7 +2,7 @@
 
 Most lab recordings come from a drive whose controller is proprietary. Without it a double integrator driven
 open loop by the measured force drifts (any force error integrates twice). The predictor closes the loop on
-the measurements instead: the model is driven by the measured force ``u_meas`` plus the output of a fixed
+the measurements instead: the model is driven by the measured force ``u_meas`` plus the output of an
 observer ``L``, a discrete PD on the prediction error ``q_meas - q_model``:
 
     plant input = u_meas + L(q_meas - q_model)
@@ -16,12 +16,20 @@ so the engine's known-controller loop is this predictor with ``L = K``: the two 
 bandwidth. The noise machinery stays exact for a linear plant: the encoder noise fed back through ``L`` and a
 process force added to the disturbance column give the same residual statistics as the predictor's on data.
 
-The observer gain is fixed, not fitted: the mass [force unit per acceleration of the measured output] from the
-recording's inverse dynamics (least squares of u on acceleration, velocity, Coulomb level and offset,
-:func:`recording_mass`), a closed-loop bandwidth of ``DEFAULT_BANDWIDTH_HZ`` (at most ``fs / 100``), damping
-``DAMPING`` and a derivative filter at ``FILTER_RATIO`` times the bandwidth, discretised by Tustin. Below the
-bandwidth a missing force shows in the force residual, above it in the output residual as in a free run; the
-error of a wrong mass integrates for at most about 1 / (2 pi bandwidth) before the observer pulls it back.
+The observer's gain: the mass [force unit per acceleration of the measured output] from the recording's inverse
+dynamics (least squares of u on acceleration, velocity, Coulomb level and offset, :func:`recording_mass`), damping
+``DAMPING``, a derivative filter at ``FILTER_RATIO`` times the bandwidth, discretised by Tustin, and the
+bandwidth fitted with the plant by prediction error (:func:`fit_bandwidth`): the one that minimises the RMS of
+the predictor's one-step-ahead error ``q_meas - q_model`` between ``fs / 100`` / 10**``SEARCH_DECADES`` and
+``fs / 100``. That is the prediction-error method's criterion: for a linear plant with white force and encoder
+noise its minimiser is the Kalman predictor's gain (its bandwidth grows with the force noise over the encoder
+noise as sqrt(s_w / (m s_v)) / 2 pi; tests/test_unknown_controller.py holds it to the gain of the discrete
+Riccati equation). Where the force noise dominates, the optimum lies above ``fs / 100`` and the fit stops at that
+bound and says so: a faster observer would follow the encoder and leave every force error to its correction
+(session 27 measured the prediction error falling as 1 / bandwidth^2 up to 20 Hz on a 250 Hz robot recording).
+A ``bandwidth_hz`` given by the user is kept. Below the bandwidth a missing force shows in the force residual,
+above it in the output residual as in a free run; the error of a wrong mass integrates for at most about
+1 / (2 pi bandwidth) before the observer pulls it back.
 
 Scoring on a recording (:func:`k_step_ahead`): the predictor's free run (the RMS ``validate`` prints), and the
 k-step-ahead prediction: from the predictor's state at the start of each segment of ``k`` samples, the model
@@ -32,6 +40,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
+from typing import Callable
 
 import numpy as np
 
@@ -43,11 +52,15 @@ from motiontwin.ident.oeloop import Signals
 from motiontwin.ident.startvalues import derivative_cutoff, mirror_derivatives
 
 UNKNOWN_KIND = "unknown"       # the ``controller.kind`` (or the CLI's ``--controller unknown``) that selects it
-DEFAULT_BANDWIDTH_HZ = 20.0    # observer bandwidth [Hz]
+DEFAULT_BANDWIDTH_HZ = 20.0    # observer bandwidth [Hz] before it is fitted
 MAX_BANDWIDTH_FRACTION = 1 / 100   # of the sample rate
 DAMPING = 0.7
 FILTER_RATIO = 5.0             # derivative filter pole over the bandwidth
-METHOD = ("prediction-error predictor: the model driven by the measured force plus a fixed PD observer on the "
+SEARCH_DECADES = 2.0           # the bandwidth is fitted from its upper bound / 10**SEARCH_DECADES up to that bound
+GRID_POINTS = 9                # log-spaced bandwidths tried first, then ...
+REFINE_STEPS = 6               # ... golden-section steps (in log bandwidth) around the best of them
+DEFAULT, GIVEN = "the default", "given"
+METHOD = ("prediction-error predictor: the model driven by the measured force plus a PD observer on the "
           "measured position (no controller given)")
 
 
@@ -57,12 +70,18 @@ class ObserverError(ValueError):
 
 @dataclass(frozen=True)
 class Observer:
-    """The fixed PD observer: mass [force / (output unit / s^2)], bandwidth [Hz], sample period ts [s]."""
+    """The PD observer: mass [force / (output unit / s^2)], bandwidth [Hz], sample period ts [s]."""
 
     mass: float
     bandwidth_hz: float
     ts: float
     mass_from: str = "the recording's inverse dynamics"     # where the mass came from, for the report
+    bandwidth_from: str = DEFAULT                           # DEFAULT, GIVEN or how it was fitted
+
+    @property
+    def upper_bandwidth_hz(self) -> float:
+        """The fastest bandwidth allowed (a fit's upper bound) [Hz]."""
+        return MAX_BANDWIDTH_FRACTION / self.ts
 
     @property
     def kp(self) -> float:
@@ -85,11 +104,11 @@ class Observer:
 
     def as_dict(self) -> dict[str, object]:
         return {"kind": UNKNOWN_KIND, "method": METHOD, "mass": self.mass, "bandwidth_hz": self.bandwidth_hz,
-                "damping": DAMPING, "Kp": self.kp, "Kd": self.kd, "Ts": self.ts}
+                "bandwidth_from": self.bandwidth_from, "damping": DAMPING, "Kp": self.kp, "Kd": self.kd, "Ts": self.ts}
 
     def describe(self) -> str:
-        return (f"{METHOD}; observer Kp {self.kp:.4g}, Kd {self.kd:.4g} (bandwidth {self.bandwidth_hz:g} Hz, "
-                f"damping {DAMPING}, mass {self.mass:.4g} from {self.mass_from})")
+        return (f"{METHOD}; observer Kp {self.kp:.4g}, Kd {self.kd:.4g} (bandwidth {self.bandwidth_hz:.4g} Hz "
+                f"{self.bandwidth_from}; damping {DAMPING}, mass {self.mass:.4g} from {self.mass_from})")
 
 
 def predictor_signals(output: str = "q", input_name: str = "u") -> Signals:
@@ -123,21 +142,21 @@ def observer_for(rec: Recording, output: str = "q", input_name: str = "u", ts: f
     bandwidth = min(DEFAULT_BANDWIDTH_HZ if bandwidth_hz is None else float(bandwidth_hz),
                     MAX_BANDWIDTH_FRACTION / ts)
     return Observer(recording_mass(rec[output], rec[input_name], ts, source) if mass is None else float(mass),
-                    bandwidth, ts)
+                    bandwidth, ts, bandwidth_from=DEFAULT if bandwidth_hz is None else GIVEN)
 
 
 def observer_from_document(doc: dict, rec: Recording, where: str, source: str) -> Observer:
     """The observer of a ``{"kind": "unknown"}`` controller object: its optional ``Ts`` (default: the median
     step of ``rec``), ``bandwidth_hz`` and ``mass`` (default: from ``rec``'s inverse dynamics). The object a fit
     writes (:meth:`Observer.as_dict`, in ``identify oe --out`` and ``diagnosis.json``) is read back as it was, so
-    a validation uses the fit's own observer: its derived fields (Kp, Kd, damping, method) must agree with it.
-    Errors name ``where`` and the field."""
+    a validation uses the fit's own observer: its derived fields (Kp, Kd, damping) must agree with it; ``method``
+    and ``bandwidth_from`` are read as they were written. Errors name ``where`` and the field."""
     for key in ("Ts", "bandwidth_hz", "mass"):
         value = doc.get(key)
         if value is not None and (isinstance(value, bool) or not isinstance(value, (int, float))
                                   or not math.isfinite(value) or value <= 0):
             raise ObserverError(f"{where}: field 'controller.{key}' must be a positive number, got {value!r}")
-    derived = {"Kp", "Kd", "damping", "method"}
+    derived = {"Kp", "Kd", "damping", "method", "bandwidth_from"}
     extra = sorted(set(doc) - {"kind", "Ts", "bandwidth_hz", "mass"} - derived)
     if extra:
         raise ObserverError(f"{where}: field 'controller.{extra[0]}' is not used by kind {UNKNOWN_KIND!r} (it "
@@ -149,12 +168,68 @@ def observer_from_document(doc: dict, rec: Recording, where: str, source: str) -
         return observer_for(rec, ts=doc.get("Ts"), bandwidth_hz=doc.get("bandwidth_hz"), source=source)
     found = replace(observer_for(rec, ts=doc.get("Ts"), bandwidth_hz=doc.get("bandwidth_hz"), source=source,
                                  mass=float(doc["mass"])), mass_from=source)
+    if isinstance(doc.get("bandwidth_from"), str):
+        found = replace(found, bandwidth_from=doc["bandwidth_from"])
     for key, value in found.as_dict().items():
-        if key in derived & set(doc) and (doc[key] != value if isinstance(value, str)
-                                         else not math.isclose(float(doc[key]), value, rel_tol=1e-9)):
+        if key in derived & set(doc) and key not in ("method", "bandwidth_from") and (
+                doc[key] != value if isinstance(value, str)
+                else not math.isclose(float(doc[key]), value, rel_tol=1e-9)):
             raise ObserverError(f"{where}: field 'controller.{key}' = {doc[key]!r} does not follow from its mass, "
                                 f"bandwidth and Ts ({value!r}); give 'mass' and 'bandwidth_hz' only")
     return found
+
+
+def fit_bandwidth(observer: Observer, prediction_rms: Callable[[Observer], float]
+                  ) -> tuple[Observer, list[tuple[float, float]]]:
+    """The bandwidth of ``observer`` fitted by prediction error: the one whose predictor leaves the lowest RMS
+    one-step-ahead error ``prediction_rms(observer at that bandwidth)`` (the caller's model and recording; a
+    diverging run counts as infinite), searched on ``GRID_POINTS`` log-spaced bandwidths from the upper bound
+    (:attr:`Observer.upper_bandwidth_hz`) down ``SEARCH_DECADES`` decades, then by golden section between the
+    best one's neighbours. Returns the fitted observer (its ``bandwidth_from`` says so, and names the bound
+    when it ends on one) and every (bandwidth [Hz], RMS) tried, by bandwidth."""
+    hi = observer.upper_bandwidth_hz
+    lo = hi / 10 ** SEARCH_DECADES
+    tried: dict[float, float] = {}
+
+    def rms(f: float) -> float:
+        if f not in tried:
+            value = float(prediction_rms(replace(observer, bandwidth_hz=f)))
+            tried[f] = value if math.isfinite(value) else math.inf
+        return tried[f]
+
+    grid = [lo * (hi / lo) ** (k / (GRID_POINTS - 1)) for k in range(GRID_POINTS - 1)] + [hi]
+    best = min(range(GRID_POINTS), key=lambda k: rms(grid[k]))
+    a, b = math.log(grid[max(best - 1, 0)]), math.log(grid[min(best + 1, GRID_POINTS - 1)])
+    golden = (math.sqrt(5) - 1) / 2
+    for _ in range(REFINE_STEPS):
+        c, d = b - golden * (b - a), a + golden * (b - a)
+        if rms(math.exp(c)) <= rms(math.exp(d)):
+            b = d
+        else:
+            a = c
+    f = min(tried, key=lambda k: (tried[k], -k))
+    where = " at its upper bound fs/100" if f == hi else " at its lower bound" if f == lo else ""
+    how = f"fitted by prediction error{where}, one-step RMS {tried[f]:.3g} over {lo:.3g}-{hi:.3g} Hz"
+    if math.isclose(f, observer.bandwidth_hz, rel_tol=1e-6):   # its own, to the sample period's round-off
+        f = observer.bandwidth_hz                                 # (a median step 8.6e-7 off 0.5 ms): kept
+    return replace(observer, bandwidth_hz=f, bandwidth_from=how), sorted(tried.items())
+
+
+def one_step_rms(model: symbolic.SymbolicModel, values: dict[str, float], rec: Recording, observer: Observer,
+                 position: str, input_name: str | None = None, signals: Signals | None = None,
+                 tracking: dict[str, str] | None = None, initial: dict[str, float] | None = None) -> float:
+    """RMS one-step-ahead prediction error of ``observer``'s predictor on ``rec`` (plant ``model`` at ``values``,
+    its ``position`` state or output compared with the recording's ``signals.output`` column; default signals
+    :func:`predictor_signals`); inf when the run diverges. CasADi's own chain: a bandwidth search compiles
+    nothing."""
+    signals = signals or predictor_signals()
+    loop = oeloop.build_loop(model, observer.controller(), position, [], dict(values), rec.time.size,
+                             signals=signals, input_name=input_name, tracking=tracking or {}, with_jacobian=False,
+                             native=False)
+    q, _ = oefit.simulate(loop, rec, values, initial=initial)
+    with np.errstate(over="ignore", invalid="ignore"):
+        rms = float(np.sqrt(np.mean((np.asarray(rec[signals.output], float) - np.asarray(q, float)) ** 2)))
+    return rms if math.isfinite(rms) else math.inf
 
 
 @dataclass(frozen=True)

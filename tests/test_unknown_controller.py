@@ -7,6 +7,10 @@ and position alone, through the prediction-error predictor of :mod:`ident.observ
   the predictor's validation RMS stays within a few times the known-controller run's.
 * A decision: a concealed Coulomb friction (the small bundle of tests/test_diagnosis_decisions.py, whose known-
   controller diagnosis names exactly it) is named exactly with the controller removed.
+* The observer's bandwidth fitted by prediction error (:func:`observer.fit_bandwidth`): on a mass-damper driven
+  by white force noise and read with white encoder noise it is the Kalman predictor's (the discrete Riccati
+  equation's gain, scipy), with the Kalman innovation's RMS; where the Kalman bandwidth lies above fs/100 the
+  fit stops at that bound and says so.
 * Bad input: a bundle without controller is accepted with only time, u, q; a misspelled kind names the field.
 Units: s, m, N.
 """
@@ -123,6 +127,7 @@ def test_cli_identify_and_validate_without_controller(recordings, tmp_path, caps
     doc = json.loads(out.read_text())
     assert doc["parameters"]["m"] == pytest.approx(TRUTH["m"], rel=0.03)
     assert doc["controller"]["kind"] == "unknown" and "prediction-error predictor" in doc["method"]
+    assert doc["controller"]["bandwidth_from"].startswith("fitted by prediction error"), doc["controller"]
     capsys.readouterr()
     assert main(["validate", str(out), str(paths["validation"]), "--controller", "unknown"]) == 0
     text = capsys.readouterr().out
@@ -181,6 +186,7 @@ def test_concealed_effect_named_without_controller(coulomb_bundle, tmp_path, mon
     with tempfile.TemporaryDirectory(dir=tmp_path) as work:
         result = pipeline.run(bundle, Path(work))
     assert [e.name for e in result["final"].effects] == ["coulomb_friction"]
+    assert bundle.observer.bandwidth_from.startswith("fitted by prediction error"), bundle.observer
 
 
 def test_bundle_without_controller_accepted_and_misspelled_kind_named(coulomb_bundle, tmp_path):
@@ -198,3 +204,52 @@ def test_bundle_without_controller_accepted_and_misspelled_kind_named(coulomb_bu
     known = json.loads((coulomb_bundle / "experiment.json").read_text())["controller"]
     with pytest.raises(BundleError, match=r"required column 'r' missing"):
         read_bundle(_without_controller(coulomb_bundle, tmp_path / "known", known))
+
+
+def _noisy_mass_damper(force_std: float, encoder_std: float, seed: int, m: float = 2.0, d: float = 1.0,
+                       n: int = 20000) -> tuple:
+    """A mass-damper (ZOH at TS) driven by a known multisine plus white force noise, read with white encoder
+    noise, simulated here in numpy; and the Kalman predictor's bandwidth [Hz] and innovation RMS for it."""
+    import scipy.linalg as sl
+    from scipy.signal import cont2discrete
+
+    ad, bd, *_ = cont2discrete((np.array([[0, 1], [0, -d / m]]), np.array([[0], [1 / m]]), np.eye(2),
+                                np.zeros((2, 1))), TS, "zoh")
+    rng = np.random.default_rng(seed)
+    t = np.arange(n) * TS
+    u = 2 * np.sin(2 * np.pi * 0.7 * t) + np.sin(2 * np.pi * 3.1 * t)
+    w = force_std * rng.standard_normal(n)
+    x, q = np.zeros(2), np.empty(n)
+    for k in range(n):
+        q[k] = x[0]
+        x = ad @ x + bd[:, 0] * (u[k] + w[k])
+    y = q + encoder_std * rng.standard_normal(n)
+    c, r = np.array([[1.0, 0.0]]), np.array([[encoder_std ** 2]])
+    p = sl.solve_discrete_are(ad.T, c.T, bd @ bd.T * force_std ** 2, r)
+    gain = ad @ p @ c.T @ np.linalg.inv(c @ p @ c.T + r)
+    bandwidth = float(np.max(np.abs(np.log(np.linalg.eigvals(ad - gain @ c))))) / TS / (2 * np.pi)
+    innovation = float(np.sqrt((c @ p @ c.T + r)[0, 0]))
+    return make_recording(t, {"q": y, "u": u}), bandwidth, innovation
+
+
+@pytest.mark.parametrize("force_std, encoder_std, seed", [(0.005, 5e-6, 1), (0.02, 2e-6, 2)])
+def test_fitted_observer_bandwidth_is_the_kalman_predictors(model, force_std, encoder_std, seed):
+    """Kalman bandwidths of 3.5 and 11 Hz, below the 20 Hz bound at 2 kHz: the fitted PD observer (damping 0.7,
+    not the Kalman structure) lands within 20 % of the Kalman bandwidth and leaves its innovation RMS (2 %)."""
+    rec, kalman_hz, innovation = _noisy_mass_damper(force_std, encoder_std, seed)
+    assert kalman_hz < observer.MAX_BANDWIDTH_FRACTION / TS
+    found, tried = observer.fit_bandwidth(observer.Observer(2.0, observer.DEFAULT_BANDWIDTH_HZ, TS),
+                                          lambda o: observer.one_step_rms(model, {"m": 2.0, "d": 1.0}, rec, o, "x"))
+    assert found.bandwidth_hz == pytest.approx(kalman_hz, rel=0.2)
+    assert dict(tried)[found.bandwidth_hz] == pytest.approx(innovation, rel=0.02)
+    assert "fitted by prediction error" in found.bandwidth_from and "bound" not in found.bandwidth_from
+
+
+def test_fitted_observer_bandwidth_stops_at_its_bound_and_says_so(model):
+    """Force noise 100x the encoder's (Kalman bandwidth 36 Hz): the fit ends on fs/100 and names the bound."""
+    rec, kalman_hz, _ = _noisy_mass_damper(0.2, 2e-6, 3)
+    bound = observer.MAX_BANDWIDTH_FRACTION / TS
+    assert kalman_hz > bound
+    found, _ = observer.fit_bandwidth(observer.Observer(2.0, 5.0, TS),
+                                      lambda o: observer.one_step_rms(model, {"m": 2.0, "d": 1.0}, rec, o, "x"))
+    assert found.bandwidth_hz == bound and "upper bound" in found.bandwidth_from

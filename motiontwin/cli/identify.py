@@ -161,21 +161,35 @@ def _identify_oe(args: argparse.Namespace) -> int:
     from motiontwin.fmus import build
     from motiontwin.harness.recording import atomic_write_texts, read_recording
     from motiontwin.cli.arguments import loop_controller
+    from motiontwin.ident import observer as observer_module
     from motiontwin.ident import startvalues, validation
     from motiontwin.ident.outputerror import identify
 
     known = args.controller is not None and args.controller != "unknown"
     rec = read_recording(args.recording, [args.output, args.input] + (["r"] if known else []))
     controller, signals, observer = loop_controller(args.controller, rec, args.output, args.input)
-    if observer is not None:
-        print(observer.describe())
     model = build.load_model(args.class_name, args.modelica)
     free = [n.strip() for n in args.free.split(",") if n.strip()]
     start = {**(startvalues.read_values_file(args.values) if args.values else {}),
              **{name: value for item in args.set for name, value in name_values(item, "--set").items()}}
     startvalues.check_parameters(model, start, "--set/--values")
-    result = identify(model, rec, free, controller, signals, max_nfev=args.max_nfev, shooting=args.shooting,
-                      segments=args.segments, start=start, auto_start=args.auto_start, initial=args.initial)
+
+    def refit(loop_controller_now: object) -> object:
+        return identify(model, rec, free, loop_controller_now, signals, max_nfev=args.max_nfev,
+                        shooting=args.shooting, segments=args.segments, start=start, auto_start=args.auto_start,
+                        initial=args.initial)
+
+    result = refit(controller)
+    if observer is not None and observer.bandwidth_from != observer_module.GIVEN:
+        # the observer's bandwidth fitted by prediction error with the refitted plant, then the plant again
+        fitted, _ = observer_module.fit_bandwidth(observer, lambda trial: validation.free_run(
+            model, result.fit.values, rec, controller=trial.controller(), signals=signals, initial=args.initial).rms_q)
+        if fitted.bandwidth_hz != observer.bandwidth_hz:
+            controller = fitted.controller()
+            result = refit(controller)
+        observer = fitted
+    if observer is not None:
+        print(observer.describe())
     stats = result.statistics
     print(stats.summary())
     multiple = args.shooting == "multiple"
@@ -412,8 +426,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="controller JSON (discrete_state_space, or an experiment.json; its Ts the recording's step or a whole "
                         "fraction of it, a faster controller run at its own period); the recording then needs r. "
                         "'unknown' (or a JSON {\"kind\": \"unknown\"}): no controller known, the model runs as a "
-                        "prediction-error predictor (measured force plus a fixed PD observer on the measured "
-                        "position, ident.observer) so a double integrator does not drift; needs only u and q")
+                        "prediction-error predictor (measured force plus a PD observer on the measured position, "
+                        "its bandwidth fitted by prediction error, ident.observer) so a double integrator does not "
+                        "drift; needs only u and q")
     q.add_argument("--max-nfev", type=int, default=50, help="residual evaluations per fit (single shooting)")
     q.add_argument("--shooting", choices=("single", "multiple"), default="single",
                    help="single shooting (Gauss-Newton, default) or multiple shooting (IPOPT, continuity constraints)")

@@ -94,7 +94,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="closed loop: controller JSON (discrete_state_space, or a library controller by name; its Ts may be "
                         "the recording's step or a whole fraction of it, a faster controller run at its own period); "
                         "'unknown' (or a JSON {\"kind\": \"unknown\"}): the prediction-error predictor "
-                        "(measured force u plus a fixed PD observer on the measured q, ident.observer; columns u, "
+                        "(measured force u plus a PD observer on the measured q, ident.observer; columns u, "
                         "q only): the RMS is then the predictor's and the k-step-ahead scores are printed")
     p.add_argument("--horizon", type=float, default=0.05,
                    help="with --controller unknown: the k-step-ahead horizon [s] (default 0.05)")
