@@ -23,10 +23,11 @@ bandwidth fitted with the plant by prediction error (:func:`fit_bandwidth`): the
 the predictor's one-step-ahead error ``q_meas - q_model`` between ``fs / 100`` / 10**``SEARCH_DECADES`` and
 ``fs / 100``. That is the prediction-error method's criterion: for a linear plant with white force and encoder
 noise its minimiser is the Kalman predictor's gain (its bandwidth grows with the force noise over the encoder
-noise as sqrt(s_w / (m s_v)) / 2 pi; tests/test_unknown_controller.py holds it to the gain of the discrete
-Riccati equation). Where the force noise dominates, the optimum lies above ``fs / 100`` and the fit stops at that
-bound and says so: a faster observer would follow the encoder and leave every force error to its correction
-(session 27 measured the prediction error falling as 1 / bandwidth^2 up to 20 Hz on a 250 Hz robot recording).
+noise as sqrt(s_w / (m s_v)) / 2 pi, its damping is 1/sqrt(2), hence ``DAMPING``;
+tests/test_unknown_controller.py holds it to the gain of the discrete Riccati equation). Where the force noise
+dominates, the optimum lies above ``fs / 100`` and the fit stops at that bound and says so: a faster observer
+would follow the encoder and leave every force error to its correction (session 27 measured the prediction
+error falling as 1 / bandwidth^2 up to 20 Hz on a 250 Hz robot recording).
 A ``bandwidth_hz`` given by the user is kept. Below the bandwidth a missing force shows in the force residual,
 above it in the output residual as in a free run; the error of a wrong mass integrates for at most about
 1 / (2 pi bandwidth) before the observer pulls it back.
