@@ -161,6 +161,8 @@ def _identify_oe(args: argparse.Namespace) -> int:
     from motiontwin.fmus import build
     from motiontwin.harness.recording import atomic_write_texts, read_recording
     from motiontwin.cli.arguments import loop_controller
+    from dataclasses import replace
+
     from motiontwin.ident import observer as observer_module
     from motiontwin.ident import startvalues, validation
     from motiontwin.ident.outputerror import identify
@@ -181,10 +183,15 @@ def _identify_oe(args: argparse.Namespace) -> int:
 
     result = refit(controller)
     if observer is not None and observer.bandwidth_from != observer_module.GIVEN:
-        # the observer's bandwidth fitted by prediction error with the refitted plant, then the plant again
-        fitted, _ = observer_module.fit_bandwidth(observer, lambda trial: validation.free_run(
-            model, result.fit.values, rec, controller=trial.controller(), signals=signals, initial=args.initial).rms_q)
-        if fitted.bandwidth_hz != observer.bandwidth_hz:
+        # the observer fitted with the refitted plant (its mass, then its bandwidth by prediction error, as the
+        # diagnosis does: ident.diagnosis.nominal.fit_observer), then the plant refitted under it
+        values = {v.name: float(v.start) for v in model.parameters} | result.fit.values
+        driven = signals.input if signals.input in [v.name for v in model.inputs] else None
+        mass = observer_module.plant_mass(model, values, signals.output, driven)
+        sized = observer if mass is None else replace(observer, mass=mass, mass_from="the refitted plant")
+        fitted, _ = observer_module.fit_bandwidth(sized, lambda trial: observer_module.one_step_rms(
+            model, values, rec, trial, signals.output, driven, signals))
+        if (fitted.bandwidth_hz, fitted.mass) != (observer.bandwidth_hz, observer.mass):
             controller = fitted.controller()
             result = refit(controller)
         observer = fitted
