@@ -240,6 +240,8 @@ def test_fitted_observer_bandwidth_is_the_kalman_predictors(model, force_std, en
     assert kalman_hz < observer.MAX_BANDWIDTH_FRACTION / TS
     found, tried = observer.fit_bandwidth(observer.Observer(2.0, observer.DEFAULT_BANDWIDTH_HZ, TS),
                                           lambda o: observer.one_step_rms(model, {"m": 2.0, "d": 1.0}, rec, o, "x"))
+    print(f"force {force_std} N, encoder {encoder_std} m: Kalman {kalman_hz:.3g} Hz, fitted {found.bandwidth_hz:.3g} Hz, "
+          f"one-step RMS / innovation RMS {dict(tried)[found.bandwidth_hz] / innovation:.4f}")
     assert found.bandwidth_hz == pytest.approx(kalman_hz, rel=0.2)
     assert dict(tried)[found.bandwidth_hz] == pytest.approx(innovation, rel=0.02)
     assert "fitted by prediction error" in found.bandwidth_from and "bound" not in found.bandwidth_from
@@ -247,11 +249,13 @@ def test_fitted_observer_bandwidth_is_the_kalman_predictors(model, force_std, en
 
 def test_fitted_observer_bandwidth_stops_at_its_bound_and_says_so(model):
     """Force noise 100x the encoder's (Kalman bandwidth 36 Hz): the fit ends on fs/100 and names the bound."""
-    rec, kalman_hz, _ = _noisy_mass_damper(0.2, 2e-6, 3)
+    rec, kalman_hz, innovation = _noisy_mass_damper(0.2, 2e-6, 3)
     bound = observer.MAX_BANDWIDTH_FRACTION / TS
     assert kalman_hz > bound
-    found, _ = observer.fit_bandwidth(observer.Observer(2.0, 5.0, TS),
-                                      lambda o: observer.one_step_rms(model, {"m": 2.0, "d": 1.0}, rec, o, "x"))
+    found, tried = observer.fit_bandwidth(observer.Observer(2.0, 5.0, TS),
+                                          lambda o: observer.one_step_rms(model, {"m": 2.0, "d": 1.0}, rec, o, "x"))
+    print(f"force 0.2 N, encoder 2e-06 m: Kalman {kalman_hz:.3g} Hz, fitted {found.bandwidth_hz:.3g} Hz, "
+          f"one-step RMS / innovation RMS {dict(tried)[found.bandwidth_hz] / innovation:.4f}")
     assert found.bandwidth_hz == bound and "upper bound" in found.bandwidth_from
 
 
