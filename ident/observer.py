@@ -16,8 +16,9 @@ so the engine's known-controller loop is this predictor with ``L = K``: the two 
 bandwidth. The noise machinery stays exact for a linear plant: the encoder noise fed back through ``L`` and a
 process force added to the disturbance column give the same residual statistics as the predictor's on data.
 
-The observer's gain: the mass [force unit per acceleration of the measured output] from the recording's inverse
-dynamics (least squares of u on acceleration, velocity, Coulomb level and offset, :func:`recording_mass`), damping
+The observer's gain: the mass [force unit per acceleration of the measured output], first from the recording's
+inverse dynamics (least squares of u on acceleration, velocity, Coulomb level and offset, :func:`recording_mass`),
+after a refit the plant's own (:func:`plant_mass`, :func:`fitted_with_plant`), damping
 ``DAMPING``, a derivative filter at ``FILTER_RATIO`` times the bandwidth, discretised by Tustin, and the
 bandwidth fitted with the plant by prediction error (:func:`fit_bandwidth`): the one that minimises the RMS of
 the predictor's one-step-ahead error ``q_meas - q_model`` between ``fs / 100`` / 10**``SEARCH_DECADES`` and
@@ -61,6 +62,7 @@ SEARCH_DECADES = 2.0           # the bandwidth is fitted from its upper bound / 
 GRID_POINTS = 9                # log-spaced bandwidths tried first, then ...
 REFINE_STEPS = 6               # ... golden-section steps (in log bandwidth) around the best of them
 DEFAULT, GIVEN = "the default", "given"
+MASS_FROM_RECORDING = "the recording's inverse dynamics"
 METHOD = ("prediction-error predictor: the model driven by the measured force plus a PD observer on the "
           "measured position (no controller given)")
 
@@ -76,7 +78,7 @@ class Observer:
     mass: float
     bandwidth_hz: float
     ts: float
-    mass_from: str = "the recording's inverse dynamics"     # where the mass came from, for the report
+    mass_from: str = MASS_FROM_RECORDING                    # where the mass came from, for the report
     bandwidth_from: str = DEFAULT                           # DEFAULT, GIVEN or how it was fitted
 
     @property
@@ -274,6 +276,23 @@ def one_step_rms(model: symbolic.SymbolicModel, values: dict[str, float], rec: R
     with np.errstate(over="ignore", invalid="ignore"):
         rms = float(np.sqrt(np.mean(e ** 2)))
     return rms if math.isfinite(rms) else math.inf
+
+
+def fitted_with_plant(observer: Observer, model: symbolic.SymbolicModel, values: dict[str, float], rec: Recording,
+                      position: str, input_name: str | None = None, signals: Signals | None = None,
+                      tracking: dict[str, str] | None = None) -> Observer:
+    """``observer`` fitted with the refitted plant ``model`` at ``values`` on ``rec``: its mass the plant's own
+    (:func:`plant_mass`) unless one was given, then its bandwidth by prediction error (:func:`fit_bandwidth`,
+    :func:`one_step_rms`) unless one was given. The diagnosis (``ident.diagnosis.nominal.fit_observer``) and
+    ``identify oe --controller unknown`` refit the plant under it when it moved."""
+    if observer.mass_from == MASS_FROM_RECORDING:
+        mass = plant_mass(model, values, position, input_name)
+        if mass is not None:
+            observer = replace(observer, mass=mass, mass_from="the refitted plant")
+    if observer.bandwidth_from == GIVEN:
+        return observer
+    return fit_bandwidth(observer, lambda trial: one_step_rms(model, values, rec, trial, position, input_name,
+                                                              signals, tracking))[0]
 
 
 @dataclass(frozen=True)

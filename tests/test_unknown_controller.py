@@ -299,3 +299,16 @@ def test_diagnosis_refits_the_nominal_under_its_fitted_observer(tmp_path, monkey
             np.testing.assert_array_equal(getattr(loop.controller, name), getattr(fitted, name))
     assert result["nominal"].fit.values["m"] == pytest.approx(2.0, rel=0.05)
     assert result["final"].effects == []
+
+
+def test_what_the_bundle_gives_is_kept(model):
+    """A bundle's or CLI's "mass" and "bandwidth_hz" are kept as given; what is not given is fitted with the plant."""
+    rec, _, _ = _noisy_mass_damper(0.005, 5e-6, 6, n=4000)
+    given = observer.observer_from_document({"kind": "unknown", "mass": 3.0, "bandwidth_hz": 5.0}, rec, "test", "test")
+    kept = observer.fitted_with_plant(given, model, {"m": 2.0, "d": 1.0}, rec, "x")
+    assert (kept.mass, kept.bandwidth_hz, kept.bandwidth_from) == (3.0, 5.0, observer.GIVEN)
+    mass_only = observer.observer_from_document({"kind": "unknown", "mass": 3.0}, rec, "test", "test")
+    fitted = observer.fitted_with_plant(mass_only, model, {"m": 2.0, "d": 1.0}, rec, "x")
+    assert fitted.mass == 3.0 and fitted.bandwidth_from.startswith("fitted by prediction error")
+    neither = observer.observer_from_document({"kind": "unknown"}, rec, "test", "test")
+    assert observer.fitted_with_plant(neither, model, {"m": 2.0, "d": 1.0}, rec, "x").mass == pytest.approx(2.0)

@@ -3,7 +3,6 @@ parameters (Modelica defaults, ``plant.parameters``, inverse dynamics) and the c
 Units: SI (s, m, N)."""
 from __future__ import annotations
 
-import dataclasses
 import math
 from pathlib import Path
 from typing import Callable
@@ -113,23 +112,17 @@ def fit_nominal(bundle: Bundle, progress=None) -> tuple[ModelFit, outputerror.We
 
 def fit_observer(bundle: Bundle, nominal: ModelFit, weights: outputerror.Weights, progress=None
                  ) -> tuple[ModelFit, outputerror.Weights]:
-    """Unknown controller: the observer fitted with the refitted nominal plant: its mass the plant's own
-    (:func:`observer.plant_mass`, in place of the recording's inverse-dynamics estimate, which the encoder noise
-    can halve), its bandwidth by prediction error (:func:`observer.fit_bandwidth`); then the nominal refitted
-    under it when it moved (one alternation: the optimum is set by the force and encoder noise, which the
-    plant's refit does not move). Returned as they were for a known controller or a bandwidth the bundle gives."""
-    if bundle.observer is None or bundle.observer.bandwidth_from == observer.GIVEN:
+    """Unknown controller: the observer fitted with the refitted nominal plant (:func:`observer.fitted_with_plant`:
+    its mass the plant's own, in place of the recording's inverse-dynamics estimate, which the encoder noise can
+    halve; its bandwidth by prediction error), then the nominal refitted under it when it moved (one
+    alternation: the optimum is set by the force and encoder noise, which the plant's refit does not move).
+    Returned as they were for a known controller or an observer the bundle gives."""
+    if bundle.observer is None:
         return nominal, weights
-    values = dict(nominal.loop.values)
-
-    def rms(trial: observer.Observer) -> float:
-        return observer.one_step_rms(bundle.plant.model, values, bundle.train, trial, bundle.plant.output_name,
-                                     bundle.plant.input_name, outputerror.Signals(), _moving_start(bundle))
-
     before = bundle.observer
-    mass = observer.plant_mass(bundle.plant.model, values, bundle.plant.output_name, bundle.plant.input_name)
-    start = before if mass is None else dataclasses.replace(before, mass=mass, mass_from="the refitted nominal plant")
-    bundle.observer, _ = observer.fit_bandwidth(start, rms)
+    bundle.observer = observer.fitted_with_plant(before, bundle.plant.model, dict(nominal.loop.values), bundle.train,
+                                                 bundle.plant.output_name, bundle.plant.input_name,
+                                                 outputerror.Signals(), _moving_start(bundle))
     _log(progress, f"observer mass {bundle.observer.mass:.4g} from {bundle.observer.mass_from}, bandwidth "
                    f"{bundle.observer.bandwidth_hz:.4g} Hz, {bundle.observer.bandwidth_from}")
     if (bundle.observer.bandwidth_hz, bundle.observer.mass) == (before.bandwidth_hz, before.mass):

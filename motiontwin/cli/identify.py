@@ -161,8 +161,6 @@ def _identify_oe(args: argparse.Namespace) -> int:
     from motiontwin.fmus import build
     from motiontwin.harness.recording import atomic_write_texts, read_recording
     from motiontwin.cli.arguments import loop_controller
-    from dataclasses import replace
-
     from motiontwin.ident import observer as observer_module
     from motiontwin.ident import startvalues, validation
     from motiontwin.ident.outputerror import identify
@@ -182,15 +180,11 @@ def _identify_oe(args: argparse.Namespace) -> int:
                         initial=args.initial)
 
     result = refit(controller)
-    if observer is not None and observer.bandwidth_from != observer_module.GIVEN:
-        # the observer fitted with the refitted plant (its mass, then its bandwidth by prediction error, as the
-        # diagnosis does: ident.diagnosis.nominal.fit_observer), then the plant refitted under it
+    if observer is not None:
+        # the observer fitted with the refitted plant, as the diagnosis does, then the plant refitted under it
         values = {v.name: float(v.start) for v in model.parameters} | result.fit.values
         driven = signals.input if signals.input in [v.name for v in model.inputs] else None
-        mass = observer_module.plant_mass(model, values, signals.output, driven)
-        sized = observer if mass is None else replace(observer, mass=mass, mass_from="the refitted plant")
-        fitted, _ = observer_module.fit_bandwidth(sized, lambda trial: observer_module.one_step_rms(
-            model, values, rec, trial, signals.output, driven, signals))
+        fitted = observer_module.fitted_with_plant(observer, model, values, rec, signals.output, driven, signals)
         if (fitted.bandwidth_hz, fitted.mass) != (observer.bandwidth_hz, observer.mass):
             controller = fitted.controller()
             result = refit(controller)
