@@ -29,7 +29,9 @@ tests/test_unknown_controller.py holds it to the gain of the discrete Riccati eq
 dominates, the optimum lies above ``fs / 100`` and the fit stops at that bound and says so: a faster observer
 would follow the encoder and leave every force error to its correction (session 27 measured the prediction
 error falling as 1 / bandwidth^2 up to 20 Hz on a 250 Hz robot recording).
-A ``bandwidth_hz`` given by the user is kept. Below the bandwidth a missing force shows in the force residual,
+A ``mass`` or ``bandwidth_hz`` given by the user is kept. ``identify oe --controller unknown`` fits the observer
+this way; the diagnosis keeps the default one (its fits start the predictor from the first samples, and a slow
+fitted observer's start transient was taken for an effect: docs/diagnose.md). Below the bandwidth a missing force shows in the force residual,
 above it in the output residual as in a free run; the error of a wrong mass integrates for at most about
 1 / (2 pi bandwidth) before the observer pulls it back.
 
@@ -110,7 +112,7 @@ class Observer:
                 "bandwidth_from": self.bandwidth_from, "damping": DAMPING, "Kp": self.kp, "Kd": self.kd, "Ts": self.ts}
 
     def describe(self) -> str:
-        return (f"{METHOD}; observer Kp {self.kp:.4g}, Kd {self.kd:.4g} (bandwidth {self.bandwidth_hz:.4g} Hz "
+        return (f"{METHOD}; observer Kp {self.kp:.4g}, Kd {self.kd:.4g} (bandwidth {self.bandwidth_hz:.4g} Hz, "
                 f"{self.bandwidth_from}; damping {DAMPING}, mass {self.mass:.4g} from {self.mass_from})")
 
 

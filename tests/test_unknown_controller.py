@@ -10,7 +10,8 @@ and position alone, through the prediction-error predictor of :mod:`ident.observ
 * The observer's bandwidth fitted by prediction error (:func:`observer.fit_bandwidth`): on a mass-damper driven
   by white force noise and read with white encoder noise it is the Kalman predictor's (the discrete Riccati
   equation's gain, scipy), with the Kalman innovation's RMS; where the Kalman bandwidth lies above fs/100 the
-  fit stops at that bound and says so; the diagnosis refits the nominal plant under the fitted observer.
+  fit stops at that bound and says so; ``identify oe`` fits it with the plant, and a mass or bandwidth given
+  is kept.
 * Bad input: a bundle without controller is accepted with only time, u, q; a misspelled kind names the field.
 Units: s, m, N.
 """
@@ -186,7 +187,10 @@ def test_concealed_effect_named_without_controller(coulomb_bundle, tmp_path, mon
     with tempfile.TemporaryDirectory(dir=tmp_path) as work:
         result = pipeline.run(bundle, Path(work))
     assert [e.name for e in result["final"].effects] == ["coulomb_friction"]
-    assert bundle.observer.bandwidth_from.startswith("fitted by prediction error"), bundle.observer
+    # the diagnosis keeps its observer: its fits start the predictor from the first samples (not estimated), so a
+    # bandwidth fitted below the bound (3.3 Hz on the held-out params_quiet bundle) left a start transient that
+    # the screening named backlash (session 30); identify oe estimates the start and fits it
+    assert bundle.observer.bandwidth_from == observer.DEFAULT, bundle.observer
 
 
 def test_bundle_without_controller_accepted_and_misspelled_kind_named(coulomb_bundle, tmp_path):
@@ -257,48 +261,6 @@ def test_fitted_observer_bandwidth_stops_at_its_bound_and_says_so(model):
     print(f"force 0.2 N, encoder 2e-06 m: Kalman {kalman_hz:.3g} Hz, fitted {found.bandwidth_hz:.3g} Hz, "
           f"one-step RMS / innovation RMS {dict(tried)[found.bandwidth_hz] / innovation:.4f}")
     assert found.bandwidth_hz == bound and "upper bound" in found.bandwidth_from
-
-
-AXIS = """model Axis "Mass-damper: m*der(v) = u - d*v"
-  parameter Real m(unit = "kg", min = 1e-6) = 2.5 "Moving mass";
-  parameter Real d(unit = "N.s/m", min = 0) = 1.5 "Viscous damping";
-  input Real u(unit = "N") "Force";
-  output Real q(unit = "m") "Measured position";
-  Real x(unit = "m", start = 0, fixed = true) "Position";
-  Real v(unit = "m/s", start = 0, fixed = true) "Velocity";
-equation
-  der(x) = v;
-  m*der(v) = u - d*v;
-  q = x;
-end Axis;
-"""
-
-
-def test_diagnosis_refits_the_nominal_under_its_fitted_observer(tmp_path, monkeypatch):
-    """A mass-damper (2 kg, 1 N.s/m) with force noise 0.005 N and encoder noise 5 um, controller unknown, the
-    nominal starting 25 % heavy: the diagnosis fits the observer near the Kalman bandwidth (3.5 Hz, below the
-    20 Hz bound), refits the plant under it (its loop runs the fitted observer, not the 20 Hz one it started
-    with: a loop compiled for the old observer would be stale) and names nothing (parameters only)."""
-    for table in (effect_models.VOCABULARY, effect_models.NESTED):
-        for name in [n for n in table if n != "gravity_offset"]:
-            monkeypatch.delitem(table, name)
-    train, kalman_hz, _ = _noisy_mass_damper(0.005, 5e-6, 4, n=12000)
-    validation, _, _ = _noisy_mass_damper(0.005, 5e-6, 5, n=6000)
-    from motiontwin.ident.diagnosis import make_bundle
-
-    bundle = make_bundle(AXIS, {"kind": "unknown"}, train, validation, "Axis")
-    assert bundle.observer.bandwidth_hz == observer.DEFAULT_BANDWIDTH_HZ
-    with tempfile.TemporaryDirectory(dir=tmp_path) as work:
-        result = pipeline.run(bundle, Path(work))
-    assert bundle.observer.bandwidth_hz == pytest.approx(kalman_hz, rel=0.25)
-    fitted = bundle.observer.controller()
-    for name in "ABCD":
-        np.testing.assert_array_equal(getattr(result["nominal"].loop.controller, name), getattr(fitted, name))
-        np.testing.assert_array_equal(getattr(result["final"].loop.controller, name), getattr(fitted, name))
-        for loop in bundle.cache.loops.values():      # every screened structure ran the fitted observer too
-            np.testing.assert_array_equal(getattr(loop.controller, name), getattr(fitted, name))
-    assert result["nominal"].fit.values["m"] == pytest.approx(2.0, rel=0.05)
-    assert result["final"].effects == []
 
 
 def test_what_the_bundle_gives_is_kept(model):

@@ -26,7 +26,7 @@ from motiontwin.ident.diagnosis.axis_units import bundle_units
 from motiontwin.ident.diagnosis.bundle import Bundle
 from motiontwin.ident.diagnosis.locate import context
 from motiontwin.ident.diagnosis.nominal import (_divergence_hint, check_plant_form, fit_nominal, fit_nominal_axes,
-                                                fit_observer, nominal_free, nominal_start, plant_physics)
+                                                nominal_free, nominal_start, plant_physics)
 from motiontwin.ident.diagnosis.remainder import EMPIRICAL_EFFECT, explain_remainder, explain_remainder_axes
 from motiontwin.ident.diagnosis.nested import simplify_nested, upgrade_nested
 from motiontwin.ident.diagnosis.prune import prune
@@ -55,7 +55,7 @@ def run(bundle: Bundle, work: Path, progress=None) -> dict:
     check_plant_form(bundle, work / "check")
     _log(progress, f"every candidate effect's augmented model builds ({time.perf_counter() - t0:.1f} s)")
     bundle.start = nominal_start(bundle, progress)
-    nominal, weights = fit_observer(bundle, *fit_nominal(bundle, progress), progress)
+    nominal, weights = fit_nominal(bundle, progress)
     bundle.process_noise = noise.of_bundle(bundle, nominal.fit.values, weights.sigma_q)
     _log(progress, f"process force noise (not predictable from the motion): {bundle.process_noise.describe()}")
     validate(bundle, nominal, work / "v_nominal")
