@@ -31,9 +31,9 @@ would follow the encoder and leave every force error to its correction (session 
 error falling as 1 / bandwidth^2 up to 20 Hz on a 250 Hz robot recording).
 A ``mass`` or ``bandwidth_hz`` given by the user is kept. ``identify oe --controller unknown`` fits the observer
 this way; the diagnosis keeps the default one (its fits start the predictor from the first samples, and a slow
-fitted observer's start transient was taken for an effect: docs/diagnose.md). Below the bandwidth a missing force shows in the force residual,
-above it in the output residual as in a free run; the error of a wrong mass integrates for at most about
-1 / (2 pi bandwidth) before the observer pulls it back.
+fitted observer's start transient was taken for an effect: docs/diagnose.md). Below the bandwidth a missing
+force shows in the force residual, above it in the output residual as in a free run; the error of a wrong mass
+integrates for at most about 1 / (2 pi bandwidth) before the observer pulls it back.
 
 Scoring on a recording (:func:`k_step_ahead`): the predictor's free run (the RMS ``validate`` prints), and the
 k-step-ahead prediction: from the predictor's state at the start of each segment of ``k`` samples, the model
