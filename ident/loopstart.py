@@ -89,7 +89,7 @@ def initial_state(loop: Loop, rec: Recording, values: dict[str, float] | None = 
 
 
 def unshifted_start_state(loop: Loop, rec: Recording, values: dict[str, float] | None,
-                 initial: dict[str, float] | None) -> np.ndarray:
+                          initial: dict[str, float] | None) -> np.ndarray:
     """:func:`initial_state` without the controller shift."""
     values = values or loop.values
     model, ctrl = loop.model, loop.controller

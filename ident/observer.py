@@ -247,8 +247,7 @@ def fit_bandwidth(observer: Observer, prediction_rms: Callable[[Observer], float
 
 
 def one_step_rms(model: symbolic.SymbolicModel, values: dict[str, float], rec: Recording, observer: Observer,
-                 position: str, input_name: str | None = None, signals: Signals | None = None,
-                 tracking: dict[str, str] | None = None) -> float:
+                 position: str, input_name: str | None = None, signals: Signals | None = None) -> float:
     """RMS one-step-ahead prediction error of ``observer``'s predictor on ``rec`` (plant ``model`` at ``values``,
     its ``position`` state or output compared with the recording's ``signals.output`` column; default signals
     :func:`predictor_signals`), its start state estimated as the prediction-error method does: the start of
@@ -258,8 +257,7 @@ def one_step_rms(model: symbolic.SymbolicModel, values: dict[str, float], rec: R
     of encoder noise). inf when the run diverges. CasADi's own chain: a bandwidth search compiles nothing."""
     signals = signals or predictor_signals()
     loop = oeloop.build_loop(model, observer.controller(), position, [], dict(values), rec.time.size,
-                             signals=signals, input_name=input_name, tracking=tracking or {}, with_jacobian=False,
-                             native=False)
+                             signals=signals, input_name=input_name, with_jacobian=False, native=False)
     measured = np.asarray(rec[signals.output], float)
     names = [v.name for v in model.states]
     start = loopstart.initial_state(loop, rec, values)
@@ -281,12 +279,11 @@ def one_step_rms(model: symbolic.SymbolicModel, values: dict[str, float], rec: R
 
 
 def fitted_with_plant(observer: Observer, model: symbolic.SymbolicModel, values: dict[str, float], rec: Recording,
-                      position: str, input_name: str | None = None, signals: Signals | None = None,
-                      tracking: dict[str, str] | None = None) -> Observer:
+                      position: str, input_name: str | None = None, signals: Signals | None = None) -> Observer:
     """``observer`` fitted with the refitted plant ``model`` at ``values`` on ``rec``: its mass the plant's own
     (:func:`plant_mass`) unless one was given, then its bandwidth by prediction error (:func:`fit_bandwidth`,
-    :func:`one_step_rms`) unless one was given. The diagnosis (``ident.diagnosis.nominal.fit_observer``) and
-    ``identify oe --controller unknown`` refit the plant under it when it moved."""
+    :func:`one_step_rms`) unless one was given. ``identify oe --controller unknown`` refits the plant under it
+    when it moved; the diagnosis keeps its default observer (docs/diagnose.md says why)."""
     if observer.mass_from == MASS_FROM_RECORDING:
         mass = plant_mass(model, values, position, input_name)
         if mass is not None:
@@ -294,7 +291,7 @@ def fitted_with_plant(observer: Observer, model: symbolic.SymbolicModel, values:
     if observer.bandwidth_from == GIVEN:
         return observer
     return fit_bandwidth(observer, lambda trial: one_step_rms(model, values, rec, trial, position, input_name,
-                                                              signals, tracking))[0]
+                                                              signals))[0]
 
 
 @dataclass(frozen=True)
