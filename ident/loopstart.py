@@ -94,7 +94,7 @@ def unshifted_start_state(loop: Loop, rec: Recording, values: dict[str, float] |
     values = values or loop.values
     model, ctrl = loop.model, loop.controller
     p = np.array([values[v.name] for v in model.parameters])
-    x0 = np.array(plant_states.per_model(model, "start", lambda: ca.Function("x0", [model.p], [model.x0()]))(p)).ravel()
+    x0 = plant_states.start_state(model, p)
     names = [v.name for v in model.states]
     positions: dict[str, float] = {}
     joint: dict[str, tuple[float, float]] = {}      # outputs that are expressions of several states (a hexapod's leg lengths)

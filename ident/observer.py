@@ -154,7 +154,7 @@ def plant_mass(model: symbolic.SymbolicModel, values: dict[str, float], output: 
         return None
     k = inputs.index(input_name) if input_name in inputs else 0
     p = np.array([values[v.name] for v in model.parameters])
-    x0 = np.array(ca.Function("x0", [model.p], [model.x0()])(p)).ravel()
+    x0 = plant_states.start_state(model, p)
     rate = ca.Function("g", [model.x, model.u, model.p], [ca.jacobian(model.dx[i_vel], model.u[k])])
     per_force = float(np.array(rate(x0, np.zeros(model.u.numel()), p)).item())
     gain = oeloop._output_gain(model, output, x0, p)

@@ -10,10 +10,11 @@ import weakref
 from typing import Callable
 
 import casadi as ca
+import numpy as np
 
 from motiontwin.fmus import symbolic
 
-__all__ = ["output_expression", "output_state", "alias_state", "velocity_state", "per_model"]
+__all__ = ["output_expression", "output_state", "alias_state", "velocity_state", "per_model", "start_state"]
 
 _PER_MODEL: dict[int, tuple[weakref.ref, dict]] = {}    # id(model) -> (the model, what was derived by key)
 
@@ -30,6 +31,13 @@ def per_model(model: symbolic.SymbolicModel, key: object, build: Callable[[], ob
     if key not in entry[1]:
         entry[1][key] = build()
     return entry[1][key]
+
+
+def start_state(model: symbolic.SymbolicModel, p: np.ndarray) -> np.ndarray:
+    """The model's start state at the parameter vector ``p`` (in ``model.parameters`` order); the function is
+    built once per model."""
+    fn = per_model(model, "start", lambda: ca.Function("x0", [model.p], [model.x0()]))
+    return np.array(fn(p), float).ravel()
 
 
 def output_expression(model: symbolic.SymbolicModel, name: str) -> ca.SX | None:
