@@ -72,6 +72,9 @@ def check_parameters(model: symbolic.SymbolicModel, values: dict[str, float], wh
                                   f"[{var.min}, {var.max}]")
 
 
+_FIRST_SAMPLES: dict[bytes, tuple[float, float]] = {}  # by the samples it reads: every fit evaluation asks again
+
+
 def first_samples(q: np.ndarray, ts: float) -> tuple[float, float]:
     """Position [m] and velocity [m/s] at t = 0 from a local cubic fitted to the first samples of ``q``, its
     window chosen by Lepski's rule: windows grow from 8 samples to ``FIRST_SAMPLES_SECONDS`` while the
@@ -86,9 +89,6 @@ def first_samples(q: np.ndarray, ts: float) -> tuple[float, float]:
             _FIRST_SAMPLES.clear()
         _FIRST_SAMPLES[key] = _first_samples(q, ts, longest)
     return _FIRST_SAMPLES[key]
-
-
-_FIRST_SAMPLES: dict[bytes, tuple[float, float]] = {}  # by the samples it reads: every fit evaluation asks again
 
 
 def _first_samples(q: np.ndarray, ts: float, longest: int) -> tuple[float, float]:

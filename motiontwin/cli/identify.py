@@ -174,14 +174,14 @@ def _identify_oe(args: argparse.Namespace) -> int:
              **{name: value for item in args.set for name, value in name_values(item, "--set").items()}}
     startvalues.check_parameters(model, start, "--set/--values")
 
-    def refit(loop_controller_now: object) -> object:
-        return identify(model, rec, free, loop_controller_now, signals, max_nfev=args.max_nfev,
-                        shooting=args.shooting, segments=args.segments, start=start, auto_start=args.auto_start,
-                        initial=args.initial)
+    def refit(loop: object) -> object:
+        """The output-error refit in the closed loop of ``loop`` (a controller, an observer's, or None)."""
+        return identify(model, rec, free, loop, signals, max_nfev=args.max_nfev, shooting=args.shooting,
+                        segments=args.segments, start=start, auto_start=args.auto_start, initial=args.initial)
 
     result = refit(controller)
     if observer is not None:
-        # the observer fitted with the refitted plant, as the diagnosis does, then the plant refitted under it
+        # the observer fitted with the refitted plant (the diagnosis keeps its default one), then the plant again
         values = {v.name: float(v.start) for v in model.parameters} | result.fit.values
         driven = signals.input if signals.input in [v.name for v in model.inputs] else None
         fitted = observer_module.fitted_with_plant(observer, model, values, rec, signals.output, driven, signals)
@@ -189,7 +189,6 @@ def _identify_oe(args: argparse.Namespace) -> int:
             controller = fitted.controller()
             result = refit(controller)
         observer = fitted
-    if observer is not None:
         print(observer.describe())
     stats = result.statistics
     print(stats.summary())
