@@ -72,11 +72,14 @@ def initial_state(loop: Loop, rec: Recording, values: dict[str, float] | None = 
     gravity need not have settled when the recording starts), other plant states at their start values, tracked states at that position or u_0, states in ``initial`` at those
     values, and in closed loop the controller state giving the recorded force u_0 (least-norm solution of
     C z = u_0 - u_ext_0 - D y_0), plus ``shift`` (the correction a joint fit estimates, :func:`fit`,
-    :func:`controller_shift`; states tracking u_0 then hold the force the shifted controller holds).
+    :func:`start_shift`; states tracking u_0 then hold the force the shifted controller holds), added to the
+    controller state, or to the loop's ``shift_states`` when it names them (an unknown controller's predictor).
     Multi-axis: the same for every axis; a tracking signal may name its axis by output (``"dq:q3"``,
     ``"q:q3"``, ``"u:q3"``; without it, the first axis)."""
     s0 = unshifted_start_state(loop, rec, values, initial)
-    if shift is not None and len(shift):
+    if shift is not None and len(shift) and loop.shift_states is not None:
+        s0[list(loop.shift_states)] += shift
+    elif shift is not None and len(shift):
         s0[s0.size - len(shift):] += shift
         held = loop.controller.C @ shift     # the force each axis's shifted controller holds in addition
         names = [v.name for v in loop.model.states]

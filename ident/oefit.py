@@ -90,7 +90,7 @@ class Fit:
     nfev: int = 0                # residual evaluations (free runs) of the optimiser
     initial: dict[str, float] = field(default_factory=dict)   # estimated initial plant states
     residual: np.ndarray | None = None   # weighted residual at the optimum, rows as ``jacobian`` (for the HAC std)
-    shift: np.ndarray | None = None      # estimated correction of the controller's start state (estimate_controller)
+    shift: np.ndarray | None = None      # estimated correction of the loop's start (estimate_start)
     weights: Weights | None = None       # the noise levels that weighted the fit
 
 
@@ -178,6 +178,12 @@ def controller_states(loop: Loop) -> list[int]:
     return list(range(nx, nx + loop.controller.n_states))
 
 
+def shifted_states(loop: Loop) -> list[int]:
+    """Indices of the states a start ``shift`` moves: the loop's ``shift_states`` (an unknown controller's
+    predictor: the plant's position and velocity), else :func:`controller_states`."""
+    return list(loop.shift_states) if loop.shift_states is not None else controller_states(loop)
+
+
 def _relation(loop: Loop, rec: Recording) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The controller's relation (:func:`channels.controller_relation`) from the first-samples start, its rows, the
     start shift its whole-run least squares puts (:func:`relation_shift`) and each axis's noise level of
@@ -220,40 +226,48 @@ def relation_prior(loop: Loop, rec: Recording, weights: Weights) -> tuple[np.nda
     return relation, rows, np.repeat(np.maximum(levels, 1e-3 * sigma_u), rec.time.size)
 
 
-def controller_shift(loop: Loop, rec: Recording, values: dict[str, float], weights: Weights,
-                     iterations: int = 3, start: np.ndarray | None = None) -> np.ndarray | None:
-    """The correction of the controller's start state on a recording with the parameters held at ``values``
-    (the validation run; a loop compiled without its Jacobian): weighted least squares of the free run's
-    output and force channels over the whole run and of the controller's own relation on the recorded
-    signals (:func:`channels.controller_relation`, weighted by its residual's noise level, the recording's evidence
-    of the start state that no plant model can reinterpret). A start state that only a few noisy first
-    samples fixed moves to where the whole run puts it; one that the recorded force fixes exactly (a load
-    the model lacks, held at t = 0) stays, so that the model's error shows. Gauss-Newton with the free
-    run's sensitivity to each controller state by a finite difference (the controller is linear, so it is
-    nearly exact), from ``start`` (default: none). None when there is nothing to estimate or the free run is
-    not finite."""
+def start_shift(loop: Loop, rec: Recording, values: dict[str, float], weights: Weights,
+                iterations: int = 3, start: np.ndarray | None = None) -> np.ndarray | None:
+    """The correction of the loop's start (the controller's state on every axis, or the loop's ``shift_states``)
+    on a recording with the parameters held at ``values`` (the validation run; a loop compiled without its
+    Jacobian): weighted least squares of the free run's output and force channels over the whole run and, for a
+    controller's state, of the controller's own relation on the recorded signals
+    (:func:`channels.controller_relation`, weighted by its residual's noise level, the recording's evidence of
+    the start state that no plant model can reinterpret). A start state that only a few noisy first samples
+    fixed moves to where the whole run puts it; one that the recorded force fixes exactly (a load the model
+    lacks, held at t = 0) stays, so that the model's error shows. An unknown
+    controller's predictor (``loop.shift_states``): its plant position and velocity, from both channels alone.
+    Gauss-Newton with the free run's sensitivity to each shifted state by a finite difference (the controller
+    is linear, so it is nearly exact), from ``start`` (default: none). None when there is nothing to estimate
+    or the free run is not finite."""
     ctrl = loop.controller
-    if not loop.closed or not ctrl.n_states:
+    if not loop.closed or not (ctrl.n_states if loop.shift_states is None else loop.shift_states):
         return None
     values = {**loop.values, **values}
     qm, um = measured(loop, rec, "output"), measured(loop, rec, "input")
-    relation, rows, sigma_c = relation_prior(loop, rec, weights)
+    if loop.shift_states is None:
+        relation, rows, sigma_c = relation_prior(loop, rec, weights)
+        # a step that moves the controller's output by about its noise level within its first samples
+        a_sample = lifted(ctrl)[0]     # the controller over one recorded sample (ticks updates)
+        gain = np.max([np.max(np.abs(ctrl.C @ np.linalg.matrix_power(a_sample, j)), axis=0) for j in range(4)],
+                      axis=0)
+        step = float(np.max(weights.sigma_u)) / np.maximum(gain, 1e-300)
+    else:           # the predictor's plant states: the response is nearly linear in them, any small step does
+        rows, relation, sigma_c = np.zeros((0, len(loop.shift_states))), np.zeros(0), np.ones(0)
+        step = np.full(len(loop.shift_states), max(float(np.max(weights.sigma_q)), 1e-12))
 
     def res(shift: np.ndarray) -> np.ndarray:
         q, u = simulate(loop, rec, values, shift=shift)
         return np.concatenate([_weighted(qm, q, weights.sigma_q), _weighted(um, u, weights.sigma_u),
                                (relation - rows @ shift) / sigma_c])
 
-    # a step that moves the controller's output by about its noise level within its first samples
-    a_sample = lifted(ctrl)[0]     # the controller over one recorded sample (ticks updates)
-    gain = np.max([np.max(np.abs(ctrl.C @ np.linalg.matrix_power(a_sample, j)), axis=0) for j in range(4)], axis=0)
-    step = float(np.max(weights.sigma_u)) / np.maximum(gain, 1e-300)
-    shift, unit = (np.zeros(ctrl.n_states) if start is None else np.asarray(start, float)), np.eye(ctrl.n_states)
+    n = step.size
+    shift, unit = (np.zeros(n) if start is None else np.asarray(start, float)), np.eye(n)
     r = res(shift)
     if not np.all(np.isfinite(r)):
         return None
     for _ in range(iterations):
-        jac = np.column_stack([(res(shift + step[k] * unit[k]) - r) / step[k] for k in range(ctrl.n_states)])
+        jac = np.column_stack([(res(shift + step[k] * unit[k]) - r) / step[k] for k in range(n)])
         delta = np.linalg.lstsq(jac, -r, rcond=1e-12)[0]
         trial = shift + delta
         r_trial = res(trial)
@@ -334,25 +348,27 @@ def fit(loop: Loop, rec: Recording, weights: Weights, bounds: dict[str, tuple[fl
         start: dict[str, float] | None = None, max_nfev: int = 40,
         q_meas: np.ndarray | None = None, u_meas: np.ndarray | None = None,
         estimate_initial: list[str] | tuple[str, ...] = (), initial: dict[str, float] | None = None,
-        estimate_controller: bool = False, shift: np.ndarray | None = None) -> Fit:
+        estimate_start: bool = False, shift: np.ndarray | None = None) -> Fit:
     """Output-error least squares of ``loop.free`` within ``bounds`` (default: the Modelica min/max), by
     scipy's trust-region reflective method with the CasADi Jacobian. The initial values of the plant states
     ``estimate_initial`` are estimated too (unbounded), e.g. the position, which the first noisy sample
     would otherwise fix with an error that the integrator carries through the whole run. ``initial``: known
     initial values of plant states (e.g. a run that starts at rest at a known position).
-    ``estimate_controller``: the controller's start state is estimated with them (a shift from its
-    first-samples estimate, unbounded, :func:`controller_states`, priced by the controller's own relation on
-    the recorded signals, :func:`relation_prior`; the reported cost, residual and Jacobian are the
+    ``estimate_start``: the loop's start shift is estimated with them (from its first-samples estimate,
+    unbounded, :func:`shifted_states`): the controller's start state, priced by the controller's own relation
+    on the recorded signals (:func:`relation_prior`; the reported cost, residual and Jacobian are the
     recording's rows), so that a start state fixed by a few noisy samples is not carried through the whole
-    run by an integrator, while one the recorded force fixes exactly stays; ``shift``: where that estimate starts
-    (the fitted shift of the model a refit continues or extends; default none), or without the estimate the
-    controller start used throughout (a multi-axis loop's :func:`relation_shift`)."""
+    run by an integrator, while one the recorded force fixes exactly stays; or, for a loop with
+    ``shift_states`` (an unknown controller's predictor), those plant states, unpriced, so that the observer
+    does not spend the run's start pulling in a start the first noisy samples set. ``shift``: where that
+    estimate starts (the fitted shift of the model a refit continues or extends; default none), or without the
+    estimate the start shift used throughout (a multi-axis loop's :func:`relation_shift`)."""
     known = dict(initial or {})
     values = {**loop.values, **(start or {})}
     names = loop.free
     lo, hi = bound_arrays(loop, bounds)
     idx = state_indices(loop, estimate_initial)
-    ctrl_idx = controller_states(loop) if estimate_controller else []
+    ctrl_idx = shifted_states(loop) if estimate_start else []
     n_th, n_x = len(names), len(idx)
     theta0 = _interior(loop.theta(values), lo, hi)
     base = initial_state(loop, rec, values, known)
@@ -406,7 +422,8 @@ def fit(loop: Loop, rec: Recording, weights: Weights, bounds: dict[str, tuple[fl
         key = xs.tobytes()
         return jac_cache[key] if key in jac_cache else solver_jacobian(jac_at(*split(xs)))
 
-    if ctrl_idx:    # the controller's relation on the recorded signals prices a shift of its start
+    if ctrl_idx and loop.shift_states is None:   # the controller's relation on the recorded signals prices a
+        # shift of its start
         relation, rows, sigma_c = relation_prior(loop, rec, weights)
         prior_jac = np.hstack([np.zeros((rows.shape[0], n_th + n_x)), -rows / sigma_c[:, None]])
 

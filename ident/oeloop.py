@@ -60,6 +60,7 @@ class Loop:
     step: ca.Function | None = field(default=None, repr=False)  # (s, w, theta, pfix) -> (s_next, q, u), one sample
     axes: tuple[Signals, ...] = ()      # multi-axis loop: one entry per axis (plant input/output = columns)
     initial_states: tuple[int, ...] = ()  # the states (indices into [x; z]) whose dQ/ds0, dU/ds0 columns jac gives
+    shift_states: tuple[int, ...] | None = None   # the states a start ``shift`` moves; None: the controller's
 
     @property
     def closed(self) -> bool:
@@ -86,7 +87,7 @@ class Loop:
         merged.update(values)
         return Loop(self.model, self.controller, self.position_state, self.free, merged, self.substeps,
                     self.n_samples, self.sim, self.jac, self.tracking, self.signals, self.ts, self.step, self.axes,
-                    self.initial_states)
+                    self.initial_states, self.shift_states)
 
 
 def stable_substeps(model: symbolic.SymbolicModel, values: dict[str, float], ts: float,
@@ -194,7 +195,7 @@ def build_loop(model: symbolic.SymbolicModel, controller: Controller | None, pos
                tracking: dict[str, str] | None = None, with_jacobian: bool = True, min_substeps: int = 1,
                ts: float | None = None, input_name: str | None = None, signals: Signals = Signals(),
                jit: bool = False, native: bool | None = None, axes: list[Signals] | None = None,
-               initial_states: Sequence[int] | None = None) -> Loop:
+               initial_states: Sequence[int] | None = None, shift_states: Sequence[int] | None = None) -> Loop:
     """Compile the free-run simulation of ``n_samples`` samples with the parameters ``free`` symbolic.
 
     controller: None for open loop (then ``ts`` [s] is required); position_state: the state or output
@@ -210,8 +211,12 @@ def build_loop(model: symbolic.SymbolicModel, controller: Controller | None, pos
     multivariable); w = [r (n); u_ext (n); measurement noise (n)] per sample, and the step returns q and u
     with n entries each. initial_states: the states (indices into [x; z], the controller's after the plant's)
     whose initial values the Jacobian differentiates (needed to estimate them, ``fit(..., estimate_initial=...,
-    estimate_controller=...)``); None: every state. Each costs about one free run per Jacobian: a diagnosis
-    estimates only the controller's, a large coupled plant none (its d/ds0 blocks are then empty).
+    estimate_start=...)``); None: every state. Each costs about one free run per Jacobian: a diagnosis
+    estimates only the start shift's, a large coupled plant none (its d/ds0 blocks are then empty).
+    shift_states: the states (indices into [x; z]) that a start ``shift`` moves
+    (:func:`ident.loopstart.initial_state`, ``fit(..., estimate_start=True)``); None: the controller's. An
+    unknown controller's predictor gives the plant's position and velocity: its observer's state holds no
+    load, and the plant's start is what the first noisy samples fix badly.
     """
     if ca.depends_on(model.dx, model.t):
         raise ValueError(f"{model.name}: time-varying plants are not supported by the output-error refit")
@@ -311,7 +316,8 @@ def build_loop(model: symbolic.SymbolicModel, controller: Controller | None, pos
             _LOG.warning("compiled chain unavailable, using CasADi's mapaccum chain: %s", exc)
     sim, jac = pair or _casadi_pair(step, aug, seed, n_samples, JIT_OPTIONS if jit else {})
     return Loop(model, controller, observed[0], list(free), values, substeps, n_samples, sim, jac,
-                dict(tracking or {}), signals if not axes else axes[0], ts, step, tuple(axes or ()), tuple(columns))
+                dict(tracking or {}), signals if not axes else axes[0], ts, step, tuple(axes or ()), tuple(columns),
+                None if shift_states is None else tuple(int(i) for i in shift_states))
 
 
 def _check_controller_shape(controller: Controller, n_axes: int) -> None:

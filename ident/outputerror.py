@@ -46,17 +46,16 @@ from motiontwin.ident.controller import Controller, at_recording_step
 from motiontwin.ident.leastsquares import (LeastSquaresResult, UnidentifiableError, check_identifiability,
                                           hac_covariance)
 from motiontwin.ident.loopstart import _column, initial_state
-from motiontwin.ident.oefit import (Fit, Weights, _interior, bound_arrays, controller_shift,
-                                    controller_states, drive, fit,
+from motiontwin.ident.oefit import (Fit, Weights, _interior, bound_arrays, controller_states, drive, fit,
                                     measured, relation_shift, residuals, simulate, simulate_states,
-                                    squared_norm, state_indices, weighted_jacobian)
+                                    squared_norm, start_shift, state_indices, weighted_jacobian)
 from motiontwin.ident.oeloop import (Loop, Signals, _check_names, axis_signals, build_loop, default_bounds,
                                      initial_motion_states, output_state, stable_substeps)
 
 __all__ = ["Signals", "Loop", "Weights", "Fit", "OutputErrorResult", "build_loop", "default_bounds",
            "simulate", "simulate_states", "residuals", "fit", "statistics", "identify", "bound_arrays",
            "axis_signals", "drive", "initial_state", "measured", "stable_substeps", "_column", "_interior",
-           "state_indices", "weighted_jacobian", "output_state", "initial_motion_states", "controller_shift",
+           "state_indices", "weighted_jacobian", "output_state", "initial_motion_states", "start_shift",
            "controller_states", "relation_shift", "squared_norm"]
 
 

@@ -10,7 +10,7 @@ from typing import Callable
 import casadi as ca
 import numpy as np
 
-from motiontwin.ident import outputerror, startvalues
+from motiontwin.ident import observer, outputerror, startvalues
 from motiontwin.ident.diagnosis import effects as effect_models
 from motiontwin.ident.diagnosis import evidence
 from motiontwin.ident.diagnosis.augmented import AUGMENTED_CLASS, check_buildable
@@ -19,8 +19,8 @@ from motiontwin.ident.diagnosis.bounds import at_bound, at_bound_text
 from motiontwin.ident.diagnosis.bundle import Bundle, BundleError
 from motiontwin.ident.diagnosis.locate import _mass_equivalent, _needed_force, _pitch_in_state_coordinates, _states_from
 from motiontwin.ident.diagnosis.plant_roles import PlantFormError, output_map
-from motiontwin.ident.diagnosis.structure import (ModelFit, _fmt, _log, _moving_start, _nominal_bounds, build_axes,
-                                                  estimated_start_states)
+from motiontwin.ident.diagnosis.structure import (LoopCache, ModelFit, _fmt, _log, _moving_start, _nominal_bounds,
+                                                  build_axes, start_states)
 from motiontwin.ident.plant_states import alias_state
 
 SAME_PHYSICS = 0.9    # |cosine| between a plant parameter's force and an effect's force shape: the same physics
@@ -78,7 +78,7 @@ def fit_nominal(bundle: Bundle, progress=None) -> tuple[ModelFit, outputerror.We
         return outputerror.build_loop(model, bundle.controller, bundle.plant.output_name, free, values,
                                       bundle.train.time.size, input_name=bundle.plant.input_name,
                                       tracking=_moving_start(bundle), min_substeps=min_substeps,
-                                      initial_states=estimated_start_states(bundle, model))
+                                      **start_states(bundle, model))
 
     values = dict(bundle.start)
     loop = loop_at(values)
@@ -99,7 +99,7 @@ def fit_nominal(bundle: Bundle, progress=None) -> tuple[ModelFit, outputerror.We
     weights = outputerror.Weights(evidence.noise_level(bundle.train["q"] - q0, ts),
                                   evidence.noise_level(bundle.train["u"] - u0, ts))
     result = outputerror.fit(loop, bundle.train, weights, bounds, max_nfev=40,
-                             estimate_controller=bundle.observer is None)
+                             estimate_start=True)
     weights = outputerror.Weights(evidence.noise_level(bundle.train["q"] - result.q_sim, ts),
                                   evidence.noise_level(bundle.train["u"] - result.u_sim, ts))
     loop, result = _refit_as_fine_as_needed(bundle, loop, result, weights, bounds, loop_at, progress)
@@ -108,6 +108,30 @@ def fit_nominal(bundle: Bundle, progress=None) -> tuple[ModelFit, outputerror.We
     if hit:
         _log(progress, f"nominal refit: at bound: {hit}")
     return ModelFit([], loop.with_values(result.values), result, bounds), weights
+
+
+def fit_observer(bundle: Bundle, nominal: ModelFit, weights: outputerror.Weights, progress=None
+                 ) -> tuple[ModelFit, outputerror.Weights]:
+    """Unknown controller: the observer fitted with the refitted nominal plant (:func:`observer.fitted_with_plant`:
+    its mass the plant's own, in place of the recording's inverse-dynamics estimate, which the encoder noise can
+    halve; its bandwidth by prediction error), then the nominal refitted under it when it moved (one
+    alternation: the optimum is set by the force and encoder noise, which the plant's refit does not move).
+    Every fit after it estimates the predictor's start (:func:`start_states`), so that a slow observer's start
+    transient is not left for an effect to explain. Returned as they were for a known controller or an
+    observer the bundle gives."""
+    if bundle.observer is None:
+        return nominal, weights
+    before = bundle.observer
+    bundle.observer = observer.fitted_with_plant(before, bundle.plant.model, dict(nominal.loop.values), bundle.train,
+                                                 bundle.plant.output_name, bundle.plant.input_name,
+                                                 outputerror.Signals())
+    _log(progress, f"observer mass {bundle.observer.mass:.4g} from {bundle.observer.mass_from}, bandwidth "
+                   f"{bundle.observer.bandwidth_hz:.4g} Hz, {bundle.observer.bandwidth_from}")
+    if (bundle.observer.bandwidth_hz, bundle.observer.mass) == (before.bandwidth_hz, before.mass):
+        return nominal, weights
+    bundle.controller = bundle.observer.controller()
+    bundle.cache = LoopCache()
+    return fit_nominal(bundle, progress)
 
 
 REFINE_SUBSTEPS = 3     # nominal refits on a finer loop at most, when the refitted values need more RK4 substeps
@@ -132,7 +156,7 @@ def _refit_as_fine_as_needed(bundle: Bundle, loop: outputerror.Loop, result: out
             _log(progress, f"nominal refit: {needed} RK4 substeps per sample at the refitted values "
                            f"(were {loop.substeps})")
         result = outputerror.fit(finer.with_values(result.values), bundle.train, weights, bounds, max_nfev=15,
-                                 estimate_controller=bundle.observer is None, shift=result.shift)
+                                 estimate_start=True, shift=result.shift)
         if finer is loop:
             break
         loop = finer
@@ -200,7 +224,7 @@ def fit_nominal_axes(bundle: Bundle, work: Path, progress=None) -> tuple[ModelFi
     weights = _noise_weights(bundle, loop, q0, u0)
     start = outputerror.relation_shift(loop, bundle.train) if bundle.observer is None else None
     result = outputerror.fit(loop, bundle.train, weights, bounds, max_nfev=40,
-                             estimate_controller=bundle.observer is None, shift=start)
+                             estimate_start=True, shift=start)
     weights = _noise_weights(bundle, loop, result.q_sim, result.u_sim)
     loop, result = _refit_as_fine_as_needed(
         bundle, loop, result, weights, bounds,

@@ -26,7 +26,7 @@ from motiontwin.ident.diagnosis.axis_units import bundle_units
 from motiontwin.ident.diagnosis.bundle import Bundle
 from motiontwin.ident.diagnosis.locate import context
 from motiontwin.ident.diagnosis.nominal import (_divergence_hint, check_plant_form, fit_nominal, fit_nominal_axes,
-                                                nominal_free, nominal_start, plant_physics)
+                                                fit_observer, nominal_free, nominal_start, plant_physics)
 from motiontwin.ident.diagnosis.remainder import EMPIRICAL_EFFECT, explain_remainder, explain_remainder_axes
 from motiontwin.ident.diagnosis.nested import simplify_nested, upgrade_nested
 from motiontwin.ident.diagnosis.prune import prune
@@ -55,7 +55,7 @@ def run(bundle: Bundle, work: Path, progress=None) -> dict:
     check_plant_form(bundle, work / "check")
     _log(progress, f"every candidate effect's augmented model builds ({time.perf_counter() - t0:.1f} s)")
     bundle.start = nominal_start(bundle, progress)
-    nominal, weights = fit_nominal(bundle, progress)
+    nominal, weights = fit_observer(bundle, *fit_nominal(bundle, progress), progress)
     bundle.process_noise = noise.of_bundle(bundle, nominal.fit.values, weights.sigma_q)
     _log(progress, f"process force noise (not predictable from the motion): {bundle.process_noise.describe()}")
     validate(bundle, nominal, work / "v_nominal")
@@ -306,13 +306,13 @@ def run_axes(bundle: Bundle, work: Path, progress=None) -> dict:
 def with_final_start(bundle: Bundle, final: ModelFit, weights: outputerror.Weights, folder: Path,
                      progress=None) -> ModelFit:
     """Several axes: the final structure refitted from the controller start that the final plant and the
-    training run put (:func:`outputerror.controller_shift` from the relation's start every fit held, the
+    training run put (:func:`outputerror.start_shift` from the relation's start every fit held, the
     plant then refitted with it), kept when the training cost falls. The relation alone fixes an integrator's
     start only to the force noise over the run; in a velocity loop that is a constant position offset (on the
     two-axis bundle of ``tests/test_diagnosis_start_state.py``, q1 1.6x its floor before, 1.12x after)."""
     if bundle.observer is not None or final.fit.shift is None:
         return final
-    shift = outputerror.controller_shift(final.loop, bundle.train, final.fit.values, weights, start=final.fit.shift)
+    shift = outputerror.start_shift(final.loop, bundle.train, final.fit.values, weights, start=final.fit.shift)
     if shift is None:
         return final
     result = outputerror.fit(final.loop, bundle.train, weights, final.bounds, start=final.fit.values, max_nfev=15,

@@ -30,7 +30,7 @@ def _without(bundle: Bundle, current: ModelFit, effect: effect_models.Effect, fo
         loop, bounds = build_structure(bundle, effects, values, folder, bundle.train.time.size,
                                        min_substeps=current.loop.substeps)
     result = outputerror.fit(loop, bundle.train, weights, bounds, start={**loop.values, **values}, max_nfev=MAX_NFEV,
-                             estimate_controller=bundle.observer is None, shift=current.fit.shift)
+                             estimate_start=True, shift=current.fit.shift)
     return ModelFit(effects, loop.with_values(result.values), result, bounds, folder, axes=axes)
 
 

@@ -110,7 +110,7 @@ def explain_remainder(bundle: Bundle, final: ModelFit, weights: outputerror.Weig
             loop, bounds = build_structure(bundle, rest, start, work / f"without_{named.name}",
                                            bundle.train.time.size, min_substeps=trial.loop.substeps)
             result = outputerror.fit(loop, bundle.train, weights, bounds, start=start, max_nfev=MAX_NFEV,
-                                     estimate_controller=bundle.observer is None, shift=trial.fit.shift)
+                                     estimate_start=True, shift=trial.fit.shift)
         except (RuntimeError, ValueError, np.linalg.LinAlgError):
             continue
         reduced = ModelFit(rest, loop.with_values(result.values), result, bounds, work / f"without_{named.name}")

@@ -113,7 +113,7 @@ def _best_fit(bundle: Bundle, loop: outputerror.Loop, bounds: dict[str, tuple[fl
     best = None
     for k in [0] + data[:count]:
         result = outputerror.fit(loop, bundle.train, weights, bounds, start=points[k], max_nfev=max_nfev,
-                                 estimate_controller=bundle.observer is None, shift=shift)
+                                 estimate_start=True, shift=shift)
         if best is None or result.cost < best.cost:
             best = result
     return best, costs[0]
@@ -122,7 +122,7 @@ def _best_fit(bundle: Bundle, loop: outputerror.Loop, bounds: dict[str, tuple[fl
 def refine(bundle: Bundle, structure: ModelFit, weights: outputerror.Weights, max_nfev: int = MAX_NFEV) -> ModelFit:
     """Continue the fit of an already compiled structure from its current values."""
     result = outputerror.fit(structure.loop, bundle.train, weights, structure.bounds, start=structure.fit.values,
-                             max_nfev=max_nfev, estimate_controller=bundle.observer is None,
+                             max_nfev=max_nfev, estimate_start=True,
                              shift=structure.fit.shift)
     if result.cost >= structure.fit.cost:
         return structure
@@ -296,7 +296,7 @@ def score_test(bundle: Bundle, current: ModelFit, name: str, axis: str | None, c
         base = {**loop.values, **base}
     point = {**base, **{k: float(np.clip(v, *bounds[k])) for k, v in start.items() if k in bounds}}
     at = outputerror.fit(loop, bundle.train, weights, bounds, start=point, max_nfev=1,
-                         estimate_controller=bundle.observer is None, shift=current.fit.shift)
+                         estimate_start=True, shift=current.fit.shift)
     columns = {p.name: loop.free.index(p.name) for p in effect.params if p.fitted and p.name in loop.free}
     if not (np.all(np.isfinite(at.jacobian)) and np.all(np.isfinite(at.residual))):
         return math.nan, at.jacobian, len(columns)

@@ -60,7 +60,7 @@ def select(bundle: Bundle, nominal: ModelFit, weights: outputerror.Weights, ctx:
             # structure, so that no candidate is credited with leftover fit slack or integration error
             loop, bounds = compiled(bundle, current, work / f"c{rounds}")
             result = outputerror.fit(loop, bundle.train, weights, bounds, start=current.fit.values,
-                                     max_nfev=4 * MAX_NFEV, estimate_controller=bundle.observer is None,
+                                     max_nfev=4 * MAX_NFEV, estimate_start=True,
                                      shift=current.fit.shift)
             current = ModelFit(current.effects, loop.with_values(result.values), result, bounds,
                                work / f"c{rounds}", evidence=current.evidence, axes=current.axes)

@@ -133,14 +133,24 @@ def structure_parameters(model, effects: list[effect_models.Effect], free: list[
     return free, bounds, all_values
 
 
-def estimated_start_states(bundle: Bundle, model: symbolic.SymbolicModel) -> list[int]:
-    """The loop states whose start the diagnosis's fits estimate (a known controller's, ``outputerror.fit``'s
-    ``estimate_controller``): its loops differentiate the start of these only, one free run less per Jacobian
-    for every other state (plant and effect states)."""
-    if bundle.observer is not None or bundle.multi_axis or bundle.controller is None:
-        return []
+def start_states(bundle: Bundle, model: symbolic.SymbolicModel) -> dict[str, list[int] | None]:
+    """``build_loop``'s ``initial_states`` and ``shift_states`` for the diagnosis's loops of ``model`` (the
+    plant, or an augmented model whose plant states are prefixed "plant."): the states whose start the fits
+    estimate (``outputerror.fit``'s ``estimate_start``), so that the loops differentiate the start of these only,
+    one free run less per Jacobian for every other state. A known controller: its own state (priced by its
+    relation; none on several axes). An unknown controller: the plant's position and velocity, the predictor's
+    start, which the first noisy samples would fix with a transient of about 1 / (2 pi bandwidth) that a slow
+    observer leaves long enough for an effect to take it up (a backlash named on a parameters-only bundle at
+    3.3 Hz, docs/diagnose.md)."""
+    if bundle.observer is not None:
+        names = [v.name for v in model.states]
+        prefix = "" if bundle.plant.position_state in names else "plant."
+        plant = [names.index(prefix + s) for s in (bundle.plant.position_state, bundle.plant.velocity_state)]
+        return {"initial_states": plant, "shift_states": plant}
+    if bundle.multi_axis or bundle.controller is None:
+        return {"initial_states": [], "shift_states": None}
     nx = model.x.numel()
-    return list(range(nx, nx + bundle.controller.n_states))
+    return {"initial_states": list(range(nx, nx + bundle.controller.n_states)), "shift_states": None}
 
 
 def build_structure(bundle: Bundle, effects: list[effect_models.Effect], values: dict[str, float], folder: Path,
@@ -166,7 +176,7 @@ def build_structure(bundle: Bundle, effects: list[effect_models.Effect], values:
         cache.loops[key] = outputerror.build_loop(model, bundle.controller, "q",
                                                   free, all_values, n_samples, substeps=substeps, tracking=tracking,
                                                   with_jacobian=with_jacobian,
-                                                  initial_states=estimated_start_states(bundle, model))
+                                                  **start_states(bundle, model))
     return cache.loops[key].with_values(all_values), bounds
 
 
@@ -181,7 +191,8 @@ def validate(bundle: Bundle, structure: ModelFit, folder: Path) -> None:
         loop = outputerror.build_loop(model, bundle.controller, bundle.plant.output_name, structure.loop.free,
                                       structure.fit.values, rec.time.size, with_jacobian=False,
                                       min_substeps=structure.loop.substeps, input_name=bundle.plant.input_name,
-                                      tracking=_moving_start(bundle))
+                                      tracking=_moving_start(bundle),
+                                      shift_states=start_states(bundle, model)["shift_states"])
     q, u = outputerror.simulate(loop, rec, structure.fit.values,
                                 shift=validation_shift(bundle, loop, structure.fit))
     structure.val_q = q
@@ -201,14 +212,12 @@ def validation_shift(bundle: Bundle, loop: outputerror.Loop, fit: outputerror.Fi
     training recording (both channels over the whole run and the controller's relation, weighted by the
     noise levels of ``fit``), so that neither run carries a start state fixed by its first noisy samples
     (issue 23); several axes from where the controller's relation on the validation recording puts it
-    (:func:`outputerror.relation_shift`, also without ``fit.weights``). None for an unknown controller (its
-    observer keeps its own start)."""
-    if bundle.observer is not None:
-        return None
+    (:func:`outputerror.relation_shift`, also without ``fit.weights``). An unknown controller: the predictor's
+    plant start, from both channels of the validation run as the refits estimate it on the training run."""
     start = outputerror.relation_shift(loop, bundle.validation) if loop.axes else None
     if fit.weights is None:
         return start
-    return outputerror.controller_shift(loop, bundle.validation, loop.values, fit.weights, start=start)
+    return outputerror.start_shift(loop, bundle.validation, loop.values, fit.weights, start=start)
 
 
 def validation_floor(loop: outputerror.Loop, bundle: Bundle, values: dict[str, float], sigma_q: float | np.ndarray,
