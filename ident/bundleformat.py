@@ -32,9 +32,11 @@ The recordings may start while the loop is moving.
 
 Unknown controller (no "controller" field, or kind "unknown"; one axis): the recordings need only time, u, q
 (r and u_ext are not used: u already holds u_ext). Method: a prediction-error predictor, the closed loop the
-diagnosis runs with a fixed PD observer L (default 20 Hz, at most 1/(100 Ts), damping 0.7, gain from the
-recording's inverse-dynamics mass) in place of the controller, reference r = q and disturbance u_ext = u: the
-model gets u + L(q - q_model), so a double integrator does not drift. Its output residual is the prediction
+diagnosis runs with a PD observer L (damping 0.7; its mass the refitted plant's, its bandwidth fitted with the
+plant by prediction error up to 1/(100 Ts), unless "mass" or "bandwidth_hz" give them) in place of the
+controller, reference r = q and disturbance u_ext = u: the model gets u + L(q - q_model), so a double
+integrator does not drift; every fit estimates the predictor's start (the plant's position and velocity).
+Its output residual is the prediction
 error, its force residual the observer's correction. Validation RMS: the predictor's free run (lower than a
 simulation error; not comparable with a known controller's). diagnosis.json "controller" states the observer.
 

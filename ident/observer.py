@@ -29,9 +29,10 @@ tests/test_unknown_controller.py holds it to the gain of the discrete Riccati eq
 dominates, the optimum lies above ``fs / 100`` and the fit stops at that bound and says so: a faster observer
 would follow the encoder and leave every force error to its correction (session 27 measured the prediction
 error falling as 1 / bandwidth^2 up to 20 Hz on a 250 Hz robot recording).
-A ``mass`` or ``bandwidth_hz`` given by the user is kept. ``identify oe --controller unknown`` fits the observer
-this way; the diagnosis keeps the default one (its fits start the predictor from the first samples, and a slow
-fitted observer's start transient was taken for an effect: docs/diagnose.md). Below the bandwidth a missing
+A ``mass`` or ``bandwidth_hz`` given by the user is kept. ``identify oe --controller unknown`` and the diagnosis
+fit the observer this way; both estimate the predictor's start (the plant's position and velocity) in their
+fits, since a slow observer's start transient from the first noisy samples was taken for an effect (a
+backlash, docs/diagnose.md). Below the bandwidth a missing
 force shows in the force residual, above it in the output residual as in a free run; the error of a wrong mass
 integrates for at most about 1 / (2 pi bandwidth) before the observer pulls it back.
 
@@ -282,8 +283,8 @@ def fitted_with_plant(observer: Observer, model: symbolic.SymbolicModel, values:
                       position: str, input_name: str | None = None, signals: Signals | None = None) -> Observer:
     """``observer`` fitted with the refitted plant ``model`` at ``values`` on ``rec``: its mass the plant's own
     (:func:`plant_mass`) unless one was given, then its bandwidth by prediction error (:func:`fit_bandwidth`,
-    :func:`one_step_rms`) unless one was given. ``identify oe --controller unknown`` refits the plant under it
-    when it moved; the diagnosis keeps its default observer (docs/diagnose.md says why)."""
+    :func:`one_step_rms`) unless one was given. ``identify oe --controller unknown`` and the diagnosis
+    (``nominal.fit_observer``) refit the plant under it when it moved."""
     if observer.mass_from == MASS_FROM_RECORDING:
         mass = plant_mass(model, values, position, input_name)
         if mass is not None:

@@ -68,8 +68,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                                    "(ident.channels); a mismatch beyond noise is refused (exit 2) naming the file\n"
                                    "and the likely cause (gain or unit factor, sign, delay, u_ext scaled or missing).\n"
                                    "Controller unknown (no 'controller' in experiment.json, or kind 'unknown'): the\n"
-                                   "recordings need only time, u, q; a prediction-error predictor (a fixed PD observer\n"
-                                   "on the measured q, the measured u as disturbance) stands in for the controller and\n"
+                                   "recordings need only time, u, q; a prediction-error predictor (a PD observer on\n"
+                                   "the measured q fitted with the plant, the measured u as disturbance, its start\n"
+                                   "estimated in every fit) stands in for the controller and\n"
                                    "the validation RMS is the predictor's (see the format below, docs/diagnose.md).",
                        epilog=BUNDLE_FORMAT + "\n" + FLEET_HELP, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("bundle", type=Path, nargs="+",

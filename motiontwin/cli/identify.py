@@ -181,7 +181,7 @@ def _identify_oe(args: argparse.Namespace) -> int:
 
     result = refit(controller)
     if observer is not None:
-        # the observer fitted with the refitted plant (the diagnosis keeps its default one), then the plant again
+        # the observer fitted with the refitted plant (as the diagnosis fits it), then the plant again
         values = {v.name: float(v.start) for v in model.parameters} | result.fit.values
         driven = signals.input if signals.input in [v.name for v in model.inputs] else None
         fitted = observer_module.fitted_with_plant(observer, model, values, rec, signals.output, driven, signals)

@@ -2,9 +2,9 @@
 controller and without it (``controller`` removed: the prediction-error predictor of ident.observer stands in),
 and whether the named effects agree (issue 23, item 2).
 
-For every case it prints the expected answer, the answers with and without the controller, whether those two
-agree, and both validation RMS (the predictor's is a free run of the model corrected by the observer, so it is
-lower than a free run; the two are not the same measure).
+For every case it prints the expected answer, the answers with and without the controller, whether those two agree,
+the observer's bandwidth as the diagnosis fitted it, and both validation RMS (the predictor's is a free run of the
+model corrected by the observer, so it is lower than a free run; the two are not the same measure).
 
 Run: .venv/bin/python tests/benchmarks/bench_unknown_controller.py [BENCH_DIR] [--set heldout|tuning]
 [--case NAME ...] (bundles are generated into BENCH_DIR/SET by ``python -m motiontwin.ident.benchmarks.independent
@@ -39,16 +39,20 @@ def without_controller(bundle: Path, target: Path) -> Path:
     return target
 
 
-def diagnosed(bundle: Path) -> tuple[list[str], float, float]:
-    """Answers, validation RMS and wall seconds of one diagnosis (answers ["(stopped)"] when it raised)."""
+def diagnosed(bundle: Path) -> tuple[list[str], float, float, str]:
+    """Answers, validation RMS, wall seconds of one diagnosis (answers ["(stopped)"] when it raised) and, without
+    a controller, the observer's bandwidth as the diagnosis fitted it ("" with a controller)."""
     t0 = time.perf_counter()
     try:
         with tempfile.TemporaryDirectory() as tmp:
             doc = diagnose_bundle(bundle, Path(tmp) / "out")
     except Exception as exc:    # a diagnosis that stops is a result of the benchmark
         print(f"  {bundle.name}: stopped: {type(exc).__name__}: {str(exc)[:200]}", flush=True)
-        return ["(stopped)"], float("nan"), time.perf_counter() - t0
-    return answers(doc), doc["validation"]["augmented_rms"], time.perf_counter() - t0
+        return ["(stopped)"], float("nan"), time.perf_counter() - t0, ""
+    ctrl = doc.get("controller") or {}
+    bandwidth = (f"{ctrl['bandwidth_hz']:.3g} Hz{' (bound)' if 'bound' in ctrl.get('bandwidth_from', '') else ''}"
+                 if ctrl.get("kind") == "unknown" else "")
+    return answers(doc), doc["validation"]["augmented_rms"], time.perf_counter() - t0, bandwidth
 
 
 def main() -> int:
@@ -68,18 +72,20 @@ def main() -> int:
     if missing:
         independent.generate(args.bench, args.set, missing)
     print(f"{'case':16s} {'expected':22s} {'with controller':28s} {'without controller':28s} agree "
-          f"{'val RMS with / without':>24s} {'wall s':>11s}")
+          f"{'val RMS with / without':>24s} {'wall s':>11s}  observer")
     agree = 0
     with tempfile.TemporaryDirectory() as tmp:
         for case in cases:
             truth = json.loads((folder / f"{case}.truth.json").read_text())
-            known, rms_known, wall_known = diagnosed(folder / case)
-            unknown, rms_unknown, wall_unknown = diagnosed(without_controller(folder / case, Path(tmp) / case))
+            known, rms_known, wall_known, _ = diagnosed(folder / case)
+            unknown, rms_unknown, wall_unknown, bandwidth = diagnosed(without_controller(folder / case,
+                                                                                        Path(tmp) / case))
             same = set(known) == set(unknown)
             agree += same
             print(f"{case:16s} {','.join(truth['expected']) or '(none)':22s} {','.join(known) or '(none)':28s} "
                   f"{','.join(unknown) or '(none)':28s} {'yes' if same else 'NO ':5s} "
-                  f"{rms_known:11.3g} / {rms_unknown:<11.3g} {wall_known:5.0f}/{wall_unknown:<5.0f}", flush=True)
+                  f"{rms_known:11.3g} / {rms_unknown:<11.3g} {wall_known:5.0f}/{wall_unknown:<5.0f}  {bandwidth}",
+                  flush=True)
     print(f"same effects named with and without the controller: {agree} of {len(cases)}")
     ratio("unknown_controller.fraction_agreeing", agree / max(len(cases), 1),
           "the same effects named with the controller for every case")
