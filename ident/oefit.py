@@ -342,6 +342,7 @@ def parameter_scale(theta0: np.ndarray, r0: np.ndarray | None = None, j0: np.nda
 
 #: largest magnitude of a solver Jacobian entry: its column norms (squares summed over 1e5+ rows) stay finite
 JACOBIAN_LIMIT = 1e100
+RESIDUAL_LIMIT = 1e12      # a weighted residual's largest magnitude in the solver (a diverged run's samples)
 
 
 def fit(loop: Loop, rec: Recording, weights: Weights, bounds: dict[str, tuple[float, float]] | None = None,
@@ -400,7 +401,9 @@ def fit(loop: Loop, rec: Recording, weights: Weights, bounds: dict[str, tuple[fl
         r = _weighted(qm, _shaped(loop, np.array(q)), weights.sigma_q)
         if loop.closed:
             r = np.concatenate([r, _weighted(um, _shaped(loop, np.array(u)), weights.sigma_u)])
-        return np.where(np.isfinite(r), r, 1e12)
+        # a diverging free run: each sample counts RESIDUAL_LIMIT at most, so that the solver's sums stay finite
+        # (a run at 1e303 is finite, its squares are not, and the trust-region step then fails on NaN)
+        return np.clip(np.where(np.isfinite(r), r, RESIDUAL_LIMIT), -RESIDUAL_LIMIT, RESIDUAL_LIMIT)
 
     def jac_at(theta: np.ndarray, x_init: np.ndarray) -> np.ndarray:
         return weighted_jacobian(loop, state(theta, x_init), W, theta, pf, idx + ctrl_idx, weights)

@@ -54,6 +54,27 @@ def test_screened_cost_never_above_the_current_model(nominal, name):
     assert screening_defect(cost, trial.start_cost, trial.fit.cost) == ""
 
 
+def test_a_start_whose_fit_fails_is_passed_over(nominal, monkeypatch):
+    """A candidate's screening tries its vanishing start and data-driven starts; one whose fit raises (a loop that
+    diverges into values whose squares overflow made scipy's trust region fail on NaN: the held-out LuGre bundle
+    without its controller lost its Coulomb candidate so) is passed over, and the others still count."""
+    from motiontwin.ident.diagnosis import screen
+
+    bundle, current, weights, ctx, work = nominal
+    effect = effect_models.VOCABULARY["coulomb_friction"](ctx)
+    fit, calls = outputerror.fit, []
+
+    def first_start_fails(*args, **kwargs):
+        calls.append(kwargs["start"])
+        if len(calls) == 1:
+            raise ValueError("array must not contain infs or NaNs")
+        return fit(*args, **kwargs)
+
+    monkeypatch.setattr(screen.outputerror, "fit", first_start_fails)
+    trial = fit_structure(bundle, current, effect, ctx, weights, work / "failing_start", SCREEN_NFEV)
+    assert len(calls) > 1 and np.isfinite(trial.fit.cost) and trial.fit.cost <= current.fit.cost
+
+
 def test_defect_line_names_what_went_wrong():
     assert "ended above its start" in screening_defect(100.0, 100.0, 150.0)
     assert "does not reproduce" in screening_defect(100.0, 130.0, 120.0)

@@ -419,3 +419,20 @@ def test_parameters_starting_at_zero_reach_the_truth(tmp_path):
     for name in free:
         assert multiple.values[name] == pytest.approx(single.values[name], rel=1e-6), name
         assert single.values[name] == pytest.approx(est[name], rel=1e-3), name
+
+
+def test_a_start_whose_free_run_nearly_overflows_does_not_stop_the_fit(tmp_path):
+    """The unstable plant started at k = 2.9e5 (truth 100): its free run reaches 3.8e242, finite, but the squares
+    of its residual are not, and scipy's trust region then failed on NaN. Each sample's weighted residual is
+    capped (``oefit.RESIDUAL_LIMIT``, as a non-finite one already was): the fit returns, with the diverged run's
+    true cost, inf, where it could not move."""
+    (tmp_path / "UnstableJoint.mo").write_text(UNSTABLE)
+    model = build.load_model("UnstableJoint", tmp_path / "UnstableJoint.mo")
+    ts, n = 1e-3, 1500
+    t = np.arange(n) * ts
+    rec = make_recording(t, {"u": np.sin(2 * np.pi * 3 * t), "q": np.zeros(n)})
+    loop = oe.build_loop(model, None, "x", ["k"], {"m": 2.0, "d": 4.0, "k": 100.0}, n, ts=ts)
+    q, _ = oe.simulate(loop, rec, {"k": 2.9e5})
+    assert np.all(np.isfinite(q)) and np.max(np.abs(q)) > 1e200
+    result = oe.fit(loop, rec, oe.Weights(1e-6), start={"k": 2.9e5}, max_nfev=10)
+    assert result.cost == np.inf and result.values["k"] == pytest.approx(2.9e5)

@@ -104,18 +104,25 @@ def _best_fit(bundle: Bundle, loop: outputerror.Loop, bounds: dict[str, tuple[fl
     lowest-cost data-driven starts over it (each clipped into its bounds): ``SCREEN_STARTS`` of them in a
     screening fit (every one for ``MULTI_START`` effects), ``FULL_STARTS`` in a full fit. Returns the fit
     and the cost at the vanishing start. The trust-region fit accepts only descent, so no fit ends above the
-    cost of its start. ``shift``: the current model's controller start (where every fit's estimate starts)."""
+    cost of its start. ``shift``: the current model's controller start (where every fit's estimate starts).
+    A start whose fit raises is passed over; the first error is raised when none is left."""
     points = [{**base, **{k: float(np.clip(v, *bounds[k])) for k, v in start.items() if k in bounds}}
               for start in starts]
     costs = [_start_cost(bundle, loop, weights, point, shift) for point in points]
     data = sorted(range(1, len(points)), key=lambda k: costs[k])
     count = len(data) if name in MULTI_START else SCREEN_STARTS if max_nfev <= SCREEN_NFEV else FULL_STARTS
-    best = None
+    best, failure = None, None
     for k in [0] + data[:count]:
-        result = outputerror.fit(loop, bundle.train, weights, bounds, start=points[k], max_nfev=max_nfev,
-                                 estimate_start=True, shift=shift)
+        try:
+            result = outputerror.fit(loop, bundle.train, weights, bounds, start=points[k], max_nfev=max_nfev,
+                                     estimate_start=True, shift=shift)
+        except (RuntimeError, ValueError, np.linalg.LinAlgError) as exc:   # this start's loop cannot be
+            failure = failure or exc                                       # fitted: the other starts still count
+            continue
         if best is None or result.cost < best.cost:
             best = result
+    if best is None:
+        raise failure
     return best, costs[0]
 
 
