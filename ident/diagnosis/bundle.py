@@ -22,9 +22,8 @@ A motor's magnet pole pitch is given per axis (``plant.axes[k].pole_pitch``; a p
 
 An unknown controller (``controller`` absent or ``{"kind": "unknown"}``, optional ``"Ts"`` and
 ``"bandwidth_hz"``; single axis only): the recordings need only time, u and q; the bundle's controller is then the
-observer of :mod:`ident.observer` (fitted with the plant after the nominal refit, unless given) and its
-recordings get r = q and u_ext = u (the prediction-error
-predictor's signal roles; a recorded r or u_ext is not used, u already holds u_ext), ``Bundle.observer`` says so.
+observer of :mod:`ident.observer` (fitted with the plant after the nominal refit unless given), its recordings get
+r = q and u_ext = u (the predictor's roles; a recorded r or u_ext is unused), ``Bundle.observer`` says so.
 
 Every problem raises :class:`BundleError` whose message names the file and the field or column at fault.
 Units: time [s], positions [m], forces [N].

@@ -102,6 +102,7 @@ def stribeck_friction(ctx: Context) -> Effect:
 
 def position_ripple(ctx: Context) -> Effect:
     span = max(ctx.x_max - ctx.x_min, 1e-6 / _scale(ctx))
+    travelled = float(np.ptp(ctx.x)) if ctx.x is not None else span   # by the training run the fit sees
 
     def init(c: Context) -> list[dict[str, float]]:
         periods = span / np.linspace(0.75, 40, 400)
@@ -127,7 +128,10 @@ def position_ripple(ctx: Context) -> Effect:
                   lambda v, c: {"amplitude": float(math.hypot(v["ripple_a"], v["ripple_b"])),
                                 "period": v["ripple_period"] * abs(c.position_gain)},
                   "A force periodic in position (cogging or motor force ripple): the residual oscillates as a "
-                  "function of position with a fixed spatial period, at any speed.")
+                  "function of position with a fixed spatial period, at any speed.",
+                  unphysical=lambda v: "" if v["ripple_period"] <= travelled else "its period exceeds the range "
+                  "the training run travels (less than one cycle is seen: a force varying once over the stroke, as "
+                  "an offset or a position-dependent force does, is not shown to be periodic)")
 
 
 def position_dependent_inertia(ctx: Context) -> Effect:
