@@ -115,16 +115,18 @@ def test_pole_pitch_must_be_a_positive_length(tmp_path):
 
 
 def test_a_ripple_longer_than_the_training_travel_is_not_called_a_ripple():
-    """A position ripple is reported as that physics only when the training run travels at least one of its
-    periods: with less than one cycle seen, a force varying once over the stroke (an offset, a slope) fits as
-    well (the tuning set's offset + Stribeck case: a ripple of period 2.0 rad over 0.36 rad of travel was kept in
-    place of the offset). The travel is the training run's, not the validation run's wider range."""
+    """A position ripple is reported as that physics only when the training run travels at least half of its
+    period: over less, a sinusoid is a single bump or slope, which an offset or a position-dependent force gives
+    too (the tuning set's offset + Stribeck case: a ripple of period 2.0 rad over 0.36 rad of travel was kept in
+    place of the offset), while the multi-axis benchmark's ripples (period 16 mm) are travelled over 15.8-15.9 mm.
+    The travel is the training run's, not the validation run's wider range."""
     x = np.linspace(0.0, 0.03, 500)            # the training run travels 30 mm; the validation run 100 mm
     ctx = effect_models.Context(bench.TS, 0.0, 0.1, 0.2, M, x=x, duration=3.0)
     ripple = effect_models.VOCABULARY["position_ripple"](ctx)
-    assert ripple.unphysical({"ripple_period": 0.016, "ripple_a": 1.0, "ripple_b": 0.0}) == ""
-    assert "exceeds the range the training run travels" in ripple.unphysical({"ripple_period": 0.05,
-                                                                               "ripple_a": 1.0, "ripple_b": 0.0})
+    for period in (0.016, 0.059):
+        assert ripple.unphysical({"ripple_period": period, "ripple_a": 1.0, "ripple_b": 0.0}) == ""
+    assert "exceeds twice the range the training run travels" in ripple.unphysical(
+        {"ripple_period": 0.061, "ripple_a": 1.0, "ripple_b": 0.0})
 
 
 # -- the laws the augmented model writes, against closed forms ---------------------------------------------

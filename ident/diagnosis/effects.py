@@ -129,9 +129,9 @@ def position_ripple(ctx: Context) -> Effect:
                                 "period": v["ripple_period"] * abs(c.position_gain)},
                   "A force periodic in position (cogging or motor force ripple): the residual oscillates as a "
                   "function of position with a fixed spatial period, at any speed.",
-                  unphysical=lambda v: "" if v["ripple_period"] <= travelled else "its period exceeds the range "
-                  "the training run travels (less than one cycle is seen: a force varying once over the stroke, as "
-                  "an offset or a position-dependent force does, is not shown to be periodic)")
+                  unphysical=lambda v: "" if v["ripple_period"] <= 2 * travelled else "its period exceeds twice "
+                  "the range the training run travels (less than half a cycle is seen: a single bump or slope over "
+                  "the stroke, which an offset or a position-dependent force gives too, is not shown to be periodic)")
 
 
 def position_dependent_inertia(ctx: Context) -> Effect:
