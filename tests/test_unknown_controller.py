@@ -193,19 +193,7 @@ def test_concealed_effect_named_without_controller(coulomb_bundle, tmp_path, mon
     assert bundle.observer.bandwidth_from.startswith("fitted by prediction error"), bundle.observer
 
 
-AXIS = """model Axis "Mass-damper: m*der(v) = u - d*v"
-  parameter Real m(unit = "kg", min = 1e-6) = 2.5 "Moving mass";
-  parameter Real d(unit = "N.s/m", min = 0) = 1.5 "Viscous damping";
-  input Real u(unit = "N") "Force";
-  output Real q(unit = "m") "Measured position";
-  Real x(unit = "m", start = 0, fixed = true) "Position";
-  Real v(unit = "m/s", start = 0, fixed = true) "Velocity";
-equation
-  der(x) = v;
-  m*der(v) = u - d*v;
-  q = x;
-end Axis;
-"""
+AXIS = bench.PLANT_TEXT.format(m=2.5, d=1.5)   # a mass-damper starting 25 % heavy
 
 
 def test_diagnosis_fits_its_observer_and_estimates_the_predictors_start(tmp_path, monkeypatch):
@@ -220,7 +208,7 @@ def test_diagnosis_fits_its_observer_and_estimates_the_predictors_start(tmp_path
             monkeypatch.delitem(table, name)
     train, kalman_hz, _ = _noisy_mass_damper(0.005, 5e-6, 4, n=12000)
     validation, _, _ = _noisy_mass_damper(0.005, 5e-6, 5, n=6000)
-    bundle = make_bundle(AXIS, {"kind": "unknown"}, train, validation, "Axis")
+    bundle = make_bundle(AXIS, {"kind": "unknown"}, train, validation, bench.PLANT_CLASS)
     assert bundle.observer.bandwidth_hz == observer.DEFAULT_BANDWIDTH_HZ
     with tempfile.TemporaryDirectory(dir=tmp_path) as work:
         result = pipeline.run(bundle, Path(work), print)
@@ -242,7 +230,7 @@ def test_a_fitted_observer_that_predicts_worse_is_not_kept(tmp_path, monkeypatch
     from motiontwin.ident.diagnosis import nominal
 
     train, _, _ = _noisy_mass_damper(0.005, 5e-6, 4, n=6000)
-    bundle = make_bundle(AXIS, {"kind": "unknown"}, train, train, "Axis")
+    bundle = make_bundle(AXIS, {"kind": "unknown"}, train, train, bench.PLANT_CLASS)
     bundle.start = nominal.nominal_start(bundle)
     started = bundle.observer
     monkeypatch.setattr(observer, "fitted_with_plant", lambda before, *args: replace(before, mass=before.mass / 500))
