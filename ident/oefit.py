@@ -235,11 +235,11 @@ def start_shift(loop: Loop, rec: Recording, values: dict[str, float], weights: W
     (:func:`channels.controller_relation`, weighted by its residual's noise level, the recording's evidence of
     the start state that no plant model can reinterpret). A start state that only a few noisy first samples
     fixed moves to where the whole run puts it; one that the recorded force fixes exactly (a load the model
-    lacks, held at t = 0) stays, so that the model's error shows. An unknown
-    controller's predictor (``loop.shift_states``): its plant position and velocity, from both channels alone.
-    Gauss-Newton with the free run's sensitivity to each shifted state by a finite difference (the controller
-    is linear, so it is nearly exact), from ``start`` (default: none). None when there is nothing to estimate
-    or the free run is not finite."""
+    lacks, held at t = 0) stays, so that the model's error shows. An unknown controller's predictor
+    (``loop.shift_states``): its plant position and velocity, from both channels alone. Gauss-Newton with the
+    free run's sensitivity to each shifted state by a finite difference (nearly exact: the controller is linear,
+    and a plant nearly so over such a step), from ``start`` (default: none). None when there is nothing to
+    estimate or the free run is not finite."""
     ctrl = loop.controller
     if not loop.closed or not (ctrl.n_states if loop.shift_states is None else loop.shift_states):
         return None
