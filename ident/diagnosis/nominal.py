@@ -125,16 +125,14 @@ def fit_observer(bundle: Bundle, nominal: ModelFit, weights: outputerror.Weights
     known controller or an observer the bundle gives."""
     if bundle.observer is None:
         return nominal, weights
-    before, compiled, start = bundle.observer, bundle.cache, bundle.start
-    model, train = bundle.plant.model, bundle.train
+    kept = bundle.observer, bundle.controller, bundle.cache, bundle.start
+    before, model, train = bundle.observer, bundle.plant.model, bundle.train
+    roles = (bundle.plant.output_name, bundle.plant.input_name, outputerror.Signals())
 
     def one_step(values: dict[str, float], trial: observer.Observer) -> float:
-        return observer.one_step_rms(model, values, train, trial, bundle.plant.output_name, bundle.plant.input_name,
-                                     outputerror.Signals())
+        return observer.one_step_rms(model, values, train, trial, *roles)
 
-    bundle.observer = observer.fitted_with_plant(before, model, dict(nominal.loop.values), train,
-                                                 bundle.plant.output_name, bundle.plant.input_name,
-                                                 outputerror.Signals())
+    bundle.observer = observer.fitted_with_plant(before, model, dict(nominal.loop.values), train, *roles)
     _log(progress, f"observer mass {bundle.observer.mass:.4g} from {bundle.observer.mass_from}, bandwidth "
                    f"{bundle.observer.bandwidth_hz:.4g} Hz, {bundle.observer.bandwidth_from}")
     if (bundle.observer.bandwidth_hz, bundle.observer.mass) == (before.bandwidth_hz, before.mass):
@@ -147,7 +145,7 @@ def fit_observer(bundle: Bundle, nominal: ModelFit, weights: outputerror.Weights
         return refitted, refitted_weights
     _log(progress, f"observer: the refit under it predicts one step ahead worse ({ended:.4g} against {started:.4g} "
                    f"under the observer it started with); the start observer and nominal are kept")
-    bundle.observer, bundle.controller, bundle.cache, bundle.start = before, before.controller(), compiled, start
+    bundle.observer, bundle.controller, bundle.cache, bundle.start = kept
     return nominal, weights
 
 
