@@ -426,6 +426,7 @@ def friction_drift(ctx: Context) -> Effect:
     Fc = Fc0 + dFc*s, tau*der(s) = 1 - s (a state, not ``time``: the loop's dynamics are time-invariant).
     Each recording starts at s = 0, i.e. train and validation start in the same thermal state."""
     duration = ctx.duration or 1.0
+    shortest = 0.05 * duration   # a drift over the run, not a change confined to its start (never widened)
 
     def init(c: Context) -> list[dict[str, float]]:
         if c.force is None:
@@ -443,7 +444,7 @@ def friction_drift(ctx: Context) -> Effect:
     params = [_p("drift_Fc0", "N", "Coulomb friction level at the start of the recording", 0.0, 1e4,
                  zero=0.0),
               _p("drift_dFc", "N", "Change of the Coulomb level once settled", -1e4, 1e4, zero=0.0),
-              _p("drift_tau", "s", "Time constant of the drift", 0.05 * duration, 10 * duration),
+              _p("drift_tau", "s", "Time constant of the drift", shortest, 10 * duration, physical=(True, False)),
               _p("drift_v_eps", "m/s", "Velocity scale of the tanh (presliding)", *_eps_bounds(ctx))]
     decl = '  Real drift_s(start = 0, fixed = true) "Progress of the drift, 1 - exp(-t/tau)";\n'
     return Effect("friction_drift", FRICTION, params, decl,
@@ -453,8 +454,11 @@ def friction_drift(ctx: Context) -> Effect:
                   "Coulomb friction whose level changes slowly over the run (the lubricant warms up): the "
                   "residual jumps with the sign of the velocity as for Coulomb friction, by an amount that "
                   "trends over time, Fc0 + dFc*(1 - exp(-t/tau)) from the start of the recording.",
-                  unphysical=lambda v: "" if min(v["drift_Fc0"], v["drift_Fc0"] + v["drift_dFc"]) >= 0 else
-                  "its friction level falls below 0 (a force pushing along the motion)")
+                  unphysical=lambda v: "its friction level falls below 0 (a force pushing along the motion)"
+                  if min(v["drift_Fc0"], v["drift_Fc0"] + v["drift_dFc"]) < 0 else
+                  f"its time constant is the shortest the model allows ({shortest:.3g} s, a twentieth of the run): "
+                  f"a change confined to the run's start is a start transient, not a drift over the run"
+                  if v["drift_tau"] <= 1.01 * shortest else "")
 
 
 VOCABULARY: dict[str, Callable[[Context], Effect]] = {
