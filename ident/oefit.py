@@ -98,19 +98,41 @@ class Fit:
 class Weights:
     """Noise levels used to weight the residual channels: sigma_q [output unit], sigma_u [N]
     (sigma_u is unused in open loop, where the input is given); a multi-axis loop takes one level per axis
-    (arrays), so each axis's output and force channel is weighted by its own noise."""
+    (arrays), so each axis's output and force channel is weighted by its own noise. ``whiten_q``/``whiten_u``
+    (one axis): causal FIR taps applied to that channel's residual before the division by its sigma, the
+    inverse of a noise model, so that a residual coloured by the closed loop's echo of process noise counts
+    as its innovations do (prediction-error weighting, :func:`whitened`); None: the residual as it is."""
 
     sigma_q: float | np.ndarray
     sigma_u: float | np.ndarray = 1.0
+    whiten_q: np.ndarray | None = None
+    whiten_u: np.ndarray | None = None
 
 
-def _weighted(meas: np.ndarray, sim: np.ndarray, sigma: float | np.ndarray) -> np.ndarray:
-    """(meas - sim) / sigma, channel-major (axis 0's samples, then axis 1's, ...)."""
+def whitened(x: np.ndarray, taps: np.ndarray | None) -> np.ndarray:
+    """``x`` filtered along its first axis (time) by the causal FIR ``taps`` from zero initial conditions:
+    y[t] = sum_k taps[k] x[t - k]; ``x`` itself without taps."""
+    if taps is None:
+        return x
+    x = np.asarray(x, float)
+    with np.errstate(over="ignore", invalid="ignore"):   # a diverging free run: inf, which the callers handle
+        out = taps[0] * x
+        for k in range(1, min(len(taps), x.shape[0])):
+            out[k:] += taps[k] * x[:-k]
+    return out
+
+
+def _weighted(meas: np.ndarray, sim: np.ndarray, sigma: float | np.ndarray,
+              taps: np.ndarray | None = None) -> np.ndarray:
+    """(meas - sim) / sigma, channel-major (axis 0's samples, then axis 1's, ...); one axis: whitened by
+    ``taps`` first (:func:`whitened`)."""
     diff = np.asarray(meas) - np.asarray(sim)
     if diff.ndim == 2:
+        if taps is not None:
+            raise ValueError("residual whitening is defined for one axis")
         diff = diff / np.reshape(np.asarray(sigma, float), (-1, 1))
         return diff.ravel()
-    return diff / sigma
+    return whitened(diff, taps) / sigma
 
 
 def _channel_major(sens: np.ndarray, n_axes: int) -> np.ndarray:
@@ -133,9 +155,10 @@ def residuals(loop: Loop, rec: Recording, values: dict[str, float], weights: Wei
     q, u = simulate(loop, rec, values, noise, initial, shift)
     qm = measured(loop, rec, "output") if q_meas is None else q_meas
     if not loop.closed:
-        return _weighted(qm, q, weights.sigma_q), q, u
+        return _weighted(qm, q, weights.sigma_q, weights.whiten_q), q, u
     um = measured(loop, rec, "input") if u_meas is None else u_meas
-    return np.concatenate([_weighted(qm, q, weights.sigma_q), _weighted(um, u, weights.sigma_u)]), q, u
+    return np.concatenate([_weighted(qm, q, weights.sigma_q, weights.whiten_q),
+                           _weighted(um, u, weights.sigma_u, weights.whiten_u)]), q, u
 
 
 def _interior(theta: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
@@ -258,7 +281,8 @@ def start_shift(loop: Loop, rec: Recording, values: dict[str, float], weights: W
 
     def res(shift: np.ndarray) -> np.ndarray:
         q, u = simulate(loop, rec, values, shift=shift)
-        return np.concatenate([_weighted(qm, q, weights.sigma_q), _weighted(um, u, weights.sigma_u),
+        return np.concatenate([_weighted(qm, q, weights.sigma_q, weights.whiten_q),
+                               _weighted(um, u, weights.sigma_u, weights.whiten_u),
                                (relation - rows @ shift) / sigma_c])
 
     n = step.size
@@ -302,9 +326,9 @@ def weighted_jacobian(loop: Loop, s0: np.ndarray, W: np.ndarray, theta: np.ndarr
         with np.errstate(over="ignore"):   # a trial step whose loop diverges: inf entries, which the solver refuses
             return block / np.repeat(np.broadcast_to(np.asarray(sigma, float), (n_ax,)), rows)[:, None]
 
-    j = -scaled(np.hstack([jq, jq0[:, idx]]), weights.sigma_q)
+    j = -whitened(scaled(np.hstack([jq, jq0[:, idx]]), weights.sigma_q), weights.whiten_q)
     if loop.closed:
-        j = np.vstack([j, -scaled(np.hstack([ju, ju0[:, idx]]), weights.sigma_u)])
+        j = np.vstack([j, -whitened(scaled(np.hstack([ju, ju0[:, idx]]), weights.sigma_u), weights.whiten_u)])
     return j
 
 
@@ -398,9 +422,9 @@ def fit(loop: Loop, rec: Recording, weights: Weights, bounds: dict[str, tuple[fl
 
     def res_at(theta: np.ndarray, x_init: np.ndarray) -> np.ndarray:
         q, u = loop.sim(state(theta, x_init), W, theta, pf)
-        r = _weighted(qm, _shaped(loop, np.array(q)), weights.sigma_q)
+        r = _weighted(qm, _shaped(loop, np.array(q)), weights.sigma_q, weights.whiten_q)
         if loop.closed:
-            r = np.concatenate([r, _weighted(um, _shaped(loop, np.array(u)), weights.sigma_u)])
+            r = np.concatenate([r, _weighted(um, _shaped(loop, np.array(u)), weights.sigma_u, weights.whiten_u)])
         # a diverging free run: each sample counts RESIDUAL_LIMIT at most, so that the solver's sums stay finite
         # (a run at 1e303 is finite, its squares are not, and the trust-region step then fails on NaN)
         return np.clip(np.where(np.isfinite(r), r, RESIDUAL_LIMIT), -RESIDUAL_LIMIT, RESIDUAL_LIMIT)

@@ -48,7 +48,7 @@ from motiontwin.ident.leastsquares import (LeastSquaresResult, UnidentifiableErr
 from motiontwin.ident.loopstart import _column, initial_state
 from motiontwin.ident.oefit import (Fit, Weights, _interior, bound_arrays, controller_states, drive, fit,
                                     measured, relation_shift, residuals, simulate, simulate_states,
-                                    squared_norm, start_shift, state_indices, weighted_jacobian)
+                                    squared_norm, start_shift, state_indices, weighted_jacobian, whitened)
 from motiontwin.ident.oeloop import (Loop, Signals, _check_names, axis_signals, build_loop, default_bounds,
                                      initial_motion_states, output_state, stable_substeps)
 
@@ -56,7 +56,7 @@ __all__ = ["Signals", "Loop", "Weights", "Fit", "OutputErrorResult", "build_loop
            "simulate", "simulate_states", "residuals", "fit", "statistics", "identify", "bound_arrays",
            "axis_signals", "drive", "initial_state", "measured", "stable_substeps", "_column", "_interior",
            "state_indices", "weighted_jacobian", "output_state", "initial_motion_states", "start_shift",
-           "controller_states", "relation_shift", "squared_norm"]
+           "controller_states", "relation_shift", "squared_norm", "whitened"]
 
 
 def _covariances(loop: Loop, result: Fit, keep: np.ndarray) -> tuple[np.ndarray, np.ndarray | None, int | None]:

@@ -14,6 +14,7 @@ grid). The result drives the bootstrap null (:func:`evidence.bootstrap_residuals
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Callable
 
@@ -243,3 +244,61 @@ def noisy_simulator(loop: Loop, rec: Recording, values: dict[str, float], proces
                                     shift=shift)
         return q, u - w
     return simulate
+
+
+#: order of the autoregressive model of each channel's residual whose inverse whitens it
+WHITENING_ORDER = 20
+WHITENING_REPLICATES = 2
+
+
+def _prediction_error_filter(series: list[np.ndarray], order: int) -> tuple[np.ndarray, float, float] | None:
+    """Yule-Walker autoregressive model of order ``order`` of the series together: its prediction-error
+    filter [1, -a_1, ..., -a_p], the standard deviation of its innovations and the ratio of the series' RMS to
+    that (how coloured they are). None when the series are not finite or hold no variance."""
+    acf, total = np.zeros(order + 1), 0
+    for x in series:
+        if not np.all(np.isfinite(x)):
+            return None
+        x = x - np.mean(x)
+        acf += [x[:x.size - k] @ x[k:] for k in range(order + 1)]
+        total += x.size
+    acf /= max(total, 1)
+    if not acf[0] > 0:
+        return None
+    toeplitz = acf[np.abs(np.subtract.outer(np.arange(order), np.arange(order)))]
+    a = np.linalg.solve(toeplitz, acf[1:])
+    innovation = float(acf[0] - a @ acf[1:])
+    if not innovation > 0:
+        return None
+    return np.concatenate([[1.0], -a]), math.sqrt(innovation), math.sqrt(acf[0] / innovation)
+
+
+def whitening(loop: Loop, rec: Recording, values: dict[str, float], process: ProcessNoise | None, sigma_q: float,
+              sigma_u: float, shift: np.ndarray | None = None, order: int = WHITENING_ORDER,
+              count: int = WHITENING_REPLICATES, seed: int = 0) -> tuple[np.ndarray | None, np.ndarray | None,
+                                                                           float, float]:
+    """The taps (``outputerror.Weights.whiten_q``/``whiten_u``) that whiten the output and force residuals of a
+    correct model of this one-axis loop: an autoregressive model (:func:`_prediction_error_filter`) of each
+    channel's residual over ``count`` replicates of the loop at ``values`` re-simulated with the estimated encoder
+    noise ``sigma_q`` and process noise (:func:`noisy_simulator`, as the bootstrap null draws them), its
+    prediction-error filter scaled so that the whitened residual over sigma is unit white noise; and each
+    channel's ratio of the residual's RMS to its innovations'. Why: the closed loop's echo of process noise and of
+    the encoder noise it feeds back makes the output residual slow and several times the encoder noise, and a
+    least-squares fit that weights it as white spends its weight on that echo (:mod:`polish`). From the noise
+    estimate, not from the model's own residual, into whose noise model a missing effect would leak. A channel
+    whose residual holds no variance keeps None."""
+    simulate_noisy = noisy_simulator(loop, rec, values, process, shift)
+    q_model, u_model = outputerror.simulate(loop, rec, values, shift=shift)
+    rng = np.random.default_rng(seed)
+    residual_q, residual_u = [], []
+    for _ in range(count):
+        encoder = rng.normal(0.0, sigma_q, rec.time.size)
+        q, u = simulate_noisy(encoder, rng)
+        residual_q.append(np.asarray(q) + encoder - q_model)
+        residual_u.append(np.asarray(u) - u_model)
+    taps, ratios = [], []
+    for series, sigma in ((residual_q, sigma_q), (residual_u, sigma_u)):
+        model = _prediction_error_filter(series, order)
+        taps.append(None if model is None else model[0] * sigma / model[1])
+        ratios.append(math.nan if model is None else model[2])
+    return taps[0], taps[1], ratios[0], ratios[1]

@@ -27,6 +27,7 @@ from motiontwin.ident.diagnosis.bundle import Bundle
 from motiontwin.ident.diagnosis.locate import context
 from motiontwin.ident.diagnosis.nominal import (_divergence_hint, check_plant_form, fit_nominal, fit_nominal_axes,
                                                 fit_observer, nominal_free, nominal_start, plant_physics)
+from motiontwin.ident.diagnosis.polish import polished
 from motiontwin.ident.diagnosis.remainder import EMPIRICAL_EFFECT, explain_remainder, explain_remainder_axes
 from motiontwin.ident.diagnosis.nested import simplify_nested, upgrade_nested
 from motiontwin.ident.diagnosis.prune import prune
@@ -73,6 +74,7 @@ def run(bundle: Bundle, work: Path, progress=None) -> dict:
     final = upgrade_nested(bundle, final, weights, ctx, work / "upgrade", progress)
     final = widen_search_bounds(bundle, final, weights, work / "widen", progress)
     final, remainder = explain_remainder(bundle, final, weights, ctx, work / "remainder", progress)
+    final, weights = polished(bundle, final, weights, work / "polish", progress)
     model_dir = work / "final_model"
     values = dict(final.fit.values)
     if not final.effects:

@@ -151,6 +151,8 @@ def diagnosis_document(result: dict, out: Path, fmu_path: Path | None) -> dict:
         "augmented_model": str(out / "augmented_model" / f"{AUGMENTED_CLASS}.mo"),
         "augmented_fmu": str(out / fmu_path) if fmu_path else None,
         "noise": {"sigma_q": result["weights"].sigma_q, "sigma_u": result["weights"].sigma_u,
+                  "final_fit_weighting": ("innovations" if result["weights"].whiten_q is not None
+                                          or result["weights"].whiten_u is not None else "white"),
                   "process": (result["process_noise"].as_dict() if result.get("process_noise") is not None
                               else None)},
         "candidates": [{k: v for k, v in entry.items()} for entry in result["log"]],
