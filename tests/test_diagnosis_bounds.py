@@ -9,7 +9,6 @@ from __future__ import annotations
 import json
 import shutil
 from pathlib import Path
-from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -21,14 +20,13 @@ from motiontwin.ident.diagnosis import effects as effect_models
 from motiontwin.ident.diagnosis import pipeline
 from motiontwin.ident.diagnosis.locate import context
 from motiontwin.ident.diagnosis.bounds import (at_bound, at_bound_markdown, at_bound_text, bounds_widened,
-                                               dissipative_signs, physical_sides, structure_at_bound,
-                                               widened_limits)
-from motiontwin.ident.diagnosis.bundle import load_plant, read_bundle
+                                               physical_sides, structure_at_bound, widened_limits)
+from motiontwin.ident.diagnosis.bundle import read_bundle
 from motiontwin.ident.diagnosis.effect_base import Param
 from motiontwin.ident.diagnosis.nominal import fit_nominal, nominal_start, parameter_forces, plant_physics
 from motiontwin.ident.diagnosis.screen import candidates, fit_structure, refine
 from motiontwin.ident.diagnosis.select import widen_search_bounds
-from motiontwin.ident.diagnosis.structure import LoopCache, _nominal_bounds
+from motiontwin.ident.diagnosis.structure import LoopCache
 
 MASS = 95.0
 
@@ -256,56 +254,3 @@ def test_widening_that_does_not_carry_over_to_validation_is_not_kept(tmp_path, m
     assert final.fit.values == fitted.fit.values and final.bounds == fitted.bounds
     assert bounds_widened(final) == {}
     assert structure_at_bound(final)["coulomb_v_eps"]["bound"] == "upper"
-
-
-FRICTION_PLANTS = '''
-model Damped
-  parameter Real m = 2 "no min declared";
-  parameter Real d = 15 "no min declared";
-  parameter Real Fc = 0.5;
-  parameter Real g = 9.81;
-  parameter Real k = 1.2 "input gain";
-  input Real u;
-  output Real q;
-  Real x(start = 0, fixed = true);
-  Real v(start = 0, fixed = true);
-equation
-  der(x) = v;
-  m*der(v) = k*u - d*v - Fc*tanh(v/1e-3) - 0.1*m*g*sin(x + 0.3);
-  q = x;
-end Damped;
-model Pushed "viscous friction written with a plus sign: negative values dissipate"
-  parameter Real m(min = 1e-3) = 2;
-  parameter Real c = -15;
-  input Real u;
-  output Real q;
-  Real x(start = 0, fixed = true);
-  Real v(start = 0, fixed = true);
-equation
-  der(x) = v;
-  m*der(v) = u + c*v;
-  q = x;
-end Pushed;
-'''
-
-
-def test_a_friction_the_plant_leaves_unbounded_never_pushes_along_the_motion(tmp_path):
-    """Parameters whose force is zero at rest, odd in the velocity and not scaled by the input are friction
-    forces: bounded on the side where they would push along the motion (0), by the sign the plant writes them
-    with; inertia, gravity and an input gain are not (on the unknown-controller held-out LuGre bundle the
-    damping of a plant declaring no min had refitted to -86 N.s/m beside a mass twice the truth, and the answer
-    was LuGre plus "unexplained"; bounded, LuGre alone with the damping at its bound 0, as with the controller).
-    A start value beyond the side is kept (the bound would exclude it)."""
-    path = tmp_path / "plants.mo"
-    path.write_text(FRICTION_PLANTS)
-    damped, pushed = load_plant(path, "Damped"), load_plant(path, "Pushed")
-    assert dissipative_signs(damped.model, damped.velocity_state) == {"d": 1, "Fc": 1}
-    assert dissipative_signs(pushed.model, pushed.velocity_state) == {"c": -1}
-    for plant, start, expected in ((damped, {}, {"m": (-np.inf, np.inf), "d": (0.0, np.inf), "Fc": (0.0, np.inf),
-                                                  "g": (-np.inf, np.inf), "k": (-np.inf, np.inf)}),
-                                   (pushed, {}, {"m": (1e-3, np.inf), "c": (-np.inf, 0.0)}),
-                                   (damped, {"d": -3.0}, {"d": (-np.inf, np.inf)})):
-        bundle = SimpleNamespace(plant=plant, multi_axis=False,
-                                 start={v.name: float(v.start) for v in plant.model.parameters} | start)
-        free, bounds = _nominal_bounds(bundle)
-        assert {k: bounds[k] for k in expected} == expected

@@ -8,10 +8,6 @@ from __future__ import annotations
 import dataclasses
 import math
 
-import casadi as ca
-import numpy as np
-
-from motiontwin.fmus import symbolic
 from motiontwin.ident.diagnosis.effect_base import Effect, Param
 
 AT_BOUND_RTOL = 1e-6   # a value within this fraction of the bound's scale counts as on the bound
@@ -131,43 +127,3 @@ def at_bound_markdown(entries: dict[str, dict], widened: dict[str, dict] | None 
         lines += [f"These fitted parameters ended on a search limit of their effect and were refitted with it "
                   f"widened; they now lie inside: {moved}.", ""]
     return lines
-
-
-#: dissipative_signs by (id of the model, velocity state): the model (kept, so that its id is not reused) and signs
-_SIGNS: dict[tuple[int, str], tuple[symbolic.SymbolicModel, dict[str, int]]] = {}
-
-
-def dissipative_signs(model: symbolic.SymbolicModel, velocity_state: str) -> dict[str, int]:
-    """The plant's parameters that act as a friction force: their effect on the acceleration der(v) is zero at
-    rest, odd in the velocity and independent of the input (a force, not an inertia or an input gain), e.g. d in
-    m*der(v) = u - d*v, or a Coulomb level. Each maps to +1 when positive values oppose the motion, -1 when
-    negative ones do (a plant written m*der(v) = u + d*v). Evaluated at the Modelica start values, the states at
-    their start but the velocity (+-1 and 0) and the inputs (0 and 1). Why: a friction that pushes along the
-    motion is no physics, and a nominal refit of a plant that declares no bound for it can take one (a
-    viscous damping of -86 N.s/m under an unknown controller, beside a mass twice the true one)."""
-    key = (id(model), velocity_state)
-    if key not in _SIGNS:
-        _SIGNS[key] = (model, _dissipative_signs(model, velocity_state))
-    return _SIGNS[key][1]
-
-
-def _dissipative_signs(model: symbolic.SymbolicModel, velocity_state: str) -> dict[str, int]:
-    names = [s.name for s in model.states]
-    i_v = names.index(velocity_state)
-    p = np.array([float(v.start) for v in model.parameters])
-    x0 = np.array(ca.Function("x0", [model.p], [model.x0()])(p), float).ravel()
-    slope = ca.Function("slope", [model.x, model.u, model.p], [ca.jacobian(model.dx[i_v], model.p)])
-
-    def at(v: float, u: float) -> np.ndarray:
-        x = x0.copy()
-        x[i_v] = v
-        return np.array(slope(x, np.full(model.u.numel(), u), p), float).ravel()
-
-    plus, minus, rest, driven = at(1.0, 0.0), at(-1.0, 0.0), at(0.0, 0.0), at(1.0, 1.0)
-    signs = {}
-    for k, var in enumerate(model.parameters):
-        tol = 1e-9 * abs(plus[k])
-        if (plus[k] != 0 and np.isfinite(plus[k]) and abs(rest[k]) <= tol and abs(plus[k] + minus[k]) <= tol
-                and abs(driven[k] - plus[k]) <= tol):
-            signs[var.name] = 1 if plus[k] < 0 else -1
-    return signs

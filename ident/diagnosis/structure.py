@@ -19,7 +19,6 @@ from motiontwin.ident.diagnosis import axis_kinematics
 from motiontwin.ident.diagnosis import effects as effect_models
 from motiontwin.ident.diagnosis.augmented import (AUGMENTED_CLASS, axis_prefix, load_augmented, load_structure,
                                                   write_axes_structure, write_structure)
-from motiontwin.ident.diagnosis.bounds import dissipative_signs
 from motiontwin.ident.diagnosis.bundle import Bundle, PlantInfo
 from motiontwin.ident.diagnosis.noise import ProcessNoise, noisy_simulator
 from motiontwin.ident.diagnosis.plant_roles import PlantRoles
@@ -76,24 +75,16 @@ class ModelFit:
 
 def _nominal_bounds(bundle: Bundle, prefix: str = "") -> tuple[list[str], dict[str, tuple[float, float]]]:
     """The nominal parameters the refit moves (``plant.free``, zero ones included, else every non-zero one)
-    and their physical bounds: the plant's Modelica min/max, never a window around the start value; a friction
-    force's parameter (:func:`bounds.dissipative_signs`, one axis) that declares no bound on the side where it
-    would push along the motion gets 0 there, unless its start value lies beyond."""
+    and their physical bounds: the plant's Modelica min/max (none where it declares none), never a window
+    around the start value."""
     free, bounds = [], {}
     listed = bundle.plant.free
-    plant = bundle.plant
-    signs = {} if bundle.multi_axis else dissipative_signs(plant.model, plant.velocity_state)
-    for var in plant.model.parameters:
+    for var in bundle.plant.model.parameters:
         value = float(bundle.start.get(var.name, var.start))
         if (listed is not None and var.name not in listed) or (listed is None and value == 0):
             continue
-        lo, hi = float(var.min), float(var.max)
-        if signs.get(var.name) == 1 and lo == -math.inf and value >= 0:
-            lo = 0.0
-        elif signs.get(var.name) == -1 and hi == math.inf and value <= 0:
-            hi = 0.0
         free.append(prefix + var.name)
-        bounds[prefix + var.name] = (lo, hi)
+        bounds[prefix + var.name] = (float(var.min), float(var.max))
     return free, bounds
 
 
