@@ -37,8 +37,8 @@ def polished(bundle: Bundle, final: ModelFit, weights: outputerror.Weights, fold
                                                        final.fit.shift)
     if taps_q is None and taps_u is None:
         return final, weights
-    whitened = outputerror.Weights(weights.sigma_q, weights.sigma_u, taps_q, taps_u)
-    result = outputerror.fit(final.loop, bundle.train, whitened, final.bounds, start=final.fit.values,
+    innovations = outputerror.Weights(weights.sigma_q, weights.sigma_u, taps_q, taps_u)
+    result = outputerror.fit(final.loop, bundle.train, innovations, final.bounds, start=final.fit.values,
                              max_nfev=40, estimate_start=True, shift=final.fit.shift)
     trial = ModelFit(final.effects, final.loop.with_values(result.values), result, final.bounds, final.folder,
                      evidence=final.evidence, axes=final.axes)
@@ -53,7 +53,7 @@ def polished(bundle: Bundle, final: ModelFit, weights: outputerror.Weights, fold
                    f"{noise.WHITENING_ORDER} noise model of the encoder and process noise through the final loop; "
                    f"RMS over innovations: position {ratio_q:.3g}, force {ratio_u:.3g}): validation rms "
                    f"{before[0]:.4g} -> {after[0]:.4g}{force} ({'kept' if kept else 'not kept'})")
-    return (trial, whitened) if kept else (final, weights)
+    return (trial, innovations) if kept else (final, weights)
 
 
 def _no_worse(before: tuple[float, float], after: tuple[float, float]) -> bool:
