@@ -280,25 +280,20 @@ def whitening(loop: Loop, rec: Recording, values: dict[str, float], process: Pro
     """The taps (``outputerror.Weights.whiten_q``/``whiten_u``) that whiten the output and force residuals of a
     correct model of this one-axis loop: an autoregressive model (:func:`_prediction_error_filter`) of each
     channel's residual over ``count`` replicates of the loop at ``values`` re-simulated with the estimated encoder
-    noise ``sigma_q`` and process noise (:func:`noisy_simulator`, as the bootstrap null draws them), its
+    noise ``sigma_q`` and process noise (:func:`evidence.bootstrap_residuals`, the bootstrap null's draws), its
     prediction-error filter scaled so that the whitened residual over sigma is unit white noise; and each
     channel's ratio of the residual's RMS to its innovations'. Why: the closed loop's echo of process noise and of
     the encoder noise it feeds back makes the output residual slow and several times the encoder noise, and a
     least-squares fit that weights it as white spends its weight on that echo (:mod:`polish`). From the noise
     estimate, not from the model's own residual, into whose noise model a missing effect would leak. A channel
     whose residual holds no variance keeps None."""
-    simulate_noisy = noisy_simulator(loop, rec, values, process, shift)
     q_model, u_model = outputerror.simulate(loop, rec, values, shift=shift)
-    rng = np.random.default_rng(seed)
-    residual_q, residual_u = [], []
-    for _ in range(count):
-        encoder = rng.normal(0.0, sigma_q, rec.time.size)
-        q, u = simulate_noisy(encoder, rng)
-        residual_q.append(np.asarray(q) + encoder - q_model)
-        residual_u.append(np.asarray(u) - u_model)
+    n = rec.time.size
+    replicates = evidence.bootstrap_residuals(noisy_simulator(loop, rec, values, process, shift), q_model, u_model,
+                                              sigma_q, sigma_u, n, count, seed=seed)   # over sigma already
     taps, ratios = [], []
-    for series, sigma in ((residual_q, sigma_q), (residual_u, sigma_u)):
+    for series in ([row[:n] for row in replicates], [row[n:] for row in replicates]):
         model = _prediction_error_filter(series, order)
-        taps.append(None if model is None else model[0] * sigma / model[1])
+        taps.append(None if model is None else model[0] / model[1])
         ratios.append(math.nan if model is None else model[2])
     return taps[0], taps[1], ratios[0], ratios[1]
