@@ -2,17 +2,19 @@
 :class:`Terminated` like Ctrl-C raises ``KeyboardInterrupt``, so the same cleanup runs, and a commit of finished
 results (:func:`harness.runfolder.commit_each`) is never cut in half by either.
 
-A library that catches broadly can swallow the exception a signal handler raises (one in a destructor is only
-printed by Python); the termination is remembered, and :func:`raise_if_terminated` raises it again at the next
-commit, so a run told to stop does stop.
+A library that catches broadly can swallow the exception a signal handler raises, and Python only prints one
+raised where it cannot propagate (a destructor, an ``os.fork`` hook such as logging's); the termination is
+remembered, :func:`raise_if_terminated` raises it again at the next commit, so a run told to stop does stop, and
+the printing of such a swallowed :class:`Terminated` (a traceback in the middle of a clean stop) is suppressed.
 """
 from __future__ import annotations
 
 import contextlib
 import os
 import signal
+import sys
 import threading
-from typing import Iterator
+from typing import Any, Callable, Iterator
 
 __all__ = ["Terminated", "handle_termination", "raise_if_terminated", "uninterrupted"]
 
@@ -49,6 +51,15 @@ def _quiet_child() -> None:
 os.register_at_fork(after_in_child=_quiet_child)
 
 
+def _quiet_if_terminated(previous_hook: Callable[[Any], object]) -> Callable[[Any], None]:
+    """An unraisable-exception hook that drops a :class:`Terminated` (remembered, raised again at the next
+    commit) and hands anything else to ``previous_hook``."""
+    def hook(unraisable: Any) -> None:   # sys.UnraisableHookArgs
+        if not isinstance(unraisable.exc_value, Terminated):
+            previous_hook(unraisable)
+    return hook
+
+
 def _main_thread() -> bool:
     return threading.current_thread() is threading.main_thread()
 
@@ -61,13 +72,15 @@ def handle_termination() -> Iterator[None]:
     if not _main_thread():
         yield
         return
-    previous = signal.signal(signal.SIGTERM, _terminate)
+    previous, previous_hook = signal.signal(signal.SIGTERM, _terminate), sys.unraisablehook
+    sys.unraisablehook = _quiet_if_terminated(previous_hook)
     _ACTIVE, _TERMINATED = True, False
     try:
         yield
     finally:
         _ACTIVE = False
         signal.signal(signal.SIGTERM, previous)
+        sys.unraisablehook = previous_hook
 
 
 def raise_if_terminated() -> None:

@@ -108,3 +108,35 @@ def test_a_sigterm_a_library_swallowed_still_stops_the_runs() -> None:
     statuses, exc = _commit_runs(swallowing, lambda index, result: recorded.append(result))
     assert isinstance(exc, Terminated)
     assert recorded == [0] and statuses[-1] == "interrupted"
+
+
+def test_a_sigterm_python_could_only_print_stops_the_run_without_a_traceback() -> None:
+    """SIGTERM landing where Python cannot raise (here a destructor; in CI it was logging's ``os.fork`` hook
+    while a worker started): no traceback on stderr, and the run still stops as terminated at the next check;
+    any other unraisable exception is still printed."""
+    script = """if True:
+        import gc, os, signal, sys
+        from motiontwin.harness.interrupt import Terminated, handle_termination, raise_if_terminated
+
+        class SignalledInDestructor:
+            def __del__(self):
+                os.kill(os.getpid(), signal.SIGTERM)
+
+        class FailingDestructor:
+            def __del__(self):
+                raise ValueError("a destructor's own error")
+
+        try:
+            with handle_termination():
+                SignalledInDestructor()
+                gc.collect()
+                FailingDestructor()
+                gc.collect()
+                raise_if_terminated()
+        except Terminated:
+            sys.exit(143)
+    """
+    proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 143, proc.stderr
+    assert "Terminated" not in proc.stderr and proc.stderr.count("Traceback") == 1, proc.stderr
+    assert "a destructor's own error" in proc.stderr
