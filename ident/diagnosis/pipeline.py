@@ -74,7 +74,7 @@ def run(bundle: Bundle, work: Path, progress=None) -> dict:
     final = upgrade_nested(bundle, final, weights, ctx, work / "upgrade", progress)
     final = widen_search_bounds(bundle, final, weights, work / "widen", progress)
     final, remainder = explain_remainder(bundle, final, weights, ctx, work / "remainder", progress)
-    final, weights = polished(bundle, final, weights, work / "polish", progress)
+    final, weights = polished(bundle, final, weights, ctx, work / "polish", progress)
     model_dir = work / "final_model"
     values = dict(final.fit.values)
     if not final.effects:

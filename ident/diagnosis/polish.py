@@ -1,35 +1,58 @@
 """The last fit: the chosen structure's parameters refitted by prediction-error weighting (each channel's
 residual whitened by a noise model of the encoder and process noise through the final model's loop), kept when
-the validation run agrees. Units: SI (s, m, N).
+the validation run agrees; then each kept effect's richer nested forms (``effects.NESTED``) judged again under
+that weighting. Units: SI (s, m, N).
 
 Why: the selection's fits weight the residual as white noise of the encoder's level. Under process noise the
 output residual of a correct model is the closed loop's slow echo of it, several times the encoder noise, and a
 fit that weights it as white spends its weight there: on the held-out Coulomb case of the independent truth
-simulator the mass ended 26 % light and the validation run 16.8 times its achievable floor. Only the parameters
-move here; the structure was chosen with the white weights, under which the selection's evidence (bootstrap
-nulls, score tests, the validation rule) is calibrated. Whitening every fit of the selection was measured and
-refused: it lowers the weight of slow signatures (LuGre's pre-sliding, a constant force through an integrator)
-with the process noise's, and named fewer effects right (held-out set 12 of 15, tuning set 10 of 15, against 13
-and 13).
+simulator the mass ended 26 % light and the validation run 16.8 times its achievable floor. The structure was
+chosen with the white weights, under which the selection's evidence (bootstrap nulls, score tests, the
+validation rule) is calibrated. Whitening every fit of the selection was measured and refused: it lowers the
+weight of slow signatures (LuGre's pre-sliding, a constant force through an integrator) with the process
+noise's, and named fewer effects right (held-out set 12 of 15, tuning set 10 of 15, against 13 and 13).
+
+The nested upgrade (:func:`upgraded`) is the one structure decision made here. Under white weights the richer
+law's extra parameters are judged against a bootstrap null that holds the process noise's echo, which can bury
+them: on the independent simulator's audit case offset + Stribeck the Stribeck hump (cost -2317 against a null
+of 5147) was answered as Coulomb friction, 2.1 times the floor. Whitened, the residual is close to white, its
+variance estimated from it (the cost over its residual count), so the cost reduction over that variance is a
+likelihood ratio with a chi-square null: there it is 75 (threshold 13.8 for two parameters), the validation run
+agrees (-23 %), and the Stribeck values come within 16 % of the truth. The quantile alone is lenient: on the
+Coulomb truths of the sets asymmetric friction reached 50 and a drift 43 and 17 (each refused by the validation
+run), a Stribeck law 15.6 with its breakaway below its Coulomb level (refused as no Stribeck curve); so the
+physics check and the validation rule decide with it (each guarded by tests/test_diagnosis_polish.py). Only
+upgrades are judged so, and only to the laws whose nested start is exact (``EXACT_NESTED_START``): a whitened
+fit of a slow law (LuGre) is unreliable, so a richer law chosen under white weights is not demoted here.
 """
 from __future__ import annotations
 
 import math
+import time
 from pathlib import Path
 
+import numpy as np
+from scipy import stats
+
 from motiontwin.ident import outputerror
-from motiontwin.ident.diagnosis import noise
+from motiontwin.ident.diagnosis import effects as effect_models
+from motiontwin.ident.diagnosis import evidence, noise
 from motiontwin.ident.diagnosis.bundle import Bundle
-from motiontwin.ident.diagnosis.structure import ModelFit, _log, validate_any
+from motiontwin.ident.diagnosis.effect_base import vanishing_start
+from motiontwin.ident.diagnosis.nested import _kept, _moved_evidence, _placed
+from motiontwin.ident.diagnosis.screen import MAX_NFEV, _best_fit
+from motiontwin.ident.diagnosis.select import _unphysical
+from motiontwin.ident.diagnosis.structure import ModelFit, _log, build_structure, validate_any
+from motiontwin.ident.diagnosis.workers import map_jobs
 
 
-def polished(bundle: Bundle, final: ModelFit, weights: outputerror.Weights, folder: Path, progress=None
-             ) -> tuple[ModelFit, outputerror.Weights]:
+def polished(bundle: Bundle, final: ModelFit, weights: outputerror.Weights, ctx: effect_models.Context | None,
+             folder: Path, progress=None) -> tuple[ModelFit, outputerror.Weights]:
     """``final`` refitted from its values with each channel whitened (:func:`noise.whitening` at the final
     model, from ``bundle.process_noise``), and the weights of that fit; kept when its validation run is no worse
     in the position and in the recorded force and better in one of them, else ``final`` and ``weights`` as they
-    were. One axis with a known controller (an unknown controller's predictor residual is its innovations
-    already)."""
+    were; then :func:`upgraded` under the whitened weights. One axis with a known controller (an unknown
+    controller's predictor residual is its innovations already)."""
     if bundle.observer is not None or bundle.multi_axis or not final.loop.free:
         return final, weights
     taps_q, taps_u, ratio_q, ratio_u = noise.whitening(final.loop, bundle.train, final.fit.values,
@@ -53,7 +76,97 @@ def polished(bundle: Bundle, final: ModelFit, weights: outputerror.Weights, fold
                    f"{noise.WHITENING_ORDER} noise model of the encoder and process noise through the final loop; "
                    f"RMS over innovations: position {ratio_q:.3g}, force {ratio_u:.3g}): validation rms "
                    f"{before[0]:.4g} -> {after[0]:.4g}{force} ({'kept' if kept else 'not kept'})")
-    return (trial, innovations) if kept else (final, weights)
+    chosen, chosen_weights = (trial, innovations) if kept else (final, weights)
+    upgrade = upgraded(bundle, chosen, trial, innovations, ctx, folder, progress)
+    return (upgrade, innovations) if upgrade is not None else (chosen, chosen_weights)
+
+
+#: the richer nested laws judged here: those whose ``effects.NESTED_START`` is their simpler law exactly (the tanh
+#: frictions); LuGre's stiffest bristle only approximates Coulomb friction, and its whitened fit from there ended
+#: far above the model it extends on every benchmark case tried (a slow pre-sliding law, weighed down by the
+#: whitening)
+EXACT_NESTED_START = ("stribeck_friction", "asymmetric_friction", "load_dependent_friction", "friction_drift")
+
+
+def upgraded(bundle: Bundle, chosen: ModelFit, whitened: ModelFit, innovations: outputerror.Weights,
+             ctx: effect_models.Context | None, folder: Path, progress=None) -> ModelFit | None:
+    """The structure with a kept effect replaced by its richer nested form (``effects.NESTED``), fitted under
+    ``innovations`` from ``whitened`` (``chosen``'s structure fitted so), when the richer form's cost reduction
+    over the whitened residual's variance beats the chi-square quantile (``evidence.NULL_QUANTILE``, one degree per
+    extra parameter), its values are that physics, and its validation run beats ``chosen``'s by the validation
+    rule (:func:`evidence.validation_accepts`); the best such by that ratio, else None."""
+    rows = whitened.fit.residual.size if whitened.fit.residual is not None else 0
+    if rows == 0 or ctx is None:
+        return None
+    variance = whitened.fit.cost / rows
+    best: tuple[float, float, ModelFit, effect_models.Effect, effect_models.Effect] | None = None
+    for _, simple, _ in _kept(whitened, ctx):
+        richer = [e for e in (effect_models.VOCABULARY[r](ctx) for r, s in effect_models.NESTED.items()
+                              if s == simple.name and r in EXACT_NESTED_START) if e.applicable]
+        if not richer:
+            continue
+        by_name = {e.name: e for e in richer}
+
+        def job(name: str) -> tuple[outputerror.Fit, int, float] | None:
+            t0 = time.perf_counter()
+            trial = _richer_fit(bundle, whitened, by_name[name], simple, ctx, innovations, folder)
+            return None if trial is None else (trial.fit, trial.loop.substeps, time.perf_counter() - t0)
+
+        for rich, result in zip(richer, map_jobs(job, list(by_name))):
+            if result is None:
+                _log(progress, f"  {rich.name} in place of {simple.name}, whitened: fit failed")
+                continue
+            fit, substeps, seconds = result
+            effects = [rich if e is simple else e for e in whitened.effects]
+            loop, bounds = build_structure(bundle, effects, fit.values, folder / f"upgrade_{rich.name}",
+                                           bundle.train.time.size, substeps=substeps)
+            trial = ModelFit(effects, loop.with_values(fit.values), fit, bounds, folder / f"upgrade_{rich.name}")
+            ratio = (whitened.fit.cost - trial.fit.cost) / variance
+            dof = sum(p.fitted for p in rich.params) - sum(p.fitted for p in simple.params)
+            threshold = float(stats.chi2.ppf(evidence.NULL_QUANTILE, max(dof, 1)))
+            _log(progress, f"  {rich.name} in place of {simple.name}, whitened: cost reduction over the innovations' "
+                           f"variance {ratio:.4g}, chi-square threshold {threshold:.4g} ({seconds:.1f} s)")
+            if ratio > threshold and not _unphysical(trial, progress, _placed(trial, whitened, simple)) and \
+                    (best is None or ratio > best[0]):
+                best = (ratio, threshold, trial, simple, rich)
+    if best is None:
+        return None
+    ratio, threshold, trial, simple, rich = best
+    validate_any(bundle, trial, folder / f"v_upgrade_{rich.name}")
+    if math.isnan(chosen.val_rms):
+        validate_any(bundle, chosen, folder / "v_chosen")
+    kept = evidence.validation_accepts(chosen.val_rms, trial.val_rms, chosen.val_force, trial.val_force)
+    force = ("" if math.isnan(chosen.val_force) or math.isnan(trial.val_force) else
+             f", force {chosen.val_force:.4g} -> {trial.val_force:.4g}")
+    _log(progress, f"  {rich.name} in place of {simple.name}, whitened: validation rms {chosen.val_rms:.4g} -> "
+                   f"{trial.val_rms:.4g}{force} ({'kept' if kept else 'rejected'})")
+    if not kept:
+        return None
+    return _moved_evidence(trial, chosen, simple.name, rich.name, None, {
+        "upgraded_from": simple.name, "upgrade_likelihood_ratio": ratio, "upgrade_chi2_threshold": threshold,
+        "rule": f"richer nested form of {simple.name} under prediction-error weighting: its cost reduction over "
+                f"the whitened residual's variance beats the chi-square quantile ({ratio:.4g} > {threshold:.4g}) "
+                f"and the validation run agrees"})
+
+
+def _richer_fit(bundle: Bundle, whitened: ModelFit, rich: effect_models.Effect, simple: effect_models.Effect,
+                ctx: effect_models.Context, innovations: outputerror.Weights, folder: Path) -> ModelFit | None:
+    """``whitened`` with ``rich`` in place of ``simple``, fitted under ``innovations`` from the point where it
+    is ``simple`` at its fitted values (``effects.NESTED_START``; its other parameters at their vanishing
+    start): a local test of the extra parameters, which cannot end above ``whitened``. (A second, data-driven
+    start doubled the time and changed no ratio on the benchmark cases tried.) None when the fit fails."""
+    effects = [rich if e is simple else e for e in whitened.effects]
+    base = {k: v for k, v in whitened.fit.values.items() if k not in {p.name for p in simple.params}}
+    nested = {**vanishing_start(rich, rich.initial(ctx)), **effect_models.NESTED_START[rich.name](whitened.fit.values)}
+    values = {**base, **{p.name: float(np.mean(p.bounds)) for p in rich.params if not p.fitted}, **nested}
+    try:
+        loop, bounds = build_structure(bundle, effects, values, folder / f"upgrade_{rich.name}",
+                                       bundle.train.time.size, min_substeps=whitened.loop.substeps)
+        result, _ = _best_fit(bundle, loop, bounds, innovations, values, [nested], MAX_NFEV, rich.name,
+                              whitened.fit.shift)
+    except (RuntimeError, ValueError, np.linalg.LinAlgError):
+        return None
+    return ModelFit(effects, loop.with_values(result.values), result, bounds, folder / f"upgrade_{rich.name}")
 
 
 def _no_worse(before: tuple[float, float], after: tuple[float, float]) -> bool:
