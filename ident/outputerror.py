@@ -188,10 +188,10 @@ def identify(model: symbolic.SymbolicModel, rec: Recording, free: list[str], con
         input_name = signals.input
     if auto_start:
         guess = [n for n in free if n not in (start or {})]
-        position = plant_states.alias_state(model, signals.output)
-        if position is not None:
-            values.update(startvalues.inverse_dynamics_start(model, rec[signals.output], rec[signals.input], ts,
-                                                             position, guess, values, bounds, input_name))
+        found = plant_states.position_from_output(model, signals.output, values, rec[signals.output])
+        if found is not None:
+            values.update(startvalues.inverse_dynamics_start(model, found[1], rec[signals.input], ts,
+                                                             found[0], guess, values, bounds, input_name))
     i_pos = output_state(model, signals.output)
     i_vel = None if i_pos is None else plant_states.velocity_state(model, i_pos)
     if initial == "samples" and i_vel is not None:

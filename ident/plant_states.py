@@ -14,7 +14,8 @@ import numpy as np
 
 from motiontwin.fmus import symbolic
 
-__all__ = ["output_expression", "output_state", "alias_state", "velocity_state", "per_model", "start_state"]
+__all__ = ["output_expression", "output_state", "position_from_output", "velocity_state", "per_model",
+           "start_state"]
 
 _PER_MODEL: dict[int, tuple[weakref.ref, dict]] = {}    # id(model) -> (the model, what was derived by key)
 
@@ -66,13 +67,23 @@ def _output_state(model: symbolic.SymbolicModel, name: str, affine: bool) -> int
     return hits[0]
 
 
-def alias_state(model: symbolic.SymbolicModel, name: str) -> str | None:
-    """Name of the state the output ``name`` equals (the output itself when it is a state, or ``q = x``),
-    or None (also for a scaled or offset output)."""
+def position_from_output(model: symbolic.SymbolicModel, name: str, values: dict[str, float],
+                         measured: np.ndarray) -> tuple[str, np.ndarray] | None:
+    """The state the output ``name`` is affine in (``q = x``, a gear ratio ``q = g x``, an offset ``q = x + c``;
+    g and c constant in the states, evaluated at the parameter ``values``, the others at their start values)
+    and its trajectory ``(measured - c) / g``; None for any other output or g = 0."""
     i = output_state(model, name)
-    if i is None or not ca.is_equal(output_expression(model, name), model.x[i], 2):
+    if i is None:
         return None
-    return model.states[i].name
+    expr = output_expression(model, name)
+    at_zero = ca.substitute(expr, model.x, ca.DM.zeros(model.x.numel()))
+    fn = per_model(model, ("affine_output", name),
+                   lambda: ca.Function("affine", [model.p], [ca.jacobian(expr, model.x[i]), at_zero]))
+    p = np.array([values.get(v.name, float(v.start)) for v in model.parameters], float)
+    gain, offset = (float(value) for value in fn(p))
+    if gain == 0 or not np.isfinite(gain) or not np.isfinite(offset):
+        return None
+    return model.states[i].name, (np.asarray(measured, float) - offset) / gain
 
 
 def velocity_state(model: symbolic.SymbolicModel, position: int) -> int | None:

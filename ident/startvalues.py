@@ -139,8 +139,10 @@ def inverse_dynamics_start(model: symbolic.SymbolicModel, q: np.ndarray, u: np.n
     Parameters
     ----------
     model : the plant (two states: position and velocity, one driven input).
-    q, u : recorded position [m] and plant input force [N], uniformly sampled at ``ts`` [s].
-    position_state : the state equal to ``q``.
+    q, u : trajectory of the position state (the recorded output mapped by
+        :func:`plant_states.position_from_output`: a gear ratio divided out) and plant input force [N],
+        uniformly sampled at ``ts`` [s].
+    position_state : the state ``q`` is the trajectory of.
     free : parameters to estimate; those entering the needed force nonlinearly keep ``values``.
     values : every parameter's current value (the fixed ones and the nonlinear free ones).
     bounds : the estimates are clipped into these (default: the Modelica min/max).

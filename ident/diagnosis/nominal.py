@@ -21,7 +21,7 @@ from motiontwin.ident.diagnosis.locate import _mass_equivalent, _needed_force, _
 from motiontwin.ident.diagnosis.plant_roles import PlantFormError, output_map
 from motiontwin.ident.diagnosis.structure import (LoopCache, ModelFit, _fmt, _log, _moving_start, _nominal_bounds,
                                                   build_axes, start_states)
-from motiontwin.ident.plant_states import alias_state
+from motiontwin.ident.plant_states import position_from_output
 
 SAME_PHYSICS = 0.9    # |cosine| between a plant parameter's force and an effect's force shape: the same physics
 
@@ -42,11 +42,13 @@ def nominal_start(bundle: Bundle, progress=None) -> dict[str, float]:
     values = default_start(bundle)
     listed = plant.free or []
     guess = [n for n, v in values.items() if n not in plant.parameters and (n in listed if listed else v != 0)]
-    if alias_state(model, plant.output_name) != plant.position_state:
+    found = position_from_output(model, plant.output_name, values, bundle.train["q"])
+    if found is None or found[0] != plant.position_state:
         _log(progress, "start values: the Modelica defaults and plant.parameters (the inverse-dynamics start "
-                       "needs the output to be the position state itself)")
+                       "needs the output to be an affine function of the position state: q = x, a gear ratio, "
+                       "an offset)")
         return values
-    estimate = startvalues.inverse_dynamics_start(model, bundle.train["q"], bundle.train["u"], bundle.controller.sample_time,
+    estimate = startvalues.inverse_dynamics_start(model, found[1], bundle.train["u"], bundle.controller.sample_time,
                                                   plant.position_state, guess, values, input_name=plant.input_name)
     kept = {n: v for n, v in estimate.items() if v * values[n] > 0 or (values[n] == 0 and v != 0)}
     if kept:

@@ -17,7 +17,7 @@ from motiontwin.ident.diagnosis.bundle import Bundle
 from motiontwin.ident.diagnosis.augmented import axis_prefix
 from motiontwin.ident.diagnosis.effect_base import vanishing_start
 from motiontwin.ident.diagnosis.nominal import default_start
-from motiontwin.ident.plant_states import alias_state
+from motiontwin.ident.plant_states import position_from_output
 from motiontwin.ident.diagnosis.structure import ModelFit, _log, build_axes, build_structure, on_axis
 from motiontwin.ident.diagnosis.workers import map_jobs
 
@@ -76,14 +76,16 @@ def _joint_start(bundle: Bundle, loop: outputerror.Loop, candidate: effect_model
     squares of those entering the force linearly; the others keep ``values``). A missing effect distorts
     the nominal refit (a Coulomb friction taken up by a mass a tenth of the true one, a local minimum the
     output-error fit of the candidate does not leave); this start is free of that distortion. Empty when
-    the augmented model has extra states or its output is not the position state itself."""
+    the augmented model has extra states or its output is not affine in the position state (q = x, a gear
+    ratio, an offset)."""
     model = loop.model
     position = "plant." + bundle.plant.position_state
-    if model.x.numel() != 2 or alias_state(model, "q") != position:
+    found = position_from_output(model, "q", values, bundle.train["q"]) if model.x.numel() == 2 else None
+    if found is None or found[0] != position:
         return {}
     free = [n for n in loop.free if n.startswith("plant.")] + [p.name for p in candidate.params if p.fitted]
     try:
-        estimate = startvalues.inverse_dynamics_start(model, bundle.train["q"], bundle.train["u"],
+        estimate = startvalues.inverse_dynamics_start(model, found[1], bundle.train["u"],
                                                       bundle.controller.sample_time, position, free, values, input_name="u")
     except (ValueError, np.linalg.LinAlgError, RuntimeError):
         return {}
