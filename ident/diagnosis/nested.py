@@ -5,6 +5,7 @@ they are: :func:`simplify_nested` then :func:`upgrade_nested`. Units: SI (s, m, 
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 
@@ -47,10 +48,10 @@ def _in_place(bundle: Bundle, current: ModelFit, new: effect_models.Effect, old:
 
 def _side_by_side(bundle: Bundle, current: ModelFit, news: list[effect_models.Effect], old: effect_models.Effect,
                   axis: str | None, ctx: effect_models.Context, weights: outputerror.Weights, work: Path,
-                  progress=None) -> list[ModelFit | None]:
-    """:func:`_in_place` of each of ``news`` in place of ``old``, fitted side by side in the worker processes
-    (:func:`workers.map_jobs`: a Hexapod or 4-DOF fit takes tens of seconds); each structure is rebuilt here at
-    its fit (the compiled library is on disk), a failed fit logged here."""
+                  progress=None, fit: Callable[..., ModelFit | None] = _in_place) -> list[ModelFit | None]:
+    """``fit`` (:func:`_in_place`, or another with its arguments) of each of ``news`` in place of ``old``, fitted
+    side by side in the worker processes (:func:`workers.map_jobs`: a Hexapod or 4-DOF fit takes tens of seconds);
+    each structure is rebuilt here at its fit (the compiled library is on disk), a failed fit logged here."""
     by_name = {e.name: e for e in news}
 
     def folder(name: str) -> Path:
@@ -58,7 +59,7 @@ def _side_by_side(bundle: Bundle, current: ModelFit, news: list[effect_models.Ef
 
     def job(name: str) -> tuple[outputerror.Fit, int] | str:
         failed: list[str] = []
-        trial = _in_place(bundle, current, by_name[name], old, axis, ctx, weights, folder(name), failed.append)
+        trial = fit(bundle, current, by_name[name], old, axis, ctx, weights, folder(name), failed.append)
         return failed[0] if trial is None else (trial.fit, trial.loop.substeps)
 
     out: list[ModelFit | None] = []
@@ -67,18 +68,18 @@ def _side_by_side(bundle: Bundle, current: ModelFit, news: list[effect_models.Ef
             _log(progress, result)
             out.append(None)
             continue
-        fit, substeps = result
+        fitted, substeps = result
         if axis is None:
             effects = [new if e is old else e for e in current.effects]
-            loop, bounds = build_structure(bundle, effects, fit.values, folder(new.name), bundle.train.time.size,
+            loop, bounds = build_structure(bundle, effects, fitted.values, folder(new.name), bundle.train.time.size,
                                            substeps=substeps)
-            out.append(ModelFit(effects, loop.with_values(fit.values), fit, bounds, folder(new.name)))
+            out.append(ModelFit(effects, loop.with_values(fitted.values), fitted, bounds, folder(new.name)))
             continue
         roles = next(a for a in bundle.plant.axes if a.output == axis)
         pairs = [(a, on_axis(new, roles, bundle.plant.model) if e is old else e) for a, e in current.placed]
-        loop, bounds = build_axes(bundle, pairs, fit.values, folder(new.name), bundle.train.time.size,
+        loop, bounds = build_axes(bundle, pairs, fitted.values, folder(new.name), bundle.train.time.size,
                                   min_substeps=substeps)
-        out.append(ModelFit([e for _, e in pairs], loop.with_values(fit.values), fit, bounds, folder(new.name),
+        out.append(ModelFit([e for _, e in pairs], loop.with_values(fitted.values), fitted, bounds, folder(new.name),
                             evidence=dict(current.evidence), axes=[a for a, _ in pairs]))
     return out
 

@@ -28,7 +28,6 @@ fit of a slow law (LuGre) is unreliable, so a richer law chosen under white weig
 from __future__ import annotations
 
 import math
-import time
 from pathlib import Path
 
 import numpy as np
@@ -39,11 +38,10 @@ from motiontwin.ident.diagnosis import effects as effect_models
 from motiontwin.ident.diagnosis import evidence, noise
 from motiontwin.ident.diagnosis.bundle import Bundle
 from motiontwin.ident.diagnosis.effect_base import vanishing_start
-from motiontwin.ident.diagnosis.nested import _kept, _moved_evidence, _placed
+from motiontwin.ident.diagnosis.nested import _kept, _moved_evidence, _placed, _side_by_side
 from motiontwin.ident.diagnosis.screen import MAX_NFEV, _best_fit
 from motiontwin.ident.diagnosis.select import _unphysical
 from motiontwin.ident.diagnosis.structure import ModelFit, _log, build_structure, validate_any
-from motiontwin.ident.diagnosis.workers import map_jobs
 
 
 def polished(bundle: Bundle, final: ModelFit, weights: outputerror.Weights, ctx: effect_models.Context | None,
@@ -105,27 +103,16 @@ def upgraded(bundle: Bundle, chosen: ModelFit, whitened: ModelFit, innovations: 
                               if s == simple.name and r in EXACT_NESTED_START) if e.applicable]
         if not richer:
             continue
-        by_name = {e.name: e for e in richer}
-
-        def job(name: str) -> tuple[outputerror.Fit, int, float] | None:
-            t0 = time.perf_counter()
-            trial = _richer_fit(bundle, whitened, by_name[name], simple, ctx, innovations, folder)
-            return None if trial is None else (trial.fit, trial.loop.substeps, time.perf_counter() - t0)
-
-        for rich, result in zip(richer, map_jobs(job, list(by_name))):
-            if result is None:
-                _log(progress, f"  {rich.name} in place of {simple.name}, whitened: fit failed")
+        trials = _side_by_side(bundle, whitened, richer, simple, None, ctx, innovations, folder, progress,
+                               fit=_richer_fit)
+        for rich, trial in zip(richer, trials):
+            if trial is None:
                 continue
-            fit, substeps, seconds = result
-            effects = [rich if e is simple else e for e in whitened.effects]
-            loop, bounds = build_structure(bundle, effects, fit.values, folder / f"upgrade_{rich.name}",
-                                           bundle.train.time.size, substeps=substeps)
-            trial = ModelFit(effects, loop.with_values(fit.values), fit, bounds, folder / f"upgrade_{rich.name}")
             ratio = (whitened.fit.cost - trial.fit.cost) / variance
             dof = sum(p.fitted for p in rich.params) - sum(p.fitted for p in simple.params)
             threshold = float(stats.chi2.ppf(evidence.NULL_QUANTILE, max(dof, 1)))
             _log(progress, f"  {rich.name} in place of {simple.name}, whitened: cost reduction over the innovations' "
-                           f"variance {ratio:.4g}, chi-square threshold {threshold:.4g} ({seconds:.1f} s)")
+                           f"variance {ratio:.4g}, chi-square threshold {threshold:.4g}")
             if ratio > threshold and not _unphysical(trial, progress, _placed(trial, whitened, simple)) and \
                     (best is None or ratio > best[0]):
                 best = (ratio, threshold, trial, simple, rich)
@@ -150,23 +137,27 @@ def upgraded(bundle: Bundle, chosen: ModelFit, whitened: ModelFit, innovations: 
 
 
 def _richer_fit(bundle: Bundle, whitened: ModelFit, rich: effect_models.Effect, simple: effect_models.Effect,
-                ctx: effect_models.Context, innovations: outputerror.Weights, folder: Path) -> ModelFit | None:
+                axis: None, ctx: effect_models.Context, innovations: outputerror.Weights, folder: Path,
+                progress=None) -> ModelFit | None:
     """``whitened`` with ``rich`` in place of ``simple``, fitted under ``innovations`` from the point where it
     is ``simple`` at its fitted values (``effects.NESTED_START``; its other parameters at their vanishing
     start): a local test of the extra parameters, which cannot end above ``whitened``. (A second, data-driven
-    start doubled the time and changed no ratio on the benchmark cases tried.) None when the fit fails."""
+    start doubled the time and changed no ratio on the benchmark cases tried.) None, and logged, when the fit
+    fails. The arguments of :func:`nested._in_place` (one axis), whose place it takes in
+    :func:`nested._side_by_side`."""
     effects = [rich if e is simple else e for e in whitened.effects]
     base = {k: v for k, v in whitened.fit.values.items() if k not in {p.name for p in simple.params}}
     nested = {**vanishing_start(rich, rich.initial(ctx)), **effect_models.NESTED_START[rich.name](whitened.fit.values)}
     values = {**base, **{p.name: float(np.mean(p.bounds)) for p in rich.params if not p.fitted}, **nested}
     try:
-        loop, bounds = build_structure(bundle, effects, values, folder / f"upgrade_{rich.name}",
-                                       bundle.train.time.size, min_substeps=whitened.loop.substeps)
+        loop, bounds = build_structure(bundle, effects, values, folder, bundle.train.time.size,
+                                       min_substeps=whitened.loop.substeps)
         result, _ = _best_fit(bundle, loop, bounds, innovations, values, [nested], MAX_NFEV, rich.name,
                               whitened.fit.shift)
-    except (RuntimeError, ValueError, np.linalg.LinAlgError):
+    except (RuntimeError, ValueError, np.linalg.LinAlgError) as exc:
+        _log(progress, f"  {rich.name} in place of {simple.name}, whitened: fit failed ({exc})")
         return None
-    return ModelFit(effects, loop.with_values(result.values), result, bounds, folder / f"upgrade_{rich.name}")
+    return ModelFit(effects, loop.with_values(result.values), result, bounds, folder)
 
 
 def _no_worse(before: tuple[float, float], after: tuple[float, float]) -> bool:
