@@ -142,7 +142,7 @@ def _richer_fit(bundle: Bundle, whitened: ModelFit, rich: effect_models.Effect, 
     """``whitened`` with ``rich`` in place of ``simple``, fitted under ``innovations`` from the point where it
     is ``simple`` at its fitted values (``effects.NESTED_START``; its other parameters at their vanishing
     start): a local test of the extra parameters, which cannot end above ``whitened``. (A second, data-driven
-    start doubled the time and changed no ratio on the benchmark cases tried.) None, and logged, when the fit
+    start doubled the time and changed no decision on the benchmark cases tried.) None, and logged, when the fit
     fails. The arguments of :func:`nested._in_place` (one axis), whose place it takes in
     :func:`nested._side_by_side`."""
     effects = [rich if e is simple else e for e in whitened.effects]
