@@ -75,10 +75,12 @@ def position_from_output(model: symbolic.SymbolicModel, name: str, values: dict[
     i = output_state(model, name)
     if i is None:
         return None
-    expr = output_expression(model, name)
-    at_zero = ca.substitute(expr, model.x, ca.DM.zeros(model.x.numel()))
-    fn = per_model(model, ("affine_output", name),
-                   lambda: ca.Function("affine", [model.p], [ca.jacobian(expr, model.x[i]), at_zero]))
+    def affine() -> ca.Function:
+        expr = output_expression(model, name)
+        return ca.Function("affine", [model.p], [ca.jacobian(expr, model.x[i]),
+                                                 ca.substitute(expr, model.x, ca.DM.zeros(model.x.numel()))])
+
+    fn = per_model(model, ("affine_output", name), affine)
     p = np.array([values.get(v.name, float(v.start)) for v in model.parameters], float)
     gain, offset = (float(value) for value in fn(p))
     if gain == 0 or not np.isfinite(gain) or not np.isfinite(offset):

@@ -38,7 +38,7 @@ from motiontwin.ident.diagnosis import effects as effect_models
 from motiontwin.ident.diagnosis import evidence, noise
 from motiontwin.ident.diagnosis.bundle import Bundle
 from motiontwin.ident.diagnosis.effect_base import vanishing_start
-from motiontwin.ident.diagnosis.nested import _kept, _moved_evidence, _placed, _side_by_side
+from motiontwin.ident.diagnosis.nested import _moved_evidence, _placed, _side_by_side
 from motiontwin.ident.diagnosis.screen import MAX_NFEV, _best_fit
 from motiontwin.ident.diagnosis.select import _unphysical
 from motiontwin.ident.diagnosis.structure import ModelFit, _log, build_structure, validate_any
@@ -98,9 +98,9 @@ def upgraded(bundle: Bundle, chosen: ModelFit, whitened: ModelFit, innovations: 
         return None
     variance = whitened.fit.cost / rows
     best: tuple[float, float, ModelFit, effect_models.Effect, effect_models.Effect] | None = None
-    for _, simple, _ in _kept(whitened, ctx):
-        richer = [e for e in (effect_models.VOCABULARY[r](ctx) for r, s in effect_models.NESTED.items()
-                              if s == simple.name and r in EXACT_NESTED_START) if e.applicable]
+    for simple in whitened.effects:
+        richer = [e for e in (effect_models.VOCABULARY[r](ctx) for r in EXACT_NESTED_START
+                              if effect_models.NESTED[r] == simple.name) if e.applicable]
         if not richer:
             continue
         trials = _side_by_side(bundle, whitened, richer, simple, None, ctx, innovations, folder, progress,
