@@ -78,7 +78,7 @@ def handle_termination() -> Iterator[None]:
     try:
         yield
     finally:
-        _ACTIVE = False
+        _ACTIVE = _TERMINATED = False   # its SIGTERM was raised by now: calls after the block are not stopped
         signal.signal(signal.SIGTERM, previous)
         sys.unraisablehook = previous_hook
 

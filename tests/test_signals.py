@@ -10,6 +10,8 @@ import sys
 import time
 from pathlib import Path
 
+import pytest
+
 from motiontwin.harness.interrupt import handle_termination
 
 
@@ -140,3 +142,33 @@ def test_a_sigterm_python_could_only_print_stops_the_run_without_a_traceback() -
     assert proc.returncode == 143, proc.stderr
     assert "Terminated" not in proc.stderr and proc.stderr.count("Traceback") == 1, proc.stderr
     assert "a destructor's own error" in proc.stderr
+
+
+@pytest.mark.parametrize("workers", ["1", "2"])
+def test_a_sigterm_swallowed_during_a_diagnosis_stops_it_and_writes_nothing(tmp_path, monkeypatch, workers):
+    """A SIGTERM whose exception is swallowed early in a diagnosis (here by its progress callback; in CI by a
+    fork hook as a worker started): with workers the next pool raises it, in-process the check before the
+    outputs are written does; either way :class:`Terminated` and no output folder (the CLI then exits 143)."""
+    from motiontwin.harness.interrupt import Terminated
+    from motiontwin.ident.benchmarks import single_axis as bench
+    from motiontwin.ident.diagnosis import engine
+
+    bundle, out = tmp_path / "bundle", tmp_path / "out"
+    bench.write_bundle(bundle, "gravity_offset", seed=7, scale=1.5, durations=(0.5, 0.25))
+    monkeypatch.setenv("MOTIONTWIN_DIAGNOSIS_WORKERS", workers)
+    lines: list[str] = []
+
+    def swallowing(line: str) -> None:
+        if not lines:
+            try:
+                os.kill(os.getpid(), signal.SIGTERM)
+                time.sleep(1.0)
+            except Terminated:
+                pass
+        lines.append(line)
+
+    with pytest.raises(Terminated), handle_termination():
+        engine.diagnose_bundle(bundle, out, progress=swallowing)
+    assert not out.exists()
+    if workers == "2":
+        assert not any(line.startswith("validation") for line in lines)   # stopped at the first pool

@@ -12,6 +12,7 @@ from typing import Callable
 import threadpoolctl
 
 from motiontwin.harness import BLAS_THREAD_VARIABLES
+from motiontwin.harness.interrupt import raise_if_terminated
 from motiontwin.harness.recording import Recording
 from motiontwin.ident.controller import Controller
 from motiontwin.ident import channels
@@ -91,5 +92,8 @@ def check_bundle_channels(bundle: Bundle) -> None:
 
 def diagnose_bundle(bundle_dir: str | os.PathLike, out_dir: str | os.PathLike, progress=None) -> dict:
     """Diagnose a bundle folder and write diagnosis.json, validation_prediction.csv, report.md (+ PNGs), the
-    augmented Modelica model and its FMU into ``out_dir``. Nothing is written when the input is bad."""
-    return diagnose_bundle_object(read_bundle(bundle_dir), progress).write(out_dir)
+    augmented Modelica model and its FMU into ``out_dir``. Nothing is written when the input is bad, nor when a
+    SIGTERM arrived during the analysis and its exception was swallowed (:func:`interrupt.raise_if_terminated`)."""
+    diagnosis = diagnose_bundle_object(read_bundle(bundle_dir), progress)
+    raise_if_terminated()
+    return diagnosis.write(out_dir)

@@ -10,6 +10,8 @@ import os
 import threading
 from typing import Callable
 
+from motiontwin.harness.interrupt import raise_if_terminated
+
 _TOKENS = itertools.count()  # job tokens (itertools.count is thread-safe in CPython)
 #: jobs by token (a function of a name: a candidate, a replicate): forked workers inherit the table and are sent only
 #: (token, name); every call adds its own token and removes it, so concurrent diagnoses do not collide
@@ -31,7 +33,9 @@ def map_jobs(job: Callable[[str], object], names: list[str]) -> list:
         if workers > 1:
             with concurrent.futures.ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("fork")) \
                     as pool:
-                return list(pool.map(_run_job, [token] * len(names), names))
+                results = list(pool.map(_run_job, [token] * len(names), names))
+            raise_if_terminated()   # a SIGTERM Python could only print (it landed in a fork hook as a worker started)
+            return results
         return [job(name) for name in names]
     finally:
         del _JOBS[token]
