@@ -420,11 +420,23 @@ def fit(loop: Loop, rec: Recording, weights: Weights, bounds: dict[str, tuple[fl
                                           x_init[n_x:] if ctrl_idx else shift)
         return s0_cache[key]
 
+    runs: dict[bytes, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+
+    def run_at(theta: np.ndarray, x_init: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The free run's unclipped weighted residual and simulation, kept from the solver's last accepted
+        point on (:func:`outcome` asks for that point again)."""
+        key = theta.tobytes() + x_init.tobytes()
+        if key not in runs:
+            q, u = loop.sim(state(theta, x_init), W, theta, pf)
+            q, u = _shaped(loop, np.array(q)), _shaped(loop, np.array(u))
+            r = _weighted(qm, q, weights.sigma_q, weights.whiten_q)
+            if loop.closed:
+                r = np.concatenate([r, _weighted(um, u, weights.sigma_u, weights.whiten_u)])
+            runs[key] = (r, q, u)
+        return runs[key]
+
     def res_at(theta: np.ndarray, x_init: np.ndarray) -> np.ndarray:
-        q, u = loop.sim(state(theta, x_init), W, theta, pf)
-        r = _weighted(qm, _shaped(loop, np.array(q)), weights.sigma_q, weights.whiten_q)
-        if loop.closed:
-            r = np.concatenate([r, _weighted(um, _shaped(loop, np.array(u)), weights.sigma_u, weights.whiten_u)])
+        r = run_at(theta, x_init)[0]
         # a diverging free run: each sample counts RESIDUAL_LIMIT at most, so that the solver's sums stay finite
         # (a run at 1e303 is finite, its squares are not, and the trust-region step then fails on NaN)
         return np.clip(np.where(np.isfinite(r), r, RESIDUAL_LIMIT), -RESIDUAL_LIMIT, RESIDUAL_LIMIT)
@@ -446,8 +458,16 @@ def fit(loop: Loop, rec: Recording, weights: Weights, bounds: dict[str, tuple[fl
         return res_at(*split(xs))
 
     def jac(xs: np.ndarray) -> np.ndarray:
+        """The solver's Jacobian, the last one kept: the solver ends on a point whose Jacobian it computed,
+        and :func:`outcome` asks for it again."""
         key = xs.tobytes()
-        return jac_cache[key] if key in jac_cache else solver_jacobian(jac_at(*split(xs)))
+        if key not in jac_cache:
+            jac_cache.clear()
+            jac_cache[key] = solver_jacobian(jac_at(*split(xs)))
+        accepted = b"".join(part.tobytes() for part in split(xs))   # the solver asks at accepted points only:
+        for stale in [k for k in runs if k != accepted]:             # the runs of the points it refused go
+            del runs[stale]
+        return jac_cache[key]
 
     if ctrl_idx and loop.shift_states is None:   # the controller's relation on the recorded signals prices a
         # shift of its start
@@ -494,8 +514,7 @@ def fit(loop: Loop, rec: Recording, weights: Weights, bounds: dict[str, tuple[fl
         final = {**values, **dict(zip(names, map(float, theta)))}
         initial = dict(zip(estimate_initial, map(float, x_init[:n_x])))
         held = x_init[n_x:] if ctrl_idx else shift      # the controller start of this fit
-        r, q, u = residuals(loop, rec, final, weights, q_meas=qm, u_meas=um, initial={**known, **initial},
-                            shift=held)
+        r, q, u = run_at(theta, x_init)
         cost = squared_norm(r)
         with np.errstate(over="ignore"):
             rms = float(np.sqrt(np.mean((qm - q) ** 2))) if np.all(np.isfinite(q)) else math.inf
