@@ -18,7 +18,7 @@ from motiontwin.ident import outputerror
 from motiontwin.ident.diagnosis import axis_kinematics
 from motiontwin.ident.diagnosis import effects as effect_models
 from motiontwin.ident.diagnosis.augmented import (AUGMENTED_CLASS, axis_prefix, load_augmented, load_structure,
-                                                  write_axes_structure, write_structure)
+                                                  load_written, write_axes_structure, write_structure)
 from motiontwin.ident.diagnosis.bundle import Bundle, PlantInfo
 from motiontwin.ident.diagnosis.noise import ProcessNoise, noisy_simulator
 from motiontwin.ident.diagnosis.plant_roles import PlantRoles
@@ -164,8 +164,9 @@ def build_structure(bundle: Bundle, effects: list[effect_models.Effect], values:
     names = tuple(e.name for e in effects)
     model = cache.models.get(names)
     if model is None:
-        write_structure(bundle.plant, effects, values, folder)
-        model = cache.models[names] = load_augmented(folder, AUGMENTED_CLASS)
+        model = cache.models[names] = load_written(
+            lambda where, written: write_structure(bundle.plant, effects, written, where),
+            lambda where: load_augmented(where, AUGMENTED_CLASS), values, folder)
     free, bounds, all_values = structure_parameters(model, effects, *_nominal_bounds(bundle, "plant."), values)
     tracking = {s: "q" for e in effects for s in e.tracks_position} | _moving_start(bundle, "plant.")
     tracking.update({s: "u" for e in effects for s in e.tracks_force})
@@ -387,8 +388,9 @@ def build_axes(bundle: Bundle, effects: list[tuple[str, effect_models.Effect]], 
     names = tuple(f"{e.name}@{axis}" for axis, e in effects)
     model = cache.models.get(names)
     if model is None:
-        write_axes_structure(bundle.plant, effects, values, folder)
-        model = cache.models[names] = load_structure(folder)
+        model = cache.models[names] = load_written(
+            lambda where, written: write_axes_structure(bundle.plant, effects, written, where), load_structure,
+            values, folder)
     free, bounds, all_values = structure_parameters(model, [e for _, e in effects], *bundle.nominal_free, values)
     substeps = max(min_substeps, outputerror.stable_substeps(model, all_values, bundle.controller.sample_time))
     key = ("axes",) + (names, n_samples, substeps, with_jacobian)
