@@ -3,6 +3,7 @@ project's FMU run by fmpy (the C runtime's RODAS4 integrator), open loop and in 
 with white encoder noise. Units: s, m, N."""
 from __future__ import annotations
 
+import dataclasses
 import json
 import re
 from pathlib import Path
@@ -436,3 +437,27 @@ def test_a_start_whose_free_run_nearly_overflows_does_not_stop_the_fit(tmp_path)
     assert np.all(np.isfinite(q)) and np.max(np.abs(q)) > 1e200
     result = oe.fit(loop, rec, oe.Weights(1e-6), start={"k": 2.9e5}, max_nfev=10)
     assert result.cost == np.inf and result.values["k"] == pytest.approx(2.9e5)
+
+
+def test_the_fit_reports_the_values_its_last_point_gives_without_running_it_again(model, fmu):
+    """The fit keeps the solver's last Jacobian and its last accepted point's free run (issue 25): its cost,
+    residual, simulation and Jacobian equal those computed afresh at the values it returns (the reference), and
+    it runs no free run beyond the solver's own evaluations and the start's."""
+    ctrl, rec = _closed_loop_recording(fmu, n=2000)
+    loop = oe.build_loop(model, ctrl, "x", ["m", "d"], {"m": 3.0, "d": 10.0}, rec.time.size)
+    weights = oe.Weights(NOISE, 0.05)
+    runs, jacobians = [], []
+    sim, jac = loop.sim, loop.jac
+    loop = dataclasses.replace(loop, sim=lambda *a: runs.append(1) or sim(*a),
+                               jac=lambda *a: jacobians.append(1) or jac(*a))
+    fit = oe.fit(loop, rec, weights, start={"m": 3.0, "d": 10.0}, max_nfev=10)
+    r, q, u = oe.residuals(loop, rec, fit.values, weights)
+    assert fit.cost == oe.squared_norm(r) and np.array_equal(fit.residual, r)
+    assert np.array_equal(fit.q_sim, q) and np.array_equal(fit.u_sim, u)
+    values = fit.values
+    s0 = oe.initial_state(loop, rec, values)
+    reference = oe.weighted_jacobian(loop, s0, oe.drive(rec, signals=loop.channels, closed=True), loop.theta(values),
+                                     np.array([values[n] for n in loop.fixed]), [], weights)
+    np.testing.assert_allclose(fit.jacobian, reference, rtol=1e-12, atol=0)
+    assert len(runs) - 1 <= fit.nfev + 1      # the solver's free runs and the start's check; -1: the reference's
+    assert len(jacobians) - 1 <= fit.nfev     # one per accepted point at most; -1: the reference's
