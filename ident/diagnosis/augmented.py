@@ -152,10 +152,12 @@ CANONICAL_VALUE = 1.0
 def load_written(write: Callable[[Path, dict[str, float]], object], load: Callable[[Path], symbolic.SymbolicModel],
                  values: dict[str, float], folder: Path) -> symbolic.SymbolicModel:
     """The model that ``write(folder, values)`` writes and ``load(folder)`` reads, loaded from the same source
-    written with every value at ``CANONICAL_VALUE`` (in a temporary folder), then given the written values as
-    its parameters' start values (a value written into the text comes back exactly, ``float`` repr), and
-    ``folder`` as its source. Why: the front end caches a flattened model by its source text (:mod:`fmus.modelcache`),
-    and a structure's text changes only by its values from one fit, candidate or diagnosis to the next; loaded so,
+    written with every value at ``CANONICAL_VALUE`` (in a temporary folder beside ``folder``: inside the
+    diagnosis' own work folder, which its cleanup removes even when a worker is killed), then given the written
+    values as its parameters' start values (a value written into the text comes back exactly, ``float`` repr),
+    and ``folder`` as its source. Why: the front end caches a flattened model by its source text
+    (:mod:`fmus.modelcache`), and a structure's text changes only by its values from one fit, candidate or
+    diagnosis to the next; loaded so,
     each structure is parsed and flattened once per machine and plant file, not once per diagnosis (24 parses,
     about a quarter of the CPU of a 1.5 s + 0.75 s single-axis diagnosis). The writers put a value into the text
     as a modifier of the plant (``plant.`` names) or as an effect's parameter; a plant modifier that sets no
@@ -163,7 +165,7 @@ def load_written(write: Callable[[Path, dict[str, float]], object], load: Callab
     (its errors name it)."""
     write(folder, values)
     try:
-        with tempfile.TemporaryDirectory(prefix="structure-") as tmp:
+        with tempfile.TemporaryDirectory(prefix=".canonical-", dir=folder.parent) as tmp:
             write(Path(tmp), dict.fromkeys(values, CANONICAL_VALUE))
             model = load(Path(tmp))
     except frontend.ModelicaError:
