@@ -422,10 +422,13 @@ def fit(loop: Loop, rec: Recording, weights: Weights, bounds: dict[str, tuple[fl
 
     runs: dict[bytes, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
 
+    def point(theta: np.ndarray, x_init: np.ndarray) -> bytes:
+        return theta.tobytes() + x_init.tobytes()
+
     def run_at(theta: np.ndarray, x_init: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The free run's unclipped weighted residual and simulation, kept from the solver's last accepted
         point on (:func:`outcome` asks for that point again)."""
-        key = theta.tobytes() + x_init.tobytes()
+        key = point(theta, x_init)
         if key not in runs:
             q, u = loop.sim(state(theta, x_init), W, theta, pf)
             q, u = _shaped(loop, np.array(q)), _shaped(loop, np.array(u))
@@ -464,8 +467,8 @@ def fit(loop: Loop, rec: Recording, weights: Weights, bounds: dict[str, tuple[fl
         if key not in jac_cache:
             jac_cache.clear()
             jac_cache[key] = solver_jacobian(jac_at(*split(xs)))
-        accepted = b"".join(part.tobytes() for part in split(xs))   # the solver asks at accepted points only:
-        for stale in [k for k in runs if k != accepted]:             # the runs of the points it refused go
+        accepted = point(*split(xs))      # the solver asks at accepted points only: the runs of the points it
+        for stale in [k for k in runs if k != accepted]:      # refused go
             del runs[stale]
         return jac_cache[key]
 
