@@ -77,7 +77,7 @@ def test_the_prediction_error_refit_recovers_the_mass_the_white_weights_miss(cou
     bundle.process_noise = noise.of_bundle(bundle, nominal.fit.values, weights.sigma_q)
     ctx = context(bundle, nominal)
     coulomb = effect_models.VOCABULARY["coulomb_friction"](ctx)
-    start = {**{"plant." + k: v for k, v in nominal.fit.values.items()}, "coulomb_Fc": 0.018, "coulomb_v_eps": 1e-4}
+    start = {**{"plant." + k: v for k, v in nominal.fit.values.items()}, "coulomb_Fc": 0.018, "coulomb_v_eps": 1e-3}
     loop, bounds = build_structure(bundle, [coulomb], start, tmp_path / "fit", bundle.train.time.size)
     fit = outputerror.fit(loop, bundle.train, weights, bounds, start=start, max_nfev=40, estimate_start=True)
     white = ModelFit([coulomb], loop.with_values(fit.values), fit, bounds, tmp_path / "fit")
