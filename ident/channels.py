@@ -17,6 +17,7 @@ u_ext in one force unit).
 """
 from __future__ import annotations
 
+import hashlib
 from dataclasses import dataclass
 
 import numpy as np
@@ -65,9 +66,34 @@ def lifted(ctrl: Controller) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return a_l, b0, b1
 
 
+_RESPONSES: dict[bytes, tuple[np.ndarray, np.ndarray]] = {}
+_RESPONSES_KEPT = 8     # a diagnosis asks for the same few (its recordings under one controller) dozens of times
+
+
 def controller_responses(ctrl: Controller, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Forced response p (outputs x N) from z_0 = 0 and free-response rows G (outputs x N x states); a
-    controller faster than the recording by :func:`lifted`."""
+    controller faster than the recording by :func:`lifted`. Kept by the contents of the controller and of
+    ``y`` (a per-sample loop that the fits' start-state priors and floors repeat on the same recording);
+    the arrays returned are read-only."""
+    digest = hashlib.blake2b(digest_size=20)
+    for a in (ctrl.A, ctrl.B, ctrl.C, ctrl.D, y):
+        a = np.ascontiguousarray(a, float)
+        digest.update(str(a.shape).encode())
+        digest.update(a.tobytes())
+    key = digest.digest() + str(ctrl.ticks).encode()
+    found = _RESPONSES.get(key)      # one lookup: a concurrent diagnosis may clear the table in between
+    if found is None:
+        found = _responses(ctrl, np.asarray(y, float))
+        for a in found:
+            a.flags.writeable = False
+        if len(_RESPONSES) >= _RESPONSES_KEPT:
+            _RESPONSES.clear()
+        _RESPONSES[key] = found
+    return found
+
+
+def _responses(ctrl: Controller, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`controller_responses` computed, sample by sample."""
     n = y.shape[1]
     n_out, n_z = ctrl.C.shape[0], ctrl.A.shape[0]
     a_l, b0, b1 = lifted(ctrl)

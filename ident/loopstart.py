@@ -164,10 +164,12 @@ def _controller_start(ctrl: Controller, y: np.ndarray, forces: np.ndarray) -> np
     only, not on the plant's parameters, so it is kept by their contents (a few hundred bytes)."""
     key = b"".join(np.ascontiguousarray(a, float).tobytes() + str(np.shape(a)).encode()
                    for a in (ctrl.A, ctrl.B, ctrl.C, ctrl.D, y, forces)) + str(ctrl.ticks).encode()
-    if key not in _CONTROLLER_STARTS:
+    start = _CONTROLLER_STARTS.get(key)      # one lookup: a concurrent diagnosis may clear the table in between
+    if start is None:
         forced, free = controller_responses(ctrl, y)
         rows = free.transpose(1, 0, 2).reshape(-1, ctrl.n_states)          # sample-major, as the outputs
+        start = np.linalg.lstsq(rows, (forces - forced).T.ravel(), rcond=1e-10)[0]
         if len(_CONTROLLER_STARTS) >= 64:
             _CONTROLLER_STARTS.clear()
-        _CONTROLLER_STARTS[key] = np.linalg.lstsq(rows, (forces - forced).T.ravel(), rcond=1e-10)[0]
-    return _CONTROLLER_STARTS[key].copy()
+        _CONTROLLER_STARTS[key] = start
+    return start.copy()

@@ -71,3 +71,33 @@ def test_diagnose_refuses_a_disturbance_channel_in_volts(bundle, tmp_path, capsy
     err = capsys.readouterr().err
     assert str(wrong / "train.csv") in err and "u_ext is scaled by 20" in err and err.count("\n") == 1
     assert not out.exists()
+
+
+def test_controller_responses_are_scipys_and_kept_by_content():
+    """The forced response against scipy.signal.dlsim from rest and the free-response rows against C A^k; kept
+    by the contents of the controller and of y: a changed sample or a changed gain gives the new response, not
+    the one kept, and what is kept cannot be written to."""
+    from scipy import signal
+    from motiontwin.ident.channels import controller_responses
+    from motiontwin.ident.controller import Controller
+
+    rng = np.random.default_rng(0)
+    A = np.array([[1.0, 1e-3], [0.0, 0.9]])
+    B = np.array([[1e-3, -1e-3], [0.2, -0.2]])
+    C = np.array([[50.0, 3.0]])
+    D = np.array([[400.0, -400.0]])
+    ctrl = Controller(1e-3, A, B, C, D)
+    y = rng.standard_normal((2, 300))
+    p, g = controller_responses(ctrl, y)
+    assert controller_responses(ctrl, y)[0] is p
+    _, expected, _ = signal.dlsim((A, B, C, D, 1e-3), y.T)
+    np.testing.assert_allclose(p[0], expected[:, 0], rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(g[0, 17], C[0] @ np.linalg.matrix_power(A, 17), rtol=1e-12)
+    assert not p.flags.writeable and not g.flags.writeable
+    changed = y.copy()
+    changed[1, 100] += 1.0
+    p2, _ = controller_responses(ctrl, changed)
+    np.testing.assert_array_equal(p2[0, :100], p[0, :100])
+    assert p2[0, 100] == pytest.approx(p[0, 100] - 400.0)
+    p3, _ = controller_responses(Controller(1e-3, A, B, C, 2 * D), y)
+    np.testing.assert_allclose(p3[0] - p[0], (D @ y)[0], rtol=1e-9, atol=1e-9)
