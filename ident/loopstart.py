@@ -30,12 +30,9 @@ def _states_for_outputs(model, targets: dict[str, tuple[float, float]], x0: np.n
     pose coordinates), and then the velocity-level states that the outputs' rates are affine in from the slopes
     (when as many, and the rates depend on no input); False, ``x0`` unchanged, when the positions are not
     determined or Newton does not converge."""
-    h = ca.vertcat(*[plant_states.output_expression(model, name) for name in targets])
-    nx = model.x.numel()
-    dep = [i for i in range(nx) if ca.depends_on(h, model.x[i])]
-    if len(dep) != len(targets):
+    dep, fn, vel, rate_fn = _output_functions(model, tuple(targets))
+    if fn is None:
         return False
-    fn = ca.Function("h", [model.x, model.u, model.p], [h, ca.jacobian(h, model.x)[:, dep]])
     x = x0.copy()
     goal, u0 = np.array([v[0] for v in targets.values()]), np.zeros(model.u.numel())
     for _ in range(steps):
@@ -49,18 +46,36 @@ def _states_for_outputs(model, targets: dict[str, tuple[float, float]], x0: np.n
             break
     else:
         return False
-    rate = ca.jtimes(h, model.x, model.dx)
-    vel = [i for i in range(nx) if i not in dep and ca.depends_on(rate, model.x[i])]
-    if len(vel) == len(targets) and not ca.depends_on(rate, model.u):
+    if rate_fn is not None:
         x[vel] = 0.0
-        offset, gain = (np.array(m) for m in ca.Function("r", [model.x, model.u, model.p],
-                                                          [rate, ca.jacobian(rate, model.x)[:, vel]])(x, u0, p))
+        offset, gain = (np.array(m) for m in rate_fn(x, u0, p))
         try:
             x[vel] = np.linalg.solve(gain, np.array([v[1] for v in targets.values()]) - offset.ravel())
         except np.linalg.LinAlgError:
             x[vel] = x0[vel]
     x0[:] = x
     return True
+
+
+def _output_functions(model, names: tuple[str, ...]) -> tuple[list[int], ca.Function | None, list[int],
+                                                               ca.Function | None]:
+    """For the outputs ``names``: the states they depend on, (x, u, p) -> (outputs, their Jacobian in those
+    states) (None unless they are as many as the outputs), the velocity-level states the outputs' rates are
+    affine in, and (x, u, p) -> (rates, their Jacobian in those) (None unless as many, and the rates depend on
+    no input). Built once per model: every free run of a fit asks for its start."""
+    def build() -> tuple[list[int], ca.Function | None, list[int], ca.Function | None]:
+        h = ca.vertcat(*[plant_states.output_expression(model, name) for name in names])
+        nx = model.x.numel()
+        dep = [i for i in range(nx) if ca.depends_on(h, model.x[i])]
+        if len(dep) != len(names):
+            return dep, None, [], None
+        fn = ca.Function("h", [model.x, model.u, model.p], [h, ca.jacobian(h, model.x)[:, dep]])
+        rate = ca.jtimes(h, model.x, model.dx)
+        vel = [i for i in range(nx) if i not in dep and ca.depends_on(rate, model.x[i])]
+        if len(vel) != len(names) or ca.depends_on(rate, model.u):
+            return dep, fn, vel, None
+        return dep, fn, vel, ca.Function("r", [model.x, model.u, model.p], [rate, ca.jacobian(rate, model.x)[:, vel]])
+    return plant_states.per_model(model, ("output_functions", names), build)
 
 
 def initial_state(loop: Loop, rec: Recording, values: dict[str, float] | None = None,

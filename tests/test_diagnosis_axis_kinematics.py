@@ -182,3 +182,5 @@ def test_loop_starts_at_the_recorded_pose(hexapod) -> None:
         np.testing.assert_allclose(start[6:], expected[6:], atol=1e-6)
     assert s0.size == model.x.numel() + ctrl.n_states and np.all(np.isfinite(s0))
     assert np.max(np.abs(x0[:6] - expected[:6])) > 0.01      # the start pose is elsewhere
+    # the Newton and rate functions are built once per model, not for each of a fit's free runs
+    assert loopstart._output_functions(model, tuple(targets)) is loopstart._output_functions(model, tuple(targets))
