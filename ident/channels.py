@@ -26,7 +26,8 @@ from motiontwin.harness.recording import Recording
 from motiontwin.ident.controller import Controller, at_recording_step
 from motiontwin.ident.oeloop import Signals
 
-__all__ = ["ChannelCheck", "check_channels", "channel_problem", "controller_relation", "controller_responses", "lifted",
+__all__ = ["ChannelCheck", "check_channels", "channel_problem", "content_key", "controller_relation",
+           "controller_responses", "lifted",
            "MAX_DELAY", "NOISE_FACTOR", "RELATIVE_TOLERANCE", "UNEXPLAINED_SHARE"]
 
 MAX_DELAY = 10            # samples searched either way
@@ -66,6 +67,17 @@ def lifted(ctrl: Controller) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return a_l, b0, b1
 
 
+def content_key(*parts: np.ndarray | float) -> bytes:
+    """A digest of the shapes and contents of ``parts`` (arrays or numbers): the key of the caches that keep
+    what is computed from a controller and recorded signals alone."""
+    digest = hashlib.blake2b(digest_size=20)
+    for part in parts:
+        part = np.ascontiguousarray(part, float)
+        digest.update(str(part.shape).encode())
+        digest.update(part.tobytes())
+    return digest.digest()
+
+
 _RESPONSES: dict[bytes, tuple[np.ndarray, np.ndarray]] = {}
 _RESPONSES_KEPT = 8     # a diagnosis asks for the same few (its recordings under one controller) dozens of times
 
@@ -75,12 +87,7 @@ def controller_responses(ctrl: Controller, y: np.ndarray) -> tuple[np.ndarray, n
     controller faster than the recording by :func:`lifted`. Kept by the contents of the controller and of
     ``y`` (a per-sample loop that the fits' start-state priors and floors repeat on the same recording);
     the arrays returned are read-only."""
-    digest = hashlib.blake2b(digest_size=20)
-    for a in (ctrl.A, ctrl.B, ctrl.C, ctrl.D, y):
-        a = np.ascontiguousarray(a, float)
-        digest.update(str(a.shape).encode())
-        digest.update(a.tobytes())
-    key = digest.digest() + str(ctrl.ticks).encode()
+    key = content_key(ctrl.A, ctrl.B, ctrl.C, ctrl.D, y, ctrl.ticks)
     found = _RESPONSES.get(key)      # one lookup: a concurrent diagnosis may clear the table in between
     if found is None:
         found = _responses(ctrl, np.asarray(y, float))

@@ -10,7 +10,7 @@ import numpy as np
 
 from motiontwin.harness.recording import Recording
 from motiontwin.ident import plant_states, startvalues
-from motiontwin.ident.channels import controller_responses
+from motiontwin.ident.channels import content_key, controller_responses
 from motiontwin.ident.controller import Controller
 from motiontwin.ident.oeloop import Loop, _output_gain, _state_for_output, output_state
 
@@ -177,8 +177,7 @@ def _controller_start(ctrl: Controller, y: np.ndarray, forces: np.ndarray) -> np
     """The controller state that reproduces the recorded ``forces`` (outputs x samples) on its inputs ``y``
     best (least squares over those samples). It depends on the recording's first samples and the controller
     only, not on the plant's parameters, so it is kept by their contents (a few hundred bytes)."""
-    key = b"".join(np.ascontiguousarray(a, float).tobytes() + str(np.shape(a)).encode()
-                   for a in (ctrl.A, ctrl.B, ctrl.C, ctrl.D, y, forces)) + str(ctrl.ticks).encode()
+    key = content_key(ctrl.A, ctrl.B, ctrl.C, ctrl.D, y, forces, ctrl.ticks)
     start = _CONTROLLER_STARTS.get(key)      # one lookup: a concurrent diagnosis may clear the table in between
     if start is None:
         forced, free = controller_responses(ctrl, y)
