@@ -10,7 +10,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from motiontwin.harness.recording import Recording
-from motiontwin.ident.channels import controller_relation, lifted, noise_level
+from motiontwin.ident.channels import content_key, controller_relation, lifted, noise_level
 from motiontwin.ident.loopstart import _column, initial_state, unshifted_start_state
 from motiontwin.ident.oeloop import Loop, Signals, default_bounds
 
@@ -213,21 +213,23 @@ def _relation(loop: Loop, rec: Recording) -> tuple[np.ndarray, np.ndarray, np.nd
     what that leaves; cached by recording, start and controller (one for every refit of a diagnosis)."""
     ctrl = loop.controller
     z0 = unshifted_start_state(loop, rec, None, None)[-ctrl.n_states:]
-    signals = b"".join(_column(rec, c, True).tobytes() for sig in loop.channels
-                       for c in (sig.reference, sig.input, sig.output, sig.disturbance))
-    key = (id(rec), hash(signals), z0.tobytes(), *(m.tobytes() for m in (ctrl.A, ctrl.B, ctrl.C, ctrl.D)))
-    if key not in _RELATIONS:
-        if len(_RELATIONS) > 8:
-            _RELATIONS.clear()
+    signals = [_column(rec, c, True) for sig in loop.channels
+               for c in (sig.reference, sig.input, sig.output, sig.disturbance)]
+    key = content_key(*signals, z0, ctrl.A, ctrl.B, ctrl.C, ctrl.D, ctrl.ticks, ctrl.sample_time)
+    found = _RELATIONS.get(key)      # one lookup: a concurrent diagnosis may clear the table in between
+    if found is None:
         relation, rows = controller_relation(ctrl, rec, loop.channels, z0)
         shift = np.linalg.lstsq(rows, relation, rcond=1e-10)[0]
         left = (relation - rows @ shift).reshape(len(loop.channels), -1)
-        _RELATIONS[key] = (relation, rows, shift, np.array([noise_level(axis, ctrl.sample_time) for axis in left]))
-    return _RELATIONS[key]
+        found = relation, rows, shift, np.array([noise_level(axis, ctrl.sample_time) for axis in left])
+        if len(_RELATIONS) > 8:
+            _RELATIONS.clear()
+        _RELATIONS[key] = found
+    return found
 
 
 #: _relation's results by recording, start state and controller
-_RELATIONS: dict[tuple, tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = {}
+_RELATIONS: dict[bytes, tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = {}
 
 
 def relation_shift(loop: Loop, rec: Recording) -> np.ndarray | None:

@@ -12,11 +12,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from scipy import signal
 
 from motiontwin.harness.recording import make_recording, read_recording, write_recording
 from motiontwin.ident.benchmarks import single_axis as bench
-from motiontwin.ident.channels import channel_problem, check_channels
-from motiontwin.ident.controller import load_controller
+from motiontwin.ident.channels import channel_problem, check_channels, controller_responses
+from motiontwin.ident.controller import Controller, load_controller
 from motiontwin.ident.diagnosis import main
 
 
@@ -77,10 +78,6 @@ def test_controller_responses_are_scipys_and_kept_by_content():
     """The forced response against scipy.signal.dlsim from rest and the free-response rows against C A^k; kept
     by the contents of the controller and of y: a changed sample or a changed gain gives the new response, not
     the one kept, and what is kept cannot be written to."""
-    from scipy import signal
-    from motiontwin.ident.channels import controller_responses
-    from motiontwin.ident.controller import Controller
-
     rng = np.random.default_rng(0)
     A = np.array([[1.0, 1e-3], [0.0, 0.9]])
     B = np.array([[1e-3, -1e-3], [0.2, -0.2]])
