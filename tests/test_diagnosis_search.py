@@ -15,13 +15,13 @@ import pytest
 from motiontwin.ident import outputerror
 from motiontwin.ident.benchmarks import independent
 from motiontwin.ident.benchmarks import single_axis as bench
-from motiontwin.ident.diagnosis import effect_base, empirical
+from motiontwin.ident.diagnosis import effect_base, empirical, fleet, report, select
 from motiontwin.ident.diagnosis import effects as effect_models
 from motiontwin.ident.diagnosis.bundle import read_bundle
 from motiontwin.ident.diagnosis.locate import context
 from motiontwin.ident.diagnosis.nominal import fit_nominal, nominal_start
 from motiontwin.ident.diagnosis.screen import SCREEN_NFEV, VANISHING_RTOL, fit_structure, screening_defect
-from motiontwin.ident.diagnosis.structure import LoopCache
+from motiontwin.ident.diagnosis.structure import LoopCache, validate_any
 
 
 def short_bundle_nominal(folder, case: str, seed: int) -> tuple:
@@ -160,3 +160,42 @@ def test_richer_form_in_place_of_its_nested_effect_never_above_the_model(with_co
         assert trial.start_cost == pytest.approx(cost, rel=VANISHING_RTOL)   # the richer form is the model
         assert trial.fit.cost <= cost * (1 + VANISHING_RTOL)
     assert trial.fit.cost <= trial.start_cost
+
+
+def test_a_current_limit_the_training_hits_once_is_found_and_not_confirmed(tmp_path):
+    """The audit set's concealed current limit (the independent simulator's; the PID winds up behind it) clips
+    one 28 ms stretch of the training run's largest force demand, and the validation run never comes near it.
+    Screening: the cost in the limit is a needle (flat above the peak force, a loop that blows up a little
+    below the limit), which the quantile starts of |u| missed (the screened cost fell by 8 of 4.9e6); the starts
+    between the largest peaks of |u| find it. Reference: the truth's limit, and the recorded forces. Selection:
+    the validation rule cannot judge an effect the validation does not exercise; it is reported as such, with
+    where its training evidence lies (here all in the half that holds the event)."""
+    name, seed = next(c for c in independent.case_list("audit") if c[0] == "current_limit")
+    truth = independent.write_bundle(tmp_path / "bundle", independent.draw_case(name, seed))
+    limit = truth["laws"][0]["parameters"]["Fmax"]
+    bundle = read_bundle(tmp_path / "bundle")
+    bundle.cache = LoopCache()
+    bundle.start = nominal_start(bundle)
+    nominal, weights = fit_nominal(bundle)
+    ctx = context(bundle, nominal)
+    trial = fit_structure(bundle, nominal, effect_models.VOCABULARY["actuator_saturation"](ctx), ctx, weights,
+                          tmp_path / "saturation", SCREEN_NFEV)
+    assert trial.fit.values["saturation_Fmax"] == pytest.approx(limit, rel=0.01)
+    assert nominal.fit.cost - trial.fit.cost > 0.5 * nominal.fit.cost
+    u_train, u_val = np.abs(bundle.train["u"]), np.abs(bundle.validation["u"])
+    assert np.max(u_val) < 0.5 * limit < limit < np.max(u_train)
+    clipped = np.flatnonzero(u_train > limit)
+    assert clipped[0] >= u_train.size // 2       # the event lies in the training run's second half
+    validate_any(bundle, nominal, tmp_path / "v_nominal")
+    validate_any(bundle, trial, tmp_path / "v_trial")
+    silent = select._unexercised(bundle, nominal, trial, weights, None, tmp_path / "v_vanished")
+    assert silent is not None and max(silent["validation_change"]) < 1e-3
+    first, second = silent["training_halves"]
+    assert second > 1e3 * abs(first)
+    entry = {"round": 1, "effect": "actuator_saturation", "cost_reduction": 1.0, "null_threshold": 0.1,
+             "evidence_ratio": 10.0, "not_exercised_by_validation": silent}
+    assert report.not_confirmed([entry]) == [entry]
+    assert report.not_confirmed([{k: v for k, v in entry.items() if k != "not_exercised_by_validation"}]) == []
+    doc = {"effects": [], "not_confirmed": [entry], "validation": {"nominal_rms": 1.0, "augmented_rms": 1.0}}
+    assert "only its parameters were off" not in "".join(report.no_effect_lines(doc, "x"))
+    assert fleet.summary_fields(doc)["verdict"] == "not confirmed: actuator_saturation"

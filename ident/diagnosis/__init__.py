@@ -34,9 +34,12 @@ def run(bundle: str, out: str, quiet: bool = False, allow_outside_paths: bool = 
     from motiontwin.ident.diagnosis.bounds import at_bound_text
     from motiontwin.ident.diagnosis.report import unexplained_text
 
-    unexplained = doc.get("unexplained")
+    unexplained, unconfirmed = doc.get("unexplained"), doc.get("not_confirmed")
     names = ", ".join(e["name"] + (f" on {e['axis']}" if "axis" in e else "") for e in doc["effects"]) \
-        or ("none" if unexplained else "none (only parameters were off)")
+        or ("none" if unexplained or unconfirmed else "none (only parameters were off)")
+    if unconfirmed:
+        names += "; not confirmed (the validation recording does not exercise it): " + ", ".join(
+            c["effect"] + (f" on {c['axis']}" if "axis" in c else "") for c in unconfirmed)
     if unexplained:
         names += f"; {unexplained_text(unexplained)}"
     val = doc["validation"]

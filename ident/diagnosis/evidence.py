@@ -258,6 +258,37 @@ def validation_text(info: dict, units: AxisUnits, axis: str | None = None) -> st
     return text
 
 
+#: an effect whose vanishing changes the validation run by less than this share of its RMS (position and force)
+#: is not exercised by the validation recording (:func:`select._unexercised`)
+SILENT_SHARE = 0.01
+
+
+def half_gains(q: np.ndarray, u: np.ndarray, before: tuple[np.ndarray, np.ndarray],
+               after: tuple[np.ndarray, np.ndarray], weights, with_force: bool = True) -> list[float]:
+    """The noise-weighted cost reduction of ``after`` (simulated output, force) over ``before`` on recorded
+    ``q``, ``u``, in each half of the recording (1-D signals or one row per axis, weighted by
+    ``weights.sigma_q``/``sigma_u`` per axis; the force channel only ``with_force``)."""
+    def cost(sim: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+        sq = np.reshape(np.asarray(weights.sigma_q, float), (-1, 1))
+        per = ((np.atleast_2d(q) - np.atleast_2d(sim[0])) / sq) ** 2
+        if with_force:
+            su = np.reshape(np.asarray(weights.sigma_u, float), (-1, 1))
+            per = per + ((np.atleast_2d(u) - np.atleast_2d(sim[1])) / su) ** 2
+        return np.sum(per, axis=0)
+    gain = cost(before) - cost(after)
+    return [float(np.sum(half)) for half in np.array_split(gain, 2)]
+
+
+def silent_text(info: dict) -> str:
+    """Why a significant effect the validation rejected is not confirmed (:func:`select._unexercised`)."""
+    q, u = info["validation_change"]
+    first, second = info["training_halves"]
+    return (f"not confirmed: the validation recording does not exercise it (at its vanishing point the validation "
+            f"run changes by {100 * q:.2g} % of its RMS in position, {100 * u:.2g} % in force), so the validation "
+            f"can neither confirm nor refute it; its training cost reduction is {first:.4g} in the first half of "
+            f"the recording and {second:.4g} in the second")
+
+
 #: equal-count bins of the measured validation position in none of which an accepted effect may make the
 #: recorded force's residual much worse (:func:`stroke_ratios`)
 STROKE_BINS = 4

@@ -136,7 +136,9 @@ def summary_fields(document: dict[str, Any]) -> dict[str, Any]:
     effects = ";".join(e["name"] + (f"@{e['axis']}" if "axis" in e else "") for e in document["effects"])
     unexplained = document.get("unexplained")
     verdict = (f"unexplained: {unexplained['status']}" if unexplained
-               else "missing physics named" if effects else "parameters only")
+               else "missing physics named" if effects
+               else "not confirmed: " + ";".join(c["effect"] for c in document["not_confirmed"])
+               if document.get("not_confirmed") else "parameters only")
     val = document["validation"]
     nominal, augmented = val.get("nominal_rms"), val.get("augmented_rms")
     gain = nominal / augmented if nominal is not None and augmented else None

@@ -138,6 +138,7 @@ def diagnosis_document(result: dict, out: Path, fmu_path: Path | None) -> dict:
     return {
         "effects": effects,
         "unexplained": unexplained_entry(remainder),
+        "not_confirmed": not_confirmed(result["log"]),
         "residual_check": {k: remainder[k] for k in ("status", "reason") if k in remainder},
         "validation": {"nominal_rms": float(nominal.val_rms), "augmented_rms": aug_rms,
                        **_above_floor(float(nominal.val_rms), aug_rms, result["validation_floor"]),
@@ -166,6 +167,31 @@ def diagnosis_document(result: dict, out: Path, fmu_path: Path | None) -> dict:
                              "updates_per_sample": result["bundle"].controller.ticks,
                              "rate": result["bundle"].controller.describe_rate()}),
     }
+
+
+def not_confirmed(log: list[dict]) -> list[dict]:
+    """diagnosis.json's ``not_confirmed``: the significant candidates the validation rejected but does not
+    exercise (``not_exercised_by_validation`` in their candidate entry, :func:`select._unexercised`), the
+    latest round's entry per effect and axis. They are not in the model: nothing confirms them."""
+    latest = {(c["effect"], c.get("axis")): c for c in log if "not_exercised_by_validation" in c}
+    keys = ("effect", "axis", "round", "cost_reduction", "null_threshold", "evidence_ratio", "parameters",
+            "not_exercised_by_validation")
+    return [{k: c[k] for k in keys if k in c} for c in latest.values()]
+
+
+def not_confirmed_markdown(doc: dict) -> list[str]:
+    """report.md's section on the significant effects that the validation recording cannot judge."""
+    if not doc.get("not_confirmed"):
+        return []
+    lines = ["## Not confirmed", "", "Significant on the training recording but not exercised by the validation "
+             "recording, which can therefore neither confirm nor refute them; they are not in the model. A "
+             "validation run that reaches them (the same moves and forces) would decide.", ""]
+    for c in doc["not_confirmed"]:
+        on = f" on axis {c['axis']}" if "axis" in c else ""
+        params = ", ".join(f"{k} = {v:.4g}" for k, v in c.get("parameters", {}).items())
+        lines += [f"- {c['effect']}{on} ({params}): {c['evidence_ratio']:.3g} times the 99.9 % null level; "
+                  f"{evidence.silent_text(c['not_exercised_by_validation'])}.", ""]
+    return lines
 
 
 def unexplained_entry(remainder: dict) -> dict | None:
@@ -256,7 +282,8 @@ def _markdown(doc: dict, plots: list[str], result: dict, clipped: dict[str, int]
     else:
         lines += no_effect_lines(doc, "improved the fit beyond what a correct model leaves on the same excitation, "
                                       "or none improved the validation fit")
-    lines += _unexplained_markdown(doc, axis) + at_bound_markdown(doc["at_bound"], doc.get("bounds_widened"))
+    lines += not_confirmed_markdown(doc) + _unexplained_markdown(doc, axis)
+    lines += at_bound_markdown(doc["at_bound"], doc.get("bounds_widened"))
     m = axis.position
     lines += ["## Fit", "", f"| model | validation RMS [{m}] |", "|---|---|",
               f"| nominal, refitted | {val['nominal_rms']:.4g} |", f"| augmented | {val['augmented_rms']:.4g} |", "",
@@ -326,6 +353,10 @@ def no_effect_lines(doc: dict, why: str) -> list[str]:
     if doc.get("unexplained"):
         return ["## No catalogue effect", "", f"After refitting the nominal parameters, no candidate effect {why}: "
                 "the nominal structure is kept, but what it leaves is more than noise (below).", ""]
+    if doc.get("not_confirmed"):
+        return ["## No confirmed effect", "", f"After refitting the nominal parameters, no candidate effect {why}: "
+                "the nominal structure is kept, but a significant effect that the validation recording does not "
+                "exercise is not confirmed either way (below).", ""]
     return ["## No missing physics", "", f"After refitting the nominal parameters, no candidate effect {why}: the "
             "nominal structure is kept, only its parameters were off.", ""]
 
@@ -508,7 +539,8 @@ def report_markdown(doc: dict, bundle: Bundle, plots: list[str] = ()) -> str:
     else:
         lines += no_effect_lines(doc, "on the located axes beat the bootstrap null reference and improved "
                                       "validation")
-    lines += _unexplained_markdown(doc) + at_bound_markdown(doc["at_bound"], doc.get("bounds_widened"))
+    lines += not_confirmed_markdown(doc) + _unexplained_markdown(doc)
+    lines += at_bound_markdown(doc["at_bound"], doc.get("bounds_widened"))
     lines += ["## Validation RMS per axis", "", "| axis | nominal | augmented | noise floor | unit |",
               "|---|---|---|---|---|"]
     for axis, v in doc["validation"]["per_axis"].items():

@@ -4,6 +4,7 @@ nested simpler effect is preferred unless the richer one earns its extra paramet
 fit as well are reported as equivalent explanations. Units: SI (s, m, N)."""
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from pathlib import Path
@@ -133,6 +134,10 @@ def select(bundle: Bundle, nominal: ModelFit, weights: outputerror.Weights, ctx:
             refused = ok and stroke is not None and stroke[2] > evidence.STROKE_RATIO
             _log(progress, f"  {name}{on}: validation rms {before:.4g} -> {after:.4g}{forces} "
                            f"({'kept' if ok and not refused else 'rejected'})")
+            silent = None if ok else _unexercised(bundle, current, trial, weights, axis,
+                                                  work / f"v{rounds}_{name}_vanished")
+            if silent is not None:
+                _log(progress, f"  {name}{on}: {evidence.silent_text(silent)}")
             if refused:
                 ok = False
                 unit = bundle_units(bundle, axis).position
@@ -145,6 +150,8 @@ def select(bundle: Bundle, nominal: ModelFit, weights: outputerror.Weights, ctx:
                     entry["validation_rms_before"], entry["validation_rms_after"] = before, after
                     entry["validation_force_rms_before"] = force_before
                     entry["validation_force_rms_after"] = force_after
+                    if silent is not None:
+                        entry["not_exercised_by_validation"] = silent
                     if quarters:
                         entry["stroke_force_ratio"] = {"ratio": stroke[2], "position_range": list(stroke[:2]),
                                                        "quarters": [list(b) for b in quarters]}
@@ -243,6 +250,41 @@ def widen_search_bounds(bundle: Bundle, final: ModelFit, weights: outputerror.We
             break
         current = refit
     return current
+
+
+def _unexercised(bundle: Bundle, current: ModelFit, trial: ModelFit, weights: outputerror.Weights,
+                 axis: str | None, folder: Path) -> dict | None:
+    """What the validation rule cannot judge: a significant effect that it rejects but that the validation
+    recording does not exercise (at its vanishing point, the other parameters kept, the validation run changes
+    by less than ``evidence.SILENT_SHARE`` of its RMS in position and force, and the validation RMS is no worse
+    with it), with its cost reduction in each half of the training recording (where on training its evidence
+    lies); None otherwise. Such an effect stays out of the model (nothing confirms it) and is reported as not
+    confirmed. Why: a current limit that only the training's largest force demand reaches (the audit
+    current-limit case: x127 over the null on one 28 ms event, the validation's forces below half the limit)."""
+    zero = {p.name: float(p.zero) for p in trial.effects[-1].params if p.zero is not None}
+    before, after = current.axis_rms(axis), trial.axis_rms(axis)
+    force_before, force_after = current.axis_force_rms(axis), trial.axis_force_rms(axis)
+    if not zero or not after <= before or force_after > force_before:
+        return None
+    fit = dataclasses.replace(trial.fit, values={**trial.fit.values, **zero})
+    vanished = ModelFit(trial.effects, trial.loop, fit, trial.bounds, trial.folder, axes=trial.axes)
+    validate_any(bundle, vanished, folder)
+    k = 0 if axis is None else [a.output for a in bundle.plant.axes].index(axis)
+    change_q = _rms(np.atleast_2d(trial.val_q)[k] - np.atleast_2d(vanished.val_q)[k]) / after
+    change_u = 0.0
+    if trial.val_force_error is not None and vanished.val_force_error is not None:
+        change_u = _rms(trial.val_force_error[k] - vanished.val_force_error[k]) / force_after
+    if not max(change_q, change_u) < evidence.SILENT_SHARE:
+        return None
+    halves = evidence.half_gains(outputerror.measured(trial.loop, bundle.train, "output"),
+                                 outputerror.measured(trial.loop, bundle.train, "input"),
+                                 (current.fit.q_sim, current.fit.u_sim), (trial.fit.q_sim, trial.fit.u_sim),
+                                 weights, with_force=bundle.observer is None)
+    return {"validation_change": [change_q, change_u], "training_halves": halves}
+
+
+def _rms(x: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(np.square(x))))
 
 
 def _stroke_quarters(bundle: Bundle, before: ModelFit, after: ModelFit, axis: str | None

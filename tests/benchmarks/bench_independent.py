@@ -169,6 +169,8 @@ def main() -> int:
         over = val["augmented_rms"] / truth["floor_rms"]
         worst = max(worst, over)
         status = f" [{doc['unexplained']['status']}]" if doc.get("unexplained") else ""
+        if doc.get("not_confirmed"):     # significant, not exercised by the validation: not an answer
+            status += f" [not confirmed: {','.join(c['effect'] for c in doc['not_confirmed'])}]"
         axis = truth["axis"]
         print(f"{case:18s} {('rot ' if axis['rotary'] else 'lin ') + format(axis['mass'], '.3g'):14s} "
               f"{truth['plant_form']:18s} {','.join(expected) or NONE:30s} {(','.join(found) or NONE) + status:40s} "
