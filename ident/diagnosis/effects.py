@@ -515,3 +515,17 @@ NESTED_START: dict[str, Callable[[dict[str, float]], dict[str, float]]] = {
     "friction_drift": lambda v: {"drift_Fc0": v["coulomb_Fc"], "drift_dFc": 0.0, "drift_v_eps": v["coulomb_v_eps"]},
     "lugre_friction": lambda v: {"lugre_Fc": v["coulomb_Fc"], "lugre_z0": 0.0},
 }
+
+#: richer effect -> the simpler effect's values nearest to it, from the richer one's fitted values and the context
+#: (a mean level, its sign's velocity scale): the start of a fit of the simpler effect in its place, the mirror of
+#: ``NESTED_START`` (the tanh frictions)
+NESTED_PROJECTION: dict[str, Callable[[dict[str, float], Context], dict[str, float]]] = {
+    "stribeck_friction": lambda v, c: {"coulomb_Fc": v["stribeck_Fc"], "coulomb_v_eps": v["stribeck_v_eps"]},
+    "asymmetric_friction": lambda v, c: {"coulomb_Fc": 0.5 * (v["asym_Fc_pos"] + v["asym_Fc_neg"]),
+                                         "coulomb_v_eps": v["asym_v_eps"]},
+    "load_dependent_friction": lambda v, c: {
+        "coulomb_Fc": v["load_Fc0"] + v["load_mu"] * (float(np.mean(np.abs(c.u))) if c.u is not None else 0.0),
+        "coulomb_v_eps": v["load_v_eps"]},
+    "friction_drift": lambda v, c: {"coulomb_Fc": v["drift_Fc0"] + 0.5 * v["drift_dFc"],
+                                    "coulomb_v_eps": v["drift_v_eps"]},
+}

@@ -107,6 +107,11 @@ def _location(result: dict, name: str) -> dict:
     return loc
 
 
+#: what a change to a kept effect's nested form after the rounds adds to its evidence (:mod:`nested`, :mod:`polish`)
+NESTED_EVIDENCE = ("upgraded_from", "upgrade_cost_reduction", "upgrade_null_threshold", "upgrade_likelihood_ratio",
+                   "upgrade_chi2_threshold", "demoted_from", "demotion_likelihood_ratio", "demotion_chi2_threshold")
+
+
 def diagnosis_document(result: dict, out: Path, fmu_path: Path | None) -> dict:
     final, nominal = result["final"], result["nominal"]
     ctx = result["context"]
@@ -131,7 +136,8 @@ def diagnosis_document(result: dict, out: Path, fmu_path: Path | None) -> dict:
                         "explanation": text,
                         "evidence": {"cost_reduction": info["cost_reduction"],
                                      "null_threshold": info["null_threshold"],
-                                     **{k: info[k] for k in evidence.VALIDATION_FIELDS if k in info}}})
+                                     **{k: info[k] for k in (*evidence.VALIDATION_FIELDS, *NESTED_EVIDENCE)
+                                        if k in info}}})
     q_meas = result["bundle"].validation["q"]
     aug_rms = float(np.sqrt(np.mean((q_meas - result["q_augmented"]) ** 2)))
     remainder = result.get("remainder") or {}
@@ -523,8 +529,8 @@ def _effect_entry(bundle: Bundle, final: ModelFit, axis: str, effect: Effect) ->
             "units": {n: units.si(CONTRACT_UNITS.get(n, "")) for n in params},
             "location": location, "location_text": location_text(location, axis, units), "explanation": text,
             "equivalent_explanations": info.get("equivalents", []), "selection_rule": info.get("rule", ""),
-            "evidence": {n: info[n] for n in ("cost_reduction", "null_threshold", "score", *evidence.VALIDATION_FIELDS)
-                         if n in info}}
+            "evidence": {n: info[n] for n in ("cost_reduction", "null_threshold", "score", *evidence.VALIDATION_FIELDS,
+                                              *NESTED_EVIDENCE) if n in info}}
 
 
 def report_markdown(doc: dict, bundle: Bundle, plots: list[str] = ()) -> str:
