@@ -140,3 +140,23 @@ def test_a_richer_friction_the_validation_prefers_is_not_demoted(coulomb_case, t
     assert result.names == ["asymmetric_friction"], lines
     assert any("coulomb_friction in place of asymmetric_friction, whitened" in line and "(rejected)" in line
                for line in lines), lines
+
+
+def test_asymmetric_friction_that_is_a_constant_force_and_friction_is_read_so(tmp_path, monkeypatch) -> None:
+    """A 10 kg axis with a constant force of 1.27 N and a Stribeck friction (the independent simulator's seed
+    13011, outside the benchmark sets; full size the diagnosis answered asymmetric friction with levels 2.44 and
+    0.009 N, and refused the constant force where the axis rests). Under white weights the asymmetric law takes
+    the constant force up as a level difference; under the innovations Coulomb friction and a constant force
+    that acts at rest too, as many parameters, fit better and validate better, and the Coulomb law then earns
+    its Stribeck form. Reference: the truth's force and breakaway level."""
+    monkeypatch.setattr(independent, "DURATIONS", (4.0, 2.0))
+    truth = independent.write_bundle(tmp_path / "bundle", independent.draw_case("offset+stribeck", 13011))
+    laws = {law["law"]: law["main"]["value"] for law in truth["laws"]}
+    bundle, white, weights, ctx = _white_asymmetric(tmp_path / "bundle", tmp_path)
+    lines: list[str] = []
+    result, _ = polished(bundle, white, weights, ctx, tmp_path / "polish", lines.append)
+    assert sorted(result.names) == ["gravity_offset", "stribeck_friction"], lines
+    assert abs(result.fit.values["gravity_F0"]) == pytest.approx(laws["offset"], rel=0.1)
+    assert result.fit.values["stribeck_Fs"] == pytest.approx(laws["stribeck"], rel=0.15)
+    offset = result.evidence["gravity_offset"]
+    assert offset["cost_reduction"] > offset["null_threshold"] and offset["previous"].names == ["coulomb_friction"]

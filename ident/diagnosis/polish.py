@@ -27,7 +27,9 @@ is unreliable. The mirror (:func:`demoted`): such a richer law chosen under whit
 simpler form when, whitened, its extra parameters do not beat the same quantile and the validation run does not
 prefer it by the validation rule (a fresh-seed Stribeck truth hidden behind viscous damping had been answered
 asymmetric friction; on the held-out Coulomb case the symmetric law falls short of the quantile too, 8.2 against
-10.8, but doubles the validation RMS, and the asymmetric law stays).
+10.8, but doubles the validation RMS, and the asymmetric law stays). Asymmetric friction is also read as
+Coulomb friction plus a constant force that acts at rest too (:func:`_offset_pair`, as many parameters), which a
+round can take up as a level difference (a fresh-seed offset + Stribeck truth).
 """
 from __future__ import annotations
 
@@ -82,6 +84,8 @@ def polished(bundle: Bundle, final: ModelFit, weights: outputerror.Weights, ctx:
     change = upgraded(bundle, chosen, trial, innovations, ctx, folder, progress)
     if change is None:
         change = demoted(bundle, chosen, trial, innovations, ctx, folder, progress)
+        if change is not None:      # the Coulomb friction it leaves may earn a richer form now
+            change = upgraded(bundle, change, change, innovations, ctx, folder / "again", progress) or change
     return (change, innovations) if change is not None else (chosen, chosen_weights)
 
 
@@ -171,6 +175,9 @@ def demoted(bundle: Bundle, chosen: ModelFit, whitened: ModelFit, innovations: o
         _log(progress, f"  {rich.name} over its nested {simple.name}, whitened: cost reduction over the innovations' "
                        f"variance {ratio:.4g}, chi-square threshold {threshold:.4g}")
         if ratio > threshold:
+            pair = _offset_pair(bundle, chosen, whitened, trial, rich, ctx, innovations, variance, folder, progress)
+            if pair is not None:
+                return pair
             continue
         validate_any(bundle, trial, folder / f"v_demote_{rich.name}")
         if math.isnan(chosen.val_rms):
@@ -187,6 +194,61 @@ def demoted(bundle: Bundle, chosen: ModelFit, whitened: ModelFit, innovations: o
                     f"({ratio:.4g} <= {threshold:.4g}) and its validation run does not beat this one's by the "
                     f"validation rule"})
     return None
+
+
+def _offset_pair(bundle: Bundle, chosen: ModelFit, whitened: ModelFit, coulomb: ModelFit, rich: effect_models.Effect,
+                 ctx: effect_models.Context, innovations: outputerror.Weights, variance: float, folder: Path,
+                 progress=None) -> ModelFit | None:
+    """Asymmetric friction read as what it also is, Coulomb friction plus a constant force while moving: Coulomb
+    friction and a constant force that also acts at rest (``gravity_offset``), fitted in its place under
+    ``innovations`` from the same force while moving (Fc the mean level, F0 half the difference), as many
+    parameters. Kept when its whitened cost is lower than the asymmetric law's and the validation run does not
+    prefer the asymmetric law by the validation rule; its constant force's evidence is its cost reduction over
+    ``coulomb`` (Coulomb friction alone in the asymmetric law's place) against the chi-square quantile of one
+    degree times the whitened ``variance``. None otherwise. Why: a constant force moves the level of both
+    directions' friction alike, so a round can take it up as asymmetry, and the constant force is then refused
+    where the axis rests (a fresh-seed offset + Stribeck truth: levels 2.44 and 0.009 N)."""
+    if rich.name != "asymmetric_friction" or "gravity_offset" in whitened.names:
+        return None
+    simple, offset = coulomb.effects[whitened.effects.index(rich)], effect_models.VOCABULARY["gravity_offset"](ctx)
+    v = whitened.fit.values
+    start = {**effect_models.NESTED_PROJECTION[rich.name](v, ctx),
+             "gravity_F0": 0.5 * (v["asym_Fc_pos"] - v["asym_Fc_neg"])}
+    effects = [simple if e is rich else e for e in whitened.effects] + [offset]
+    values = {**{k: x for k, x in v.items() if k not in {p.name for p in rich.params}}, **start}
+    try:
+        loop, bounds = build_structure(bundle, effects, values, folder / "offset_pair", bundle.train.time.size,
+                                       min_substeps=whitened.loop.substeps)
+        result, _ = _best_fit(bundle, loop, bounds, innovations, values, [start], MAX_NFEV, "offset_pair",
+                              whitened.fit.shift)
+    except (RuntimeError, ValueError, np.linalg.LinAlgError) as exc:
+        _log(progress, f"  coulomb_friction + gravity_offset in place of {rich.name}, whitened: fit failed ({exc})")
+        return None
+    pair = ModelFit(effects, loop.with_values(result.values), result, bounds, folder / "offset_pair")
+    _log(progress, f"  coulomb_friction + gravity_offset in place of {rich.name}, whitened: cost "
+                   f"{whitened.fit.cost:.6g} -> {pair.fit.cost:.6g}")
+    if not pair.fit.cost < whitened.fit.cost:
+        return None
+    validate_any(bundle, pair, folder / "v_offset_pair")
+    if math.isnan(chosen.val_rms):
+        validate_any(bundle, chosen, folder / "v_chosen")
+    rich_wins = evidence.validation_accepts(pair.val_rms, chosen.val_rms, pair.val_force, chosen.val_force)
+    _log(progress, f"  coulomb_friction + gravity_offset in place of {rich.name}, whitened: validation rms "
+                   f"{chosen.val_rms:.4g} -> {pair.val_rms:.4g} ({'rejected' if rich_wins else 'kept'})")
+    if rich_wins:
+        return None
+    if math.isnan(coulomb.val_rms):
+        validate_any(bundle, coulomb, folder / "v_coulomb")
+    gain, threshold = coulomb.fit.cost - pair.fit.cost, float(stats.chi2.ppf(evidence.NULL_QUANTILE, 1)) * variance
+    rule = (f"asymmetric friction read as Coulomb friction and a constant force that acts at rest too: as many "
+            f"parameters, a lower cost under prediction-error weighting ({whitened.fit.cost:.6g} -> "
+            f"{pair.fit.cost:.6g}), and the validation run agrees")
+    moved = _moved_evidence(pair, chosen, rich.name, simple.name, None, {"demoted_from": rich.name, "rule": rule})
+    moved.evidence["gravity_offset"] = {
+        "cost_reduction": gain, "null_threshold": threshold, "previous": coulomb, "rule": rule,
+        "validation_rms_before": coulomb.val_rms, "validation_rms_after": pair.val_rms,
+        "validation_force_rms_before": coulomb.val_force, "validation_force_rms_after": pair.val_force}
+    return moved
 
 
 def _richer_fit(bundle: Bundle, whitened: ModelFit, rich: effect_models.Effect, simple: effect_models.Effect,
