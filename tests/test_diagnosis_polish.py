@@ -71,12 +71,7 @@ def test_the_prediction_error_refit_recovers_the_mass_the_white_weights_miss(cou
     weights spend themselves there. Refitted by :func:`polish.polished`, the mass is within 8 % of the truth
     and the validation RMS falls to within 5 times the truth's own floor (from 17 times)."""
     folder, truth = coulomb_case
-    bundle = read_bundle(folder)
-    bundle.cache = LoopCache()
-    bundle.start = nominal_start(bundle)
-    nominal, weights = fit_nominal(bundle)
-    bundle.process_noise = noise.of_bundle(bundle, nominal.fit.values, weights.sigma_q)
-    ctx = context(bundle, nominal)
+    bundle, nominal, weights, ctx = _nominal(folder)
     coulomb = effect_models.VOCABULARY["coulomb_friction"](ctx)
     start = {**{"plant." + k: v for k, v in nominal.fit.values.items()}, "coulomb_Fc": 0.018, "coulomb_v_eps": 1e-3}
     loop, bounds = build_structure(bundle, [coulomb], start, tmp_path / "fit", bundle.train.time.size)
@@ -92,15 +87,20 @@ def test_the_prediction_error_refit_recovers_the_mass_the_white_weights_miss(cou
 
 
 
-def _white_asymmetric(folder: Path, work: Path) -> tuple:
-    """The bundle in ``folder`` with asymmetric friction fitted as the selection fits it (white weights, from
-    its data-driven starts), its weights and context."""
+def _nominal(folder: Path) -> tuple:
+    """The bundle in ``folder`` (its process noise estimated), its refitted nominal model, weights and context."""
     bundle = read_bundle(folder)
     bundle.cache = LoopCache()
     bundle.start = nominal_start(bundle)
     nominal, weights = fit_nominal(bundle)
     bundle.process_noise = noise.of_bundle(bundle, nominal.fit.values, weights.sigma_q)
-    ctx = context(bundle, nominal)
+    return bundle, nominal, weights, context(bundle, nominal)
+
+
+def _white_asymmetric(folder: Path, work: Path) -> tuple:
+    """The bundle in ``folder`` with asymmetric friction fitted as the selection fits it (white weights, from
+    its data-driven starts), its weights and context."""
+    bundle, nominal, weights, ctx = _nominal(folder)
     white = refine(bundle, fit_structure(bundle, nominal, effect_models.VOCABULARY["asymmetric_friction"](ctx), ctx,
                                          weights, work / "asymmetric"), weights)
     return bundle, white, weights, ctx
@@ -111,18 +111,19 @@ def test_a_richer_friction_the_innovations_do_not_support_is_demoted(tmp_path, m
     seed 13005, outside the benchmark sets; full size the diagnosis answered asymmetric friction, levels 2.4 and
     4.8 N on a direction-blind truth): under white weights the asymmetric law is fitted with levels 14 % apart;
     under the innovations its second level earns nothing (cost reduction over their variance 0.06, chi-square
-    threshold 10.8) and the validation run does not prefer it, so the symmetric law takes its place. Reference:
-    the truth's law, which does not depend on the direction of motion."""
+    threshold 10.8) and the validation run does not prefer it, so the symmetric law takes its place (and is then
+    judged for its richer forms again: at this size the Stribeck law earns its place). Reference: the truth's
+    law, which does not depend on the direction of motion."""
     monkeypatch.setattr(independent, "DURATIONS", (4.0, 2.0))
     truth = independent.write_bundle(tmp_path / "bundle", independent.draw_case("stribeck", 13005))
     assert [law["law"] for law in truth["laws"]] == ["stribeck"]
     bundle, white, weights, ctx = _white_asymmetric(tmp_path / "bundle", tmp_path)
     lines: list[str] = []
     result, _ = polished(bundle, white, weights, ctx, tmp_path / "polish", lines.append)
-    assert result.names == ["coulomb_friction"], lines
     assert any("coulomb_friction in place of asymmetric_friction, whitened" in line and "(kept)" in line
                for line in lines), lines
-    moved = result.evidence["coulomb_friction"]
+    assert result.names in (["coulomb_friction"], ["stribeck_friction"]), lines   # then judged upward again
+    moved = result.evidence[result.names[0]]
     assert moved["demoted_from"] == "asymmetric_friction"
     assert moved["demotion_likelihood_ratio"] <= moved["demotion_chi2_threshold"]
 

@@ -118,9 +118,7 @@ def upgraded(bundle: Bundle, chosen: ModelFit, whitened: ModelFit, innovations: 
         for rich, trial in zip(richer, trials):
             if trial is None:
                 continue
-            ratio = (whitened.fit.cost - trial.fit.cost) / variance
-            dof = sum(p.fitted for p in rich.params) - sum(p.fitted for p in simple.params)
-            threshold = float(stats.chi2.ppf(evidence.NULL_QUANTILE, max(dof, 1)))
+            ratio, threshold = _likelihood_ratio(trial, whitened, rich, simple, variance)
             _log(progress, f"  {rich.name} in place of {simple.name}, whitened: cost reduction over the innovations' "
                            f"variance {ratio:.4g}, chi-square threshold {threshold:.4g}")
             if ratio > threshold and not _unphysical(trial, progress, _placed(trial, whitened, simple)) and \
@@ -169,9 +167,7 @@ def demoted(bundle: Bundle, chosen: ModelFit, whitened: ModelFit, innovations: o
                               fit=_simpler_fit)[0]
         if trial is None:
             continue
-        ratio = (trial.fit.cost - whitened.fit.cost) / variance
-        dof = sum(p.fitted for p in rich.params) - sum(p.fitted for p in simple.params)
-        threshold = float(stats.chi2.ppf(evidence.NULL_QUANTILE, max(dof, 1)))
+        ratio, threshold = _likelihood_ratio(whitened, trial, rich, simple, variance)
         _log(progress, f"  {rich.name} over its nested {simple.name}, whitened: cost reduction over the innovations' "
                        f"variance {ratio:.4g}, chi-square threshold {threshold:.4g}")
         if ratio > threshold:
@@ -179,13 +175,7 @@ def demoted(bundle: Bundle, chosen: ModelFit, whitened: ModelFit, innovations: o
             if pair is not None:
                 return pair
             continue
-        validate_any(bundle, trial, folder / f"v_demote_{rich.name}")
-        if math.isnan(chosen.val_rms):
-            validate_any(bundle, chosen, folder / "v_chosen")
-        richer_wins = evidence.validation_accepts(trial.val_rms, chosen.val_rms, trial.val_force, chosen.val_force)
-        _log(progress, f"  {simple.name} in place of {rich.name}, whitened: validation rms {chosen.val_rms:.4g} -> "
-                       f"{trial.val_rms:.4g} ({'rejected' if richer_wins else 'kept'})")
-        if richer_wins:
+        if _richer_validates(bundle, chosen, trial, f"{simple.name} in place of {rich.name}", folder, progress):
             continue
         return _moved_evidence(trial, chosen, rich.name, simple.name, None, {
             "demoted_from": rich.name, "demotion_likelihood_ratio": ratio, "demotion_chi2_threshold": threshold,
@@ -194,6 +184,28 @@ def demoted(bundle: Bundle, chosen: ModelFit, whitened: ModelFit, innovations: o
                     f"({ratio:.4g} <= {threshold:.4g}) and its validation run does not beat this one's by the "
                     f"validation rule"})
     return None
+
+
+def _richer_validates(bundle: Bundle, chosen: ModelFit, simpler: ModelFit, what: str, folder: Path,
+                      progress=None) -> bool:
+    """Whether ``chosen`` (holding the richer law) beats ``simpler`` on the validation run by the validation rule
+    (:func:`evidence.validation_accepts`); logged as ``what`` rejected or kept."""
+    validate_any(bundle, simpler, folder / f"v_{'_'.join(n for n in simpler.names)}")
+    if math.isnan(chosen.val_rms):
+        validate_any(bundle, chosen, folder / "v_chosen")
+    wins = evidence.validation_accepts(simpler.val_rms, chosen.val_rms, simpler.val_force, chosen.val_force)
+    _log(progress, f"  {what}, whitened: validation rms {chosen.val_rms:.4g} -> {simpler.val_rms:.4g} "
+                   f"({'rejected' if wins else 'kept'})")
+    return wins
+
+
+def _likelihood_ratio(with_rich: ModelFit, with_simple: ModelFit, rich: effect_models.Effect,
+                      simple: effect_models.Effect, variance: float) -> tuple[float, float]:
+    """The richer law's cost reduction over the simpler one's, over the whitened residual's ``variance``, and
+    its chi-square quantile (``evidence.NULL_QUANTILE``, one degree per extra parameter)."""
+    dof = sum(p.fitted for p in rich.params) - sum(p.fitted for p in simple.params)
+    return ((with_simple.fit.cost - with_rich.fit.cost) / variance,
+            float(stats.chi2.ppf(evidence.NULL_QUANTILE, max(dof, 1))))
 
 
 def _offset_pair(bundle: Bundle, chosen: ModelFit, whitened: ModelFit, coulomb: ModelFit, rich: effect_models.Effect,
@@ -214,28 +226,16 @@ def _offset_pair(bundle: Bundle, chosen: ModelFit, whitened: ModelFit, coulomb: 
     v = whitened.fit.values
     start = {**effect_models.NESTED_PROJECTION[rich.name](v, ctx),
              "gravity_F0": 0.5 * (v["asym_Fc_pos"] - v["asym_Fc_neg"])}
-    effects = [simple if e is rich else e for e in whitened.effects] + [offset]
-    values = {**{k: x for k, x in v.items() if k not in {p.name for p in rich.params}}, **start}
-    try:
-        loop, bounds = build_structure(bundle, effects, values, folder / "offset_pair", bundle.train.time.size,
-                                       min_substeps=whitened.loop.substeps)
-        result, _ = _best_fit(bundle, loop, bounds, innovations, values, [start], MAX_NFEV, "offset_pair",
-                              whitened.fit.shift)
-    except (RuntimeError, ValueError, np.linalg.LinAlgError) as exc:
-        _log(progress, f"  coulomb_friction + gravity_offset in place of {rich.name}, whitened: fit failed ({exc})")
+    pair = _whitened_in_place(bundle, whitened, [simple, offset], rich, start, innovations, folder / "offset_pair",
+                              progress)
+    if pair is None:
         return None
-    pair = ModelFit(effects, loop.with_values(result.values), result, bounds, folder / "offset_pair")
     _log(progress, f"  coulomb_friction + gravity_offset in place of {rich.name}, whitened: cost "
                    f"{whitened.fit.cost:.6g} -> {pair.fit.cost:.6g}")
     if not pair.fit.cost < whitened.fit.cost:
         return None
-    validate_any(bundle, pair, folder / "v_offset_pair")
-    if math.isnan(chosen.val_rms):
-        validate_any(bundle, chosen, folder / "v_chosen")
-    rich_wins = evidence.validation_accepts(pair.val_rms, chosen.val_rms, pair.val_force, chosen.val_force)
-    _log(progress, f"  coulomb_friction + gravity_offset in place of {rich.name}, whitened: validation rms "
-                   f"{chosen.val_rms:.4g} -> {pair.val_rms:.4g} ({'rejected' if rich_wins else 'kept'})")
-    if rich_wins:
+    if _richer_validates(bundle, chosen, pair, f"coulomb_friction + gravity_offset in place of {rich.name}",
+                         folder, progress):
         return None
     if math.isnan(coulomb.val_rms):
         validate_any(bundle, coulomb, folder / "v_coulomb")
@@ -260,19 +260,8 @@ def _richer_fit(bundle: Bundle, whitened: ModelFit, rich: effect_models.Effect, 
     start doubled the time and changed no decision on the benchmark cases tried.) None, and logged, when the fit
     fails. The arguments of :func:`nested._in_place` (one axis), whose place it takes in
     :func:`nested._side_by_side`."""
-    effects = [rich if e is simple else e for e in whitened.effects]
-    base = {k: v for k, v in whitened.fit.values.items() if k not in {p.name for p in simple.params}}
     nested = {**vanishing_start(rich, rich.initial(ctx)), **effect_models.NESTED_START[rich.name](whitened.fit.values)}
-    values = {**base, **{p.name: float(np.mean(p.bounds)) for p in rich.params if not p.fitted}, **nested}
-    try:
-        loop, bounds = build_structure(bundle, effects, values, folder, bundle.train.time.size,
-                                       min_substeps=whitened.loop.substeps)
-        result, _ = _best_fit(bundle, loop, bounds, innovations, values, [nested], MAX_NFEV, rich.name,
-                              whitened.fit.shift)
-    except (RuntimeError, ValueError, np.linalg.LinAlgError) as exc:
-        _log(progress, f"  {rich.name} in place of {simple.name}, whitened: fit failed ({exc})")
-        return None
-    return ModelFit(effects, loop.with_values(result.values), result, bounds, folder)
+    return _whitened_in_place(bundle, whitened, [rich], simple, nested, innovations, folder, progress)
 
 
 def _simpler_fit(bundle: Bundle, whitened: ModelFit, simple: effect_models.Effect, rich: effect_models.Effect,
@@ -281,17 +270,27 @@ def _simpler_fit(bundle: Bundle, whitened: ModelFit, simple: effect_models.Effec
     """``whitened`` with ``simple`` in place of ``rich``, fitted under ``innovations`` from the simpler law
     nearest the richer one's fitted values (``effects.NESTED_PROJECTION``): the local mirror of
     :func:`_richer_fit`, whose arguments it takes. None, and logged, when the fit fails."""
-    effects = [simple if e is rich else e for e in whitened.effects]
-    base = {k: v for k, v in whitened.fit.values.items() if k not in {p.name for p in rich.params}}
     start = effect_models.NESTED_PROJECTION[rich.name](whitened.fit.values, ctx)
-    values = {**base, **{p.name: float(np.mean(p.bounds)) for p in simple.params if not p.fitted}, **start}
+    return _whitened_in_place(bundle, whitened, [simple], rich, start, innovations, folder, progress)
+
+
+def _whitened_in_place(bundle: Bundle, whitened: ModelFit, new: list[effect_models.Effect], old: effect_models.Effect,
+                       start: dict[str, float], innovations: outputerror.Weights, folder: Path,
+                       progress=None) -> ModelFit | None:
+    """``whitened`` with ``new[0]`` in place of ``old`` and ``new[1:]`` added, fitted under ``innovations`` from
+    ``start`` (one local fit); None, and logged, when the fit fails."""
+    effects = [new[0] if e is old else e for e in whitened.effects] + new[1:]
+    base = {k: v for k, v in whitened.fit.values.items() if k not in {p.name for p in old.params}}
+    fixed = {p.name: float(np.mean(p.bounds)) for e in new for p in e.params if not p.fitted}
+    values = {**base, **fixed, **start}
+    names = " + ".join(e.name for e in new)
     try:
         loop, bounds = build_structure(bundle, effects, values, folder, bundle.train.time.size,
                                        min_substeps=whitened.loop.substeps)
-        result, _ = _best_fit(bundle, loop, bounds, innovations, values, [start], MAX_NFEV, simple.name,
+        result, _ = _best_fit(bundle, loop, bounds, innovations, values, [start], MAX_NFEV, names,
                               whitened.fit.shift)
     except (RuntimeError, ValueError, np.linalg.LinAlgError) as exc:
-        _log(progress, f"  {simple.name} in place of {rich.name}, whitened: fit failed ({exc})")
+        _log(progress, f"  {names} in place of {old.name}, whitened: fit failed ({exc})")
         return None
     return ModelFit(effects, loop.with_values(result.values), result, bounds, folder)
 
