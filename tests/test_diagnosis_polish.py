@@ -15,7 +15,7 @@ from scipy import signal
 from motiontwin.ident import outputerror
 from motiontwin.ident.benchmarks import independent
 from motiontwin.ident.diagnosis import effects as effect_models
-from motiontwin.ident.diagnosis import noise
+from motiontwin.ident.diagnosis import noise, report
 from motiontwin.ident.diagnosis.bundle import read_bundle
 from motiontwin.ident.diagnosis.locate import context
 from motiontwin.ident.diagnosis.nominal import fit_nominal, nominal_start
@@ -161,3 +161,4 @@ def test_asymmetric_friction_that_is_a_constant_force_and_friction_is_read_so(tm
     assert result.fit.values["stribeck_Fs"] == pytest.approx(laws["stribeck"], rel=0.15)
     offset = result.evidence["gravity_offset"]
     assert offset["cost_reduction"] > offset["null_threshold"] and offset["previous"].names == ["coulomb_friction"]
+    assert "chi-square" in report.evidence_level(offset)      # not the rounds' bootstrap: the report says so

@@ -245,7 +245,8 @@ def _offset_pair(bundle: Bundle, chosen: ModelFit, whitened: ModelFit, coulomb: 
             f"{pair.fit.cost:.6g}), and the validation run agrees")
     moved = _moved_evidence(pair, chosen, rich.name, simple.name, None, {"demoted_from": rich.name, "rule": rule})
     moved.evidence["gravity_offset"] = {
-        "cost_reduction": gain, "null_threshold": threshold, "previous": coulomb, "rule": rule,
+        "cost_reduction": gain, "null_threshold": threshold, "null_kind": "chi-square", "previous": coulomb,
+        "rule": rule,
         "validation_rms_before": coulomb.val_rms, "validation_rms_after": pair.val_rms,
         "validation_force_rms_before": coulomb.val_force, "validation_force_rms_after": pair.val_force}
     return moved

@@ -107,9 +107,20 @@ def _location(result: dict, name: str) -> dict:
     return loc
 
 
+def evidence_level(info: dict) -> str:
+    """What an effect's cost reduction was measured against: the rounds' parametric bootstrap, or (an effect
+    the final prediction-error refit added, ``null_kind`` "chi-square") the chi-square quantile over the
+    innovations' variance."""
+    if info.get("null_kind") == "chi-square":
+        return ("the 99.9 % chi-square quantile of its parameters over the innovations' variance (prediction-error "
+                "weighting; the cost in those weights)")
+    return "the 99.9 % level that a correct model leaves on the same excitation (parametric bootstrap)"
+
+
 #: what a change to a kept effect's nested form after the rounds adds to its evidence (:mod:`nested`, :mod:`polish`)
 NESTED_EVIDENCE = ("upgraded_from", "upgrade_cost_reduction", "upgrade_null_threshold", "upgrade_likelihood_ratio",
-                   "upgrade_chi2_threshold", "demoted_from", "demotion_likelihood_ratio", "demotion_chi2_threshold")
+                   "upgrade_chi2_threshold", "demoted_from", "demotion_likelihood_ratio", "demotion_chi2_threshold",
+                   "null_kind")
 
 
 def diagnosis_document(result: dict, out: Path, fmu_path: Path | None) -> dict:
@@ -124,8 +135,8 @@ def diagnosis_document(result: dict, out: Path, fmu_path: Path | None) -> dict:
         params = effect.contract(final.fit.values, ctx)
         ratio = info["cost_reduction"] / info["null_threshold"]
         text = (f"{effect.explanation} Evidence: adding it lowers the noise-weighted output-error cost by "
-                f"{info['cost_reduction']:.4g}, {ratio:.1f} times the 99.9 % level that a correct model leaves "
-                f"on the same excitation (parametric bootstrap), and {evidence.validation_text(info, units)}.")
+                f"{info['cost_reduction']:.4g}, {ratio:.1f} times {evidence_level(info)}, and "
+                f"{evidence.validation_text(info, units)}.")
         location = _location(result, effect.name)
         equivalents = [{**e, "parameters": effect_contract(e, ctx, final)} for e in info.get("equivalents", [])]
         effects.append({"name": effect.name, "parameters": {k: float(v) for k, v in params.items()},
