@@ -23,7 +23,8 @@ from motiontwin.ident.diagnosis.locate import AxisEvidence, locate
 from motiontwin.ident.diagnosis.screen import (MAX_NFEV, SCREEN_NFEV, _close_richer, candidates,
                                                fit_candidate, placed_structure,
                                                ranked_with_nested, refine, score_test, screen)
-from motiontwin.ident.diagnosis.structure import ModelFit, _log, build_structure, compiled, evidence_key, validate_any
+from motiontwin.ident.diagnosis.structure import (ModelFit, _log, _rms, build_structure, compiled, evidence_key,
+                                                  validate_any)
 from motiontwin.ident.diagnosis.workers import map_jobs
 
 VALIDATION_GAIN = evidence.VALIDATION_GAIN
@@ -281,10 +282,6 @@ def _unexercised(bundle: Bundle, current: ModelFit, trial: ModelFit, weights: ou
                                  (current.fit.q_sim, current.fit.u_sim), (trial.fit.q_sim, trial.fit.u_sim),
                                  weights, with_force=bundle.observer is None)
     return {"validation_change": [change_q, change_u], "training_halves": halves}
-
-
-def _rms(x: np.ndarray) -> float:
-    return float(np.sqrt(np.mean(np.square(x))))
 
 
 def _stroke_quarters(bundle: Bundle, before: ModelFit, after: ModelFit, axis: str | None
