@@ -193,9 +193,12 @@ def test_a_current_limit_the_training_hits_once_is_found_and_not_confirmed(tmp_p
     first, second = silent["training_halves"]
     assert second > 1e3 * abs(first)
     entry = {"round": 1, "effect": "actuator_saturation", "cost_reduction": 1.0, "null_threshold": 0.1,
-             "evidence_ratio": 10.0, "not_exercised_by_validation": silent}
-    assert report.not_confirmed([entry]) == [entry]
-    assert report.not_confirmed([{k: v for k, v in entry.items() if k != "not_exercised_by_validation"}]) == []
+             "evidence_ratio": 10.0, "validation_rms_after": 1.0, "not_exercised_by_validation": silent}
+    listed = {k: v for k, v in entry.items() if k != "validation_rms_after"}
+    assert report.not_confirmed([entry], set()) == [listed]
+    judged = {k: v for k, v in entry.items() if k != "not_exercised_by_validation"}
+    assert report.not_confirmed([entry, {**judged, "round": 2}], set()) == []     # a later round judged it
+    assert report.not_confirmed([entry], {("actuator_saturation", None)}) == []  # it is in the model
     doc = {"effects": [], "not_confirmed": [entry], "validation": {"nominal_rms": 1.0, "augmented_rms": 1.0}}
     assert "only its parameters were off" not in "".join(report.no_effect_lines(doc, "x"))
     assert fleet.summary_fields(doc)["verdict"] == "not confirmed: actuator_saturation"

@@ -155,7 +155,7 @@ def diagnosis_document(result: dict, out: Path, fmu_path: Path | None) -> dict:
     return {
         "effects": effects,
         "unexplained": unexplained_entry(remainder),
-        "not_confirmed": not_confirmed(result["log"]),
+        "not_confirmed": not_confirmed(result["log"], {(e.name, None) for e in final.effects}),
         "residual_check": {k: remainder[k] for k in ("status", "reason") if k in remainder},
         "validation": {"nominal_rms": float(nominal.val_rms), "augmented_rms": aug_rms,
                        **_above_floor(float(nominal.val_rms), aug_rms, result["validation_floor"]),
@@ -186,14 +186,16 @@ def diagnosis_document(result: dict, out: Path, fmu_path: Path | None) -> dict:
     }
 
 
-def not_confirmed(log: list[dict]) -> list[dict]:
+def not_confirmed(log: list[dict], named: set[tuple[str, str | None]]) -> list[dict]:
     """diagnosis.json's ``not_confirmed``: the significant candidates the validation rejected but does not
-    exercise (``not_exercised_by_validation`` in their candidate entry, :func:`select._unexercised`), the
-    latest round's entry per effect and axis. They are not in the model: nothing confirms them."""
-    latest = {(c["effect"], c.get("axis")): c for c in log if "not_exercised_by_validation" in c}
+    exercise (``not_exercised_by_validation`` in their candidate entry, :func:`select._unexercised`), judged by
+    the latest round's entry per effect and axis, and not in the final model (``named``: its (effect, axis)
+    pairs, axis None for one axis). They are not in the model: nothing confirms them."""
+    latest = {(c["effect"], c.get("axis")): c for c in log if "validation_rms_after" in c}
     keys = ("effect", "axis", "round", "cost_reduction", "null_threshold", "evidence_ratio", "parameters",
             "not_exercised_by_validation")
-    return [{k: c[k] for k in keys if k in c} for c in latest.values()]
+    return [{k: c[k] for k in keys if k in c} for key, c in latest.items()
+            if "not_exercised_by_validation" in c and key not in named]
 
 
 def not_confirmed_markdown(doc: dict) -> list[str]:
