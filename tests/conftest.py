@@ -11,6 +11,7 @@ import motiontwin.cli  # noqa: F401  first: one BLAS thread per process, as the 
 from motiontwin.fmus import build
 from tests.fmi_util import gemseo_fmu_folder
 
+os.environ.setdefault("MOTIONTWIN_DIAGNOSIS_WORKERS", "1")  # pytest-xdist already runs a test process per core
 threadpoolctl.threadpool_limits(1)   # numpy loaded before motiontwin.cli set the variables: limit it here too
 MODELS = Path(__file__).parent / "models"
 TEST_MODELS = {

@@ -21,7 +21,9 @@ from tests.test_diagnosis_search import short_bundle_nominal
 @pytest.fixture(scope="module")
 def combination(tmp_path_factory) -> tuple[dict, dict]:
     root = tmp_path_factory.mktemp("combination")
-    independent.generate(root, "heldout", only=["offset+stribeck"])
+    with pytest.MonkeyPatch.context() as patch:     # half the set's length: the same rounds, decisions and values
+        patch.setattr(independent, "DURATIONS", (4.0, 2.0))
+        independent.generate(root, "heldout", only=["offset+stribeck"])
     truth = json.loads((root / "heldout" / "offset+stribeck.truth.json").read_text())
     return diagnose_bundle(root / "heldout" / "offset+stribeck", root / "out"), truth
 
