@@ -193,12 +193,15 @@ def test_a_current_limit_the_training_hits_once_is_found_and_not_confirmed(tmp_p
     first, second = silent["training_halves"]
     assert second > 1e3 * abs(first)
     entry = {"round": 1, "effect": "actuator_saturation", "cost_reduction": 1.0, "null_threshold": 0.1,
-             "evidence_ratio": 10.0, "validation_rms_after": 1.0, "not_exercised_by_validation": silent}
-    listed = {k: v for k, v in entry.items() if k != "validation_rms_after"}
-    assert report.not_confirmed([entry], set()) == [listed]
+             "evidence_ratio": 10.0, "validation_rms_after": 1.0, "not_exercised_by_validation": silent,
+             "parameters": {"Fmax": trial.fit.values["saturation_Fmax"]}}
+    listed = {**{k: v for k, v in entry.items() if k != "validation_rms_after"}, "units": {"Fmax": "N.m"}}  # rotary
+    assert report.not_confirmed([entry], set(), bundle) == [listed]
     judged = {k: v for k, v in entry.items() if k != "not_exercised_by_validation"}
-    assert report.not_confirmed([entry, {**judged, "round": 2}], set()) == []     # a later round judged it
-    assert report.not_confirmed([entry], {("actuator_saturation", None)}) == []  # it is in the model
+    assert report.not_confirmed([entry, {**judged, "round": 2}], set(), bundle) == []  # a later round judged it
+    assert report.not_confirmed([entry], {("actuator_saturation", None)}, bundle) == []  # it is in the model
+    assert f"(Fmax = {entry['parameters']['Fmax']:.4g} N.m)" in "".join(report.not_confirmed_markdown(
+        {"not_confirmed": [listed]}))
     doc = {"effects": [], "not_confirmed": [entry], "validation": {"nominal_rms": 1.0, "augmented_rms": 1.0}}
     assert "only its parameters were off" not in "".join(report.no_effect_lines(doc, "x"))
     assert fleet.summary_fields(doc)["verdict"] == "not confirmed: actuator_saturation"

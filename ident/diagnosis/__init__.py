@@ -35,11 +35,11 @@ def run(bundle: str, out: str, quiet: bool = False, allow_outside_paths: bool = 
     from motiontwin.ident.diagnosis.report import unexplained_text
 
     unexplained, unconfirmed = doc.get("unexplained"), doc.get("not_confirmed")
-    names = ", ".join(e["name"] + (f" on {e['axis']}" if "axis" in e else "") for e in doc["effects"]) \
+    names = ", ".join(_on_axis(e["name"], e) for e in doc["effects"]) \
         or ("none" if unexplained or unconfirmed else "none (only parameters were off)")
     if unconfirmed:
         names += "; not confirmed (the validation recording does not exercise it): " + ", ".join(
-            c["effect"] + (f" on {c['axis']}" if "axis" in c else "") for c in unconfirmed)
+            _on_axis(c["effect"], c) for c in unconfirmed)
     if unexplained:
         names += f"; {unexplained_text(unexplained)}"
     val = doc["validation"]
@@ -66,6 +66,11 @@ def check_sizes(bundle: Path) -> None:
     modelica = plant.get("modelica") if isinstance(plant, dict) else None
     if isinstance(modelica, str) and (bundle / modelica).is_file():
         check_size(bundle / modelica, "text", BundleError)
+
+
+def _on_axis(name: str, entry: dict) -> str:
+    """An effect's name, with the axis it acts on when the entry has one (several axes)."""
+    return f"{name} on {entry['axis']}" if "axis" in entry else name
 
 
 def _length(value: float | None, unit: str) -> str:

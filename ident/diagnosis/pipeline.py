@@ -411,7 +411,7 @@ class MultiAxisDiagnosis:
         remainder = result["remainder"]
         return report._jsonable({
             "effects": entries, "unexplained": report.unexplained_entry(remainder),
-            "not_confirmed": report.not_confirmed(result["log"], {(e.name, a) for a, e in final.placed}),
+            "not_confirmed": report.not_confirmed(result["log"], {(e.name, a) for a, e in final.placed}, bundle),
             "residual_check": {k: remainder[k] for k in ("status", "reason") if k in remainder},
             "validation": self.validation, "nominal_parameters": self.nominal_parameters,
             "augmented_parameters": self.parameters,

@@ -155,7 +155,7 @@ def diagnosis_document(result: dict, out: Path, fmu_path: Path | None) -> dict:
     return {
         "effects": effects,
         "unexplained": unexplained_entry(remainder),
-        "not_confirmed": not_confirmed(result["log"], {(e.name, None) for e in final.effects}),
+        "not_confirmed": not_confirmed(result["log"], {(e.name, None) for e in final.effects}, result["bundle"]),
         "residual_check": {k: remainder[k] for k in ("status", "reason") if k in remainder},
         "validation": {"nominal_rms": float(nominal.val_rms), "augmented_rms": aug_rms,
                        **_above_floor(float(nominal.val_rms), aug_rms, result["validation_floor"]),
@@ -186,16 +186,21 @@ def diagnosis_document(result: dict, out: Path, fmu_path: Path | None) -> dict:
     }
 
 
-def not_confirmed(log: list[dict], named: set[tuple[str, str | None]]) -> list[dict]:
+def not_confirmed(log: list[dict], named: set[tuple[str, str | None]], bundle: Bundle) -> list[dict]:
     """diagnosis.json's ``not_confirmed``: the significant candidates the validation rejected but does not
     exercise (``not_exercised_by_validation`` in their candidate entry, :func:`select._unexercised`), judged by
     the latest round's entry per effect and axis, and not in the final model (``named``: its (effect, axis)
-    pairs, axis None for one axis). They are not in the model: nothing confirms them."""
+    pairs, axis None for one axis). They are not in the model: nothing confirms them. Their parameters' units
+    are those of their axis in ``bundle``."""
     latest = {(c["effect"], c.get("axis")): c for c in log if "validation_rms_after" in c}
     keys = ("effect", "axis", "round", "cost_reduction", "null_threshold", "evidence_ratio", "parameters",
             "not_exercised_by_validation")
-    return [{k: c[k] for k in keys if k in c} for key, c in latest.items()
-            if "not_exercised_by_validation" in c and key not in named]
+    entries = [{k: c[k] for k in keys if k in c} for key, c in latest.items()
+               if "not_exercised_by_validation" in c and key not in named]
+    for entry in entries:
+        units = bundle_units(bundle, entry.get("axis"))
+        entry["units"] = {k: units.si(CONTRACT_UNITS.get(k, "")) for k in entry.get("parameters", {})}
+    return entries
 
 
 def not_confirmed_markdown(doc: dict) -> list[str]:
@@ -207,7 +212,8 @@ def not_confirmed_markdown(doc: dict) -> list[str]:
              "validation run that reaches them (the same moves and forces) would decide.", ""]
     for c in doc["not_confirmed"]:
         on = f" on axis {c['axis']}" if "axis" in c else ""
-        params = ", ".join(f"{k} = {v:.4g}" for k, v in c.get("parameters", {}).items())
+        params = ", ".join(f"{k} = {_with_unit(v, c.get('units', {}).get(k, ''))}"
+                           for k, v in c.get("parameters", {}).items())
         lines += [f"- {c['effect']}{on} ({params}): {c['evidence_ratio']:.3g} times the 99.9 % null level; "
                   f"{evidence.silent_text(c['not_exercised_by_validation'])}.", ""]
     return lines
