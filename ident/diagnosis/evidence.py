@@ -27,7 +27,7 @@ from motiontwin.ident.startvalues import derivative_cutoff, mirror_derivatives
 
 if TYPE_CHECKING:
     from motiontwin.ident.diagnosis.axis_units import AxisUnits
-    from motiontwin.ident.oefit import Weights
+    from motiontwin.ident import outputerror
 
 NULL_QUANTILE = 0.999
 VALIDATION_GAIN = 0.9        # an effect must reduce the validation RMS by at least 10 %
@@ -267,7 +267,8 @@ SILENT_SHARE = 0.01
 
 
 def half_gains(q: np.ndarray, u: np.ndarray, before: tuple[np.ndarray, np.ndarray],
-               after: tuple[np.ndarray, np.ndarray], weights: Weights, with_force: bool = True) -> list[float]:
+               after: tuple[np.ndarray, np.ndarray], weights: outputerror.Weights,
+               with_force: bool = True) -> list[float]:
     """The noise-weighted cost reduction of ``after`` (simulated output, force) over ``before`` on recorded
     ``q``, ``u``, in each half of the recording (1-D signals or one row per axis, weighted by
     ``weights.sigma_q``/``sigma_u`` per axis; the force channel only ``with_force``)."""
