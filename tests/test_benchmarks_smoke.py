@@ -1,6 +1,7 @@
 """The benchmark scripts cannot rot: each runs in its small ``--smoke`` size as its own process, within a time
-limit, exits 0, leaves no temporary file behind and prints at least one ratio line (tests/benchmarks/ratios.py), every value finite; and
-`make bench`'s runner turns those lines into its table."""
+limit, exits 0, none of the diagnoses it runs stops ("(stopped)"), it leaves no temporary file behind and prints at
+least one ratio line (tests/benchmarks/ratios.py), every value finite; and `make bench`'s runner turns those lines
+into its table."""
 from __future__ import annotations
 
 import os
@@ -28,6 +29,7 @@ def test_benchmark_runs_in_smoke_size_and_prints_finite_ratios(script: Path, gem
     proc = subprocess.run(run_all.command(script, smoke=True), capture_output=True, text=True, timeout=TIMEOUT_S,
                           env=env, cwd=BENCH.parents[1])
     assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-3000:]
+    assert "(stopped)" not in proc.stdout, proc.stdout[-3000:]     # a diagnosis it runs raised
     found = ratios.parse(proc.stdout)
     assert found and ratios.finite(found), proc.stdout[-3000:]
     assert all(name.split(".")[0] and baseline.strip() for name, _, baseline in found)

@@ -169,7 +169,8 @@ def test_floor_of_a_chaotic_backlash_loop_is_the_median_of_perturbed_reruns(shor
     """A PID loop hunting in a backlash gap is chaotic: reruns of the noise-free truth perturbed by 1e-12 of the
     force miss the validation recording by amounts spread over 3x (one run is a lucky draw), and the floor is
     their median. A loop without backlash (Coulomb) is not: its reruns agree to 1e-9 and the floor is the
-    noise-free run's. The benchmark's detectability counts against the top of the spread."""
+    noise-free run's. The benchmark's detectability counts against the top of the spread, and not an effect
+    that leaves the noise-free training run unchanged."""
     durations = independent.DURATIONS
     independent.DURATIONS = (1.0, 0.6)
     try:
@@ -188,6 +189,11 @@ def test_floor_of_a_chaotic_backlash_loop_is_the_median_of_perturbed_reruns(shor
                "floor_spread": [1.1e-5, 8.0e-5], "force_without_effect_rms": 5.6, "force_floor_rms": 3.0,
                "force_floor_spread": [1.0, 7.0]}
     assert bench["effect_over_floor"](chaotic) == pytest.approx(0.8)
+    # a current limit that only the validation's forces reach (fresh seed 15008: the training run's largest
+    # force 41 N against a 121.7 N limit): the training run does not show it, so it is not detectable
+    unseen = {"expected": ["actuator_saturation"], "concealment": {"max_abs": 0.0, "rms": 0.0, "force_max_abs": 0.0}}
+    assert not bench["acts_in_training"](unseen)
+    assert bench["acts_in_training"](coulomb) and coulomb["concealment"]["max_abs"] > 0
 
 
 def test_the_truth_does_not_import_the_diagnosis_candidates_or_the_effects_library() -> None:

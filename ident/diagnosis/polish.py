@@ -110,7 +110,8 @@ def upgraded(bundle: Bundle, chosen: ModelFit, whitened: ModelFit, innovations: 
     best: tuple[float, float, ModelFit, effect_models.Effect, effect_models.Effect] | None = None
     for simple in whitened.effects:
         richer = [e for e in (effect_models.VOCABULARY[r](ctx) for r in EXACT_NESTED_START
-                              if effect_models.NESTED[r] == simple.name) if e.applicable]
+                              if r in effect_models.VOCABULARY and effect_models.NESTED[r] == simple.name)
+                  if e.applicable]
         if not richer:
             continue
         trials = _side_by_side(bundle, whitened, richer, simple, None, ctx, innovations, folder, progress,
@@ -158,7 +159,7 @@ def demoted(bundle: Bundle, chosen: ModelFit, whitened: ModelFit, innovations: o
         return None
     variance = whitened.fit.cost / rows
     for rich in whitened.effects:
-        if rich.name not in EXACT_NESTED_START:
+        if rich.name not in EXACT_NESTED_START or effect_models.NESTED[rich.name] not in effect_models.VOCABULARY:
             continue
         simple = effect_models.VOCABULARY[effect_models.NESTED[rich.name]](ctx)
         if not simple.applicable:
@@ -220,7 +221,8 @@ def _offset_pair(bundle: Bundle, chosen: ModelFit, whitened: ModelFit, coulomb: 
     degree times the whitened ``variance``. None otherwise. Why: a constant force moves the level of both
     directions' friction alike, so a round can take it up as asymmetry, and the constant force is then refused
     where the axis rests (a fresh-seed offset + Stribeck truth: levels 2.44 and 0.009 N)."""
-    if rich.name != "asymmetric_friction" or "gravity_offset" in whitened.names:
+    if rich.name != "asymmetric_friction" or "gravity_offset" in whitened.names \
+            or "gravity_offset" not in effect_models.VOCABULARY:
         return None
     simple, offset = coulomb.effects[whitened.effects.index(rich)], effect_models.VOCABULARY["gravity_offset"](ctx)
     v = whitened.fit.values
