@@ -56,6 +56,17 @@ def test_process_noise_is_estimated_beside_structure_of_the_motion(structure: st
     assert _band_power(est.sample(n, TS, np.random.default_rng(5))) == pytest.approx(_band_power(w), rel=0.25), est
 
 
+def test_process_noise_is_scaled_to_the_room_the_fitted_residual_leaves() -> None:
+    """Floor powers add: encoder 1.0, with the process noise 3.0, a fitted residual of 2.0 leaves room for
+    (4 - 1) / (9 - 1) of the process noise's power; with more room it is kept as it is, with none it is gone."""
+    process = noise.ProcessNoise(0.3, 0.4, 0.05)
+    scaled = noise.within_residual(process, 1.0, 3.0, 2.0)
+    assert (scaled.white, scaled.coloured, scaled.tau) == pytest.approx((0.3 * math.sqrt(3 / 8),
+                                                                        0.4 * math.sqrt(3 / 8), 0.05))
+    assert noise.within_residual(process, 1.0, 3.0, 3.5) is process
+    assert not noise.within_residual(process, 1.0, 3.0, 0.9).present
+
+
 def _band_power(w: np.ndarray) -> float:
     """Power of ``w`` between 1 and 100 Hz."""
     f, pxx = signal.welch(w, fs=1 / TS, nperseg=8192)
