@@ -40,20 +40,7 @@ def explain_remainder(bundle: Bundle, final: ModelFit, weights: outputerror.Weig
     velocity/position ranges (measured units) and frequency band. The states a measurement does not give
     (delay, load, bristle, drift states) come from the final model's free run (:func:`_free_run_states`)."""
     plant = bundle.plant
-    if final.effects:
-        model = bundle.cache.models[tuple(final.names)]
-        prefix = "plant."
-    else:
-        model, prefix = plant.model, ""
-    values = {v.name: float(v.start) for v in model.parameters} | final.fit.values
-    gain, offset = output_map(plant.model, plant.roles, {k[len(prefix):]: v for k, v in values.items()
-                                                          if k.startswith(prefix)})
-    rec = _in_state_coordinates(bundle.train, gain, offset)
-    inputs = [v.name for v in model.inputs]
-    inv = evidence.inverse_dynamics(rec, model, values, prefix + plant.position_state,
-                                    prefix + plant.velocity_state, bundle.controller.sample_time,
-                                    inputs.index("u" if final.effects else plant.input_name), held_input=True,
-                                    states=_free_run_states(bundle, final, model))
+    inv, gain, _ = force_residual(bundle, final)
     if inv is None:
         reason = (f"not tested: the final model's acceleration (effects {', '.join(final.names) or 'none'}) does "
                   f"not respond to its force input directly, so its force residual has no gain to divide by")
@@ -150,6 +137,30 @@ def explain_remainder(bundle: Bundle, final: ModelFit, weights: outputerror.Weig
         "cost_reduction": reduction, "null_threshold": threshold, "validation_rms_before": final.val_rms,
         "validation_rms_after": trial.val_rms, "previous": final}}
     return trial, check
+
+
+def force_residual(bundle: Bundle, final: ModelFit) -> tuple[evidence.InverseDynamics | None, float, float]:
+    """The force residual of ``final`` on the training recording (inverse dynamics of the augmented model
+    itself, on the measured motion, the force held over each sample), the plant's output gain (position =
+    gain * state + offset) and the model's input gain d(acceleration)/d(force) [1/kg]. The states a
+    measurement does not give (delay, load, bristle, drift states) come from the model's free run
+    (:func:`_free_run_states`). None for the residual when the acceleration does not respond to the input."""
+    plant = bundle.plant
+    if final.effects:
+        model, prefix = bundle.cache.models[tuple(final.names)], "plant."
+    else:
+        model, prefix = plant.model, ""
+    values = {v.name: float(v.start) for v in model.parameters} | final.fit.values
+    gain, offset = output_map(plant.model, plant.roles, {k[len(prefix):]: v for k, v in values.items()
+                                                          if k.startswith(prefix)})
+    rec = _in_state_coordinates(bundle.train, gain, offset)
+    driven = [v.name for v in model.inputs].index("u" if final.effects else plant.input_name)
+    inv = evidence.inverse_dynamics(rec, model, values, prefix + plant.position_state,
+                                    prefix + plant.velocity_state, bundle.controller.sample_time, driven,
+                                    held_input=True, states=_free_run_states(bundle, final, model))
+    if inv is None:
+        return None, gain, math.nan
+    return inv, gain, 1 / evidence.mass_equivalent(model, values, prefix + plant.velocity_state, driven)
 
 
 def _free_run_states(bundle: Bundle, final: ModelFit,
