@@ -34,10 +34,10 @@ from motiontwin.ident.oeloop import Loop, Signals
 from motiontwin.ident.startvalues import mirror_derivatives
 
 #: time constants [s] tried for the coloured part: on the nominal model's residual, and (six per decade) on the
-#: selected model's
+#: final model's
 TAU_GRID = (0.005, 0.01, 0.02, 0.05, 0.1, 0.2, 0.5)
 RESOLVED_TAU_GRID = tuple(0.005 * 10 ** (k / 6) for k in range(13))
-BANDS_PER_OCTAVE = 4    # the selected model's residual spectrum is fitted over quarter-octave bands
+BANDS_PER_OCTAVE = 4    # the final model's residual spectrum is fitted over quarter-octave bands
 NEIGHBOURS = 8
 BACKFITTING = 3         # rounds of the least-squares laws and the neighbours' means fitted in turn
 INERTIA_HARMONICS = 1   # the linear stage's mass varies along the stroke by this many harmonics
@@ -149,7 +149,7 @@ def estimate(force: np.ndarray, x: np.ndarray, v: np.ndarray, a: np.ndarray, inp
 
     ``resolved=False``, for the nominal model's residual, which still holds the force of the effects not yet
     found: each Welch bin weighs alike (nine in ten lie above a tenth of the cut-off, where that slow force
-    hardly reaches) over ``TAU_GRID``. ``resolved=True``, for the selected model's residual: the spectrum is
+    hardly reaches) over ``TAU_GRID``. ``resolved=True``, for the final model's residual: the spectrum is
     averaged over bands of ``1/BANDS_PER_OCTAVE`` octave, each weighing alike, over ``RESOLVED_TAU_GRID``, so a
     slow noise is read at its level (per bin, 0.093 N at 20 ms for 0.18 N at 58 ms on an independent bundle;
     banded on a nominal residual, the slow force a missing load-dependent friction leaves on a real servo was
