@@ -219,9 +219,9 @@ def held_force(inv: evidence.InverseDynamics, input_gain: float, ts: float) -> n
     return inv.force + (inv.a - a) / input_gain
 
 
-def of_bundle(bundle: Bundle, values: dict[str, float], sigma_q: float) -> ProcessNoise:
+def of_bundle(bundle: Bundle, values: dict[str, float], sigma_q: float, resolved: bool = False) -> ProcessNoise:
     """The process noise of a single-axis bundle's training recording under the refitted nominal plant
-    (``values``); ``sigma_q``: the encoder noise in the measured unit."""
+    (``values``); ``sigma_q``: the encoder noise in the measured unit; ``resolved``: as :func:`estimate`."""
     plant = bundle.plant
     gain, offset = output_map(plant.model, plant.roles, values)
     rec = Recording(bundle.train.time, {**bundle.train.columns, "q": (bundle.train["q"] - offset) / gain})
@@ -234,7 +234,7 @@ def of_bundle(bundle: Bundle, values: dict[str, float], sigma_q: float) -> Proce
     input_gain = 1 / evidence.mass_equivalent(plant.model, values, plant.velocity_state,
                                               inputs.index(plant.input_name))
     return estimate(held_force(inv, input_gain, ts), inv.x, inv.v, inv.a, input_gain, sigma_q / abs(gain), ts,
-                    inv.cutoff)
+                    inv.cutoff, resolved)
 
 
 def force_measurement(loop: Loop, rec: Recording) -> float:
