@@ -59,6 +59,39 @@ def test_sigterm_on_diagnose_removes_its_temporary_folder_and_exits_143(tmp_path
     assert list(temp.glob("motiontwin-diagnosis-*")) == [] and not out.exists()
 
 
+def test_a_sigterm_a_library_swallowed_during_the_analysis_publishes_no_output(tmp_path: Path,
+                                                                              monkeypatch: pytest.MonkeyPatch) -> None:
+    """SIGTERM swallowed where Python can only print it (a screening worker's fork hook): the analysis goes on,
+    but its finished folder is not published, and the command ends 143 (CI of stop 48 found ``--out`` written)."""
+    import motiontwin.ident.diagnosis as diagnosis
+    from motiontwin.cli import main
+    from motiontwin.ident.diagnosis import pipeline
+
+    class Finished:
+        def write(self, folder: str) -> dict:
+            staging = tmp_path / "staging"
+            staging.mkdir()
+            (staging / "diagnosis.json").write_text("{}", encoding="utf-8")
+            pipeline._publish(staging, Path(folder))
+            return {}
+
+    def analysis(bundle: object, progress: object) -> Finished:
+        try:
+            os.kill(os.getpid(), signal.SIGTERM)
+            time.sleep(0.1)
+        except KeyboardInterrupt:
+            pass   # swallowed
+        return Finished()
+
+    monkeypatch.setattr(diagnosis, "check_sizes", lambda path: None)
+    monkeypatch.setattr(diagnosis, "read_bundle", lambda path, allow_outside_paths: None)
+    monkeypatch.setattr(diagnosis, "diagnose_bundle_object", analysis)
+    (tmp_path / "bundle").mkdir()
+    out = tmp_path / "out"
+    assert main(["diagnose", str(tmp_path / "bundle"), "--out", str(out), "--quiet"]) == 143
+    assert not out.exists()
+
+
 def _commit_runs(fn, on_result) -> tuple[list[str], BaseException | None]:
     """commit_each over three in-process runs under the CLI's SIGTERM handling: the statuses written, the
     exception it ended with."""

@@ -18,6 +18,7 @@ import numpy as np
 from scipy import stats
 
 from motiontwin.fmus.files import move_file
+from motiontwin.harness.interrupt import raise_if_terminated, uninterrupted
 from motiontwin.ident import outputerror, startvalues
 from motiontwin.ident.diagnosis import empirical, noise, report, report_plots
 from motiontwin.ident.diagnosis.augmented import AUGMENTED_CLASS, write_structure
@@ -283,14 +284,18 @@ class Diagnosis:
 
 
 def _publish(staging: Path, out: Path) -> None:
-    """Move every staged file into ``out`` (created if needed), atomically per file (fmus.files.move_file)."""
-    out.mkdir(parents=True, exist_ok=True)
-    for src in sorted(staging.rglob("*")):
-        if src.is_dir():
-            continue
-        target = out / src.relative_to(staging)
-        target.parent.mkdir(parents=True, exist_ok=True)
-        move_file(src, target)
+    """Move every staged file into ``out`` (created if needed), atomically per file (fmus.files.move_file), with
+    SIGTERM and Ctrl-C held back until all are in; nothing is moved when a SIGTERM arrived during the analysis
+    and a library swallowed its exception (:func:`interrupt.raise_if_terminated`)."""
+    raise_if_terminated()
+    with uninterrupted():
+        out.mkdir(parents=True, exist_ok=True)
+        for src in sorted(staging.rglob("*")):
+            if src.is_dir():
+                continue
+            target = out / src.relative_to(staging)
+            target.parent.mkdir(parents=True, exist_ok=True)
+            move_file(src, target)
     shutil.rmtree(staging, ignore_errors=True)
 
 
