@@ -18,6 +18,7 @@ from motiontwin.harness.recording import atomic_write_texts, make_recording, wri
 from motiontwin.ident import outputerror
 from motiontwin.ident.controller import Controller
 from motiontwin.ident.benchmarks import single_axis as benchmark
+from motiontwin.ident.benchmarks.independent_laws import coloured_noise
 from motiontwin.ident.diagnosis import augmented
 from motiontwin.ident.diagnosis import effects as effect_models
 from motiontwin.ident.diagnosis import empirical
@@ -56,6 +57,8 @@ HEXAPOD_AXES = [{"input": f"tau{j}", "output": f"L{j}"} for j in range(1, 7)]
 #: the Hexapod's refitted parameters in the examples: the platform mass and the legs' viscous friction (its
 #: Coulomb friction, gravity and geometry are known), so that a concealed leg friction stays concealed
 HEXAPOD_FREE = ["mE"] + [f"cv{j}" for j in range(1, 7)]
+#: the process force noise of the ``_process`` examples: white, first-order coloured [N] and its time constant [s]
+EXAMPLE_PROCESS = (0.05, 0.05, 0.05)
 PREROLL = 0.5            # s at the first reference before the recording starts (integrators settle)
 SUBSTEPS = 8
 
@@ -110,11 +113,14 @@ def references(outputs: list[str], centres: dict[str, float], duration: float, t
 def write_bundle(folder: Path, plant_doc: dict, controller_doc: dict, effects: list[TrueEffect],
                  train_s: float, validation_s: float, seed: int, noise_std: float = 1e-8,
                  stroke: float = 0.004, plant_text: str | None = None,
-                 true_parameters: dict[str, float] | None = None) -> dict:
+                 true_parameters: dict[str, float] | None = None,
+                 process: tuple[float, float, float] = (0.0, 0.0, 0.05)) -> dict:
     """Write a multi-axis bundle (experiment.json, train.csv, validation.csv, truth.json) into ``folder``;
     returns the truth document. ``plant_doc``: experiment.json's plant object (with ``axes``; its
     ``parameters`` are the diagnosis' start values, not the truth's); with ``plant_text`` it is written as
-    plant.mo. ``true_parameters``: the truth's plant parameters (default: the Modelica values)."""
+    plant.mo. ``true_parameters``: the truth's plant parameters (default: the Modelica values). ``process``:
+    force noise on every axis's plant input, held over each sample and not in the recorded force (white
+    standard deviation, first-order coloured standard deviation [N], its time constant [s])."""
     folder.mkdir(parents=True, exist_ok=True)
     if plant_text is not None:
         (folder / "plant.mo").write_text(plant_text, encoding="utf-8")
@@ -160,7 +166,17 @@ def write_bundle(folder: Path, plant_doc: dict, controller_doc: dict, effects: l
         loop = outputerror.build_loop(model, ctrl, outputs[0], [], values, n, substeps=SUBSTEPS,
                                       with_jacobian=False, axes=signals)
         noise = rng.normal(0.0, noise_std, (len(outputs), n))
+        force = np.array([process[0] * rng.standard_normal(n)
+                          + (coloured_noise(n, process[1], process[2], ts, rng) if process[1] else 0.0)
+                          for _ in outputs])
+        if np.any(force):
+            rec = make_recording(rec.time, {**rec.columns, **{sig.disturbance: force[k]
+                                                              for k, sig in enumerate(signals)}})
         q, u = outputerror.simulate(loop, rec, values, noise=noise)
+        u = u - force       # the recorded force is the controller's command
+        if part == "validation":    # what no model can predict: the recording against the noise-free truth
+            clean, _ = outputerror.simulate(loop, make_recording(rec.time, columns), values)
+            floor = np.sqrt(np.mean((q[:, pre:] + noise[:, pre:] - clean[:, pre:]) ** 2, axis=1))
         data = {}
         for k, sig in enumerate(signals):
             data.update({sig.reference: r[k, pre:], sig.input: u[k, pre:], sig.output: q[k, pre:] + noise[k, pre:]})
@@ -172,7 +188,8 @@ def write_bundle(folder: Path, plant_doc: dict, controller_doc: dict, effects: l
                   "recordings": {"train": "train.csv", "validation": "validation.csv"}}
     truth = {"effects": [{"name": e.name, "axis": e.axis, "parameters": e.parameters} for e in effects],
              "plant_parameters": {k[len("plant."):]: v for k, v in values.items() if k.startswith("plant.")},
-             "noise_std": noise_std, "seed": seed}
+             "noise_std": noise_std, "process_noise": dict(zip(("white", "coloured", "tau"), process)), "seed": seed,
+             "floor_rms": dict(zip(outputs, floor.tolist()))}
     atomic_write_texts({folder / "experiment.json": json.dumps(experiment, indent=1),
                         folder / "truth.json": json.dumps(truth, indent=1)})
     return truth
@@ -186,14 +203,17 @@ def example(folder: Path, case: str, train_s: float, validation_s: float, ts: fl
     ``hexapod_coulomb_L3`` (the library Hexapod in leg coordinates whose leg 3 has 15 N more Coulomb friction
     than the nominal model's Table II value: the plant's own friction law, not the diagnosis' effect code;
     mE starting at 11.5 kg against the true 10.2) or ``hexapod_params_only`` (the same without the extra
-    friction). Hexapod cases take ``ts`` = 1e-3 (1 kHz)."""
+    friction). Hexapod cases take ``ts`` = 1e-3 (1 kHz). The two-carriage cases with the suffix ``_process``
+    (``coupled2_coulomb_q2_process``, ``coupled2_params_only_process``) add ``EXAMPLE_PROCESS`` force noise to
+    both carriages."""
     if case.startswith("coupled2"):
         controller = {"kind": "per_axis", "axes": [pid_document(ts, 2.0, 60.0), pid_document(ts, 3.0, 60.0)]}
         plant = {"class": "Coupled2", "axes": COUPLED2_AXES, "parameters": {"m1": 2.3, "d": 8.0}}
+        process = EXAMPLE_PROCESS if case.endswith("_process") else (0.0, 0.0, 0.05)
         effects = ([TrueEffect("coulomb_friction", "q2", {"coulomb_Fc": 0.3, "coulomb_v_eps": 1e-4})]
-                   if case == "coupled2_coulomb_q2" else [])
+                   if case.removesuffix("_process") == "coupled2_coulomb_q2" else [])
         return write_bundle(folder, plant, controller, effects, train_s, validation_s, seed=3,
-                            plant_text=COUPLED2_TEXT)
+                            plant_text=COUPLED2_TEXT, process=process)
     if case == "cheung_coulomb_q5":
         controller = {"kind": "per_axis", "axes": [pid_document(ts, 1.2, 40.0) for _ in CHEUNG_AXES]}
         plant = {"class": "MotionTwin.Plants.CheungManipulator", "axes": CHEUNG_AXES, "parameters": {"c_v": 4.0}}
@@ -206,6 +226,6 @@ def example(folder: Path, case: str, train_s: float, validation_s: float, ts: fl
         extra = {"rc3": 20.1528 + 15.0} if case == "hexapod_coulomb_L3" else {}
         return write_bundle(folder, plant, controller, [], train_s, validation_s, seed=24, stroke=0.006,
                             true_parameters=extra)
-    raise ValueError(f"unknown example {case!r}; known: coupled2_coulomb_q2, coupled2_params_only, "
-                     f"cheung_coulomb_q5, hexapod_coulomb_L3, hexapod_params_only")
+    raise ValueError(f"unknown example {case!r}; known: coupled2_coulomb_q2, coupled2_params_only (each also with "
+                     f"_process), cheung_coulomb_q5, hexapod_coulomb_L3, hexapod_params_only")
 

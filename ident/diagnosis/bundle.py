@@ -114,7 +114,7 @@ class Bundle:
     start: dict[str, float] = dataclass_field(default_factory=dict)   # nominal start values (set by the pipeline)
     cache: Any = None            # the compiled loops of the diagnosis running on this bundle (set by the pipeline)
     nominal_free: tuple = ()     # multi-axis: (free nominal parameters, their bounds) (set by the diagnosis)
-    process_noise: Any = None    # noise.ProcessNoise of the training recording (set by the pipeline; None: none)
+    process_noise: Any = None    # noise.Process of the training recording (several axes: one per axis; None: none)
     observer: Observer | None = None   # unknown controller: the observer standing in for it (ident.observer)
 
     def recording_path(self, part: str) -> Path:

@@ -13,7 +13,7 @@ from motiontwin.fmus import symbolic
 from motiontwin.harness.recording import Recording
 from motiontwin.ident import outputerror, startvalues
 from motiontwin.ident.diagnosis import effects as effect_models
-from motiontwin.ident.diagnosis import axis_kinematics, evidence
+from motiontwin.ident.diagnosis import axis_kinematics, evidence, noise
 from motiontwin.ident.diagnosis.bundle import Bundle
 from motiontwin.ident.diagnosis.plant_roles import output_map
 from motiontwin.ident.diagnosis.structure import ModelFit
@@ -120,6 +120,38 @@ def _needed_force(model: symbolic.SymbolicModel, bundle: Bundle, values: dict[st
     a0 = np.array(a0)
     gain = np.array(gain).reshape(n, x.shape[1], n).transpose(1, 0, 2)   # map: blocks side by side
     return np.linalg.solve(gain, (acc - a0).T[:, :, None])[:, :, 0].T
+
+
+def process_noise(bundle: Bundle, values: dict[str, float], sigma_q: np.ndarray) -> tuple[noise.ProcessNoise, ...]:
+    """The process force noise of every axis of a multi-axis bundle's training recording under the refitted
+    nominal plant (``values``): :func:`noise.estimate` of each axis's inverse-dynamics force residual, in its axis
+    coordinates, with the force held over each sample (each axis's recorded force averaged over the sample and
+    the one before it, the acceleration the central second difference of the filtered position, as
+    :func:`noise.held_force`); ``sigma_q``: each axis's encoder noise in its measured unit."""
+    model = bundle.plant.model
+    plain = {k[len("plant."):] if k.startswith("plant.") else k: v for k, v in values.items()}
+    plain = {v.name: plain.get(v.name, float(v.start)) for v in model.parameters}
+    columns = dict(bundle.train.columns)
+    for a in bundle.plant.axes:
+        u = np.asarray(columns[a.input], float)
+        columns[a.input] = 0.5 * (np.concatenate([u[:1], u[:-1]]) + u)
+    rec = Recording(bundle.train.time, columns, bundle.train.units, bundle.train.meta)
+    ts = bundle.controller.sample_time
+    fc = startvalues.derivative_cutoff(1 / ts)
+    x, acc, forces = _states_from(bundle, rec, plain, fc)
+    pos, vel, _, _ = _axis_motion(bundle, rec, plain, fc)
+    held = np.array(acc)
+    held[:, 1:-1] = (pos[:, 2:] - 2 * pos[:, 1:-1] + pos[:, :-2]) / ts ** 2
+    residual = forces - _needed_force(model, bundle, plain, x, held)
+    p = np.array([plain[v.name] for v in model.parameters])
+    _, g = _acceleration_map(model, bundle)(x[:, 0], np.zeros(model.u.numel()), p)
+    masses = np.diag(np.linalg.inv(np.array(g)))
+    sigma = np.broadcast_to(np.asarray(sigma_q, float), (len(bundle.plant.axes),))
+    out = []
+    for k, a in enumerate(bundle.plant.axes):
+        gain, _ = output_map(model, a, plain)
+        out.append(noise.estimate(residual[k], pos[k], vel[k], acc[k], 1 / masses[k], sigma[k] / abs(gain), ts, fc))
+    return tuple(out)
 
 
 @dataclass

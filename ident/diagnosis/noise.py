@@ -246,19 +246,42 @@ def force_measurement(loop: Loop, rec: Recording) -> float:
     return noise_level(relation, loop.controller.sample_time)
 
 
-def noisy_simulator(loop: Loop, rec: Recording, values: dict[str, float], process: ProcessNoise | None,
+#: the process noise of one axis, or of each axis of a multi-axis loop (in its axes' order)
+Process = ProcessNoise | tuple[ProcessNoise, ...]
+
+
+def present(process: Process | None) -> bool:
+    """Whether ``process`` holds any force noise (on any axis)."""
+    if process is None:
+        return False
+    return any(p.present for p in process) if isinstance(process, tuple) else process.present
+
+
+def noisy_simulator(loop: Loop, rec: Recording, values: dict[str, float], process: Process | None,
                     shift: np.ndarray | None = None,
                     ) -> Callable[[np.ndarray, np.random.Generator], tuple[np.ndarray, np.ndarray]]:
     """(encoder noise, rng) -> the loop's (q, u) re-simulated along ``rec`` with that encoder noise fed back
-    and, for one axis, a fresh realisation of ``process`` acting on the plant, from the controller start
-    ``shift`` (the fit's, so that a replicate differs from the fitted free run by the noise alone). The
-    returned u is the force the controller commanded (the process noise is not in a recorded force)."""
+    and a fresh realisation of ``process`` acting on the plant (several axes: a tuple, one per axis, each on its
+    axis's input), from the controller start ``shift`` (the fit's, so that a replicate differs from the fitted
+    free run by the noise alone). The returned u is the force the controller commanded (the process noise is not
+    in a recorded force)."""
+    per_axis = isinstance(process, tuple)
+    if per_axis and len(process) != len(loop.channels):
+        raise ValueError(f"process noise for {len(process)} axes, the loop has {len(loop.channels)}")
+
     def simulate(noise: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
-        if process is None or not process.present or loop.axes:
+        if not present(process) or (loop.axes and not per_axis):
             return outputerror.simulate(loop, rec, values, noise=noise, shift=shift)
-        w = process.sample(rec.time.size, loop.ts, rng)
-        q, u = outputerror.simulate(loop, with_force_noise(rec, w, loop.signals.disturbance), values, noise=noise,
-                                    shift=shift)
+        if not per_axis:
+            w = process.sample(rec.time.size, loop.ts, rng)
+            q, u = outputerror.simulate(loop, with_force_noise(rec, w, loop.signals.disturbance), values,
+                                        noise=noise, shift=shift)
+            return q, u - w
+        w = np.array([p.sample(rec.time.size, loop.ts, rng) for p in process])
+        noisy = rec
+        for k, sig in enumerate(loop.channels):
+            noisy = with_force_noise(noisy, w[k], sig.disturbance)
+        q, u = outputerror.simulate(loop, noisy, values, noise=noise, shift=shift)
         return q, u - w
     return simulate
 

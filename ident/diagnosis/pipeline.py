@@ -20,7 +20,7 @@ from scipy import stats
 from motiontwin.fmus.files import move_file
 from motiontwin.harness.interrupt import raise_if_terminated, uninterrupted
 from motiontwin.ident import outputerror, startvalues
-from motiontwin.ident.diagnosis import empirical, noise, report, report_plots
+from motiontwin.ident.diagnosis import empirical, locate, noise, report, report_plots
 from motiontwin.ident.diagnosis.augmented import AUGMENTED_CLASS, write_structure
 from motiontwin.ident.diagnosis.bounds import bounds_widened, structure_at_bound
 from motiontwin.ident.diagnosis.axis_units import bundle_units
@@ -308,6 +308,9 @@ def run_axes(bundle: Bundle, work: Path, progress=None) -> dict:
     bundle.start = {v.name: float(v.start) for v in bundle.plant.model.parameters} | bundle.plant.parameters
     bundle.nominal_free = nominal_free(bundle)
     nominal, weights = fit_nominal_axes(bundle, work / "nominal", progress)
+    bundle.process_noise = locate.process_noise(bundle, nominal.fit.values, weights.sigma_q)
+    _log(progress, "process force noise (not predictable from the motion): " + "; ".join(
+        f"{a.output} {p.describe()}" for a, p in zip(bundle.plant.axes, bundle.process_noise)))
     validate_axes(bundle, nominal, work / "v_nominal")
     for a in bundle.plant.axes:
         k = [x.output for x in bundle.plant.axes].index(a.output)
@@ -326,12 +329,30 @@ def run_axes(bundle: Bundle, work: Path, progress=None) -> dict:
         validate_axes(bundle, final, work / "v_final")
     loop, _ = build_axes(bundle, final.placed, final.fit.values, work / "final", bundle.validation.time.size,
                          with_jacobian=False, min_substeps=final.loop.substeps)
-    floor = validation_floor(loop, bundle, final.fit.values, weights.sigma_q)
+    bundle.process_noise = within_residual_axes(bundle, final, weights, progress)
+    floor = validation_floor(loop, bundle, final.fit.values, weights.sigma_q, process=bundle.process_noise)
     remainder = above_floor_axes(bundle, final, loop, remainder, floor, weights, progress)
     _log(progress, f"diagnosis done in {time.perf_counter() - t0:.1f} s")
     return {"bundle": bundle, "nominal": nominal, "final": final, "weights": weights, "log": log,
             "located": located, "remainder": remainder, "validation_floor": floor,
-            "seconds": time.perf_counter() - t0}
+            "process_noise": bundle.process_noise, "seconds": time.perf_counter() - t0}
+
+
+def within_residual_axes(bundle: Bundle, final: ModelFit, weights: outputerror.Weights,
+                         progress=None) -> tuple[noise.ProcessNoise, ...]:
+    """Each axis's process noise bounded by the final model's training residual on that axis
+    (:func:`noise.within_residual`, both floors from the same replicates of all axes)."""
+    process = bundle.process_noise
+    if not noise.present(process):
+        return process
+    encoder = np.atleast_1d(floor_rms(final.loop, bundle.train, final.fit.values, weights.sigma_q))
+    with_process = np.atleast_1d(floor_rms(final.loop, bundle.train, final.fit.values, weights.sigma_q, process))
+    residual = [float(np.sqrt(np.mean((bundle.train[a.output] - final.fit.q_sim[k]) ** 2)))
+                for k, a in enumerate(bundle.plant.axes)]
+    bounded = tuple(noise.within_residual(p, e, w, r) for p, e, w, r in zip(process, encoder, with_process, residual))
+    _log(progress, "process force noise within the final model's training residual: " + "; ".join(
+        f"{a.output} {p.describe()}" for a, p in zip(bundle.plant.axes, bounded)))
+    return bounded
 
 
 def with_final_start(bundle: Bundle, final: ModelFit, weights: outputerror.Weights, folder: Path,
@@ -372,7 +393,7 @@ def above_floor_axes(bundle: Bundle, final: ModelFit, loop: outputerror.Loop, re
     if not np.any(rms > FLOOR_MARGIN * floor):
         return remainder
     spread, _ = estimation_rms(final.loop, bundle.train, final.fit, final.bounds, loop, bundle.validation,
-                               final.fit.values, weights)
+                               final.fit.values, weights, bundle.process_noise)
     unknown = bool(np.any(np.isnan(spread)))
     spread = np.where(np.isnan(spread), 0.0, spread)
     bound = np.array([floor_bound(f, e) for f, e in zip(floor, spread)])
@@ -389,7 +410,8 @@ def above_floor_axes(bundle: Bundle, final: ModelFit, loop: outputerror.Loop, re
     where = empirical.locate_remainder(residual, residual, rec.time, v, rec[axis], sigma, ts)
     reach = float(np.hypot(floor[k], spread[k]))
     reason = (f"the validation RMS of {axis} {rms[k]:.4g} is {rms[k] / reach:.3g} times what a correct model fitted "
-              f"on this training recording reaches there ({reach:.4g}: {floor[k]:.4g} from the encoder noise, "
+              f"on this training recording reaches there ({reach:.4g}: {floor[k]:.4g} from the "
+              f"{'encoder and process noise' if noise.present(bundle.process_noise) else 'encoder noise'}, "
               + (f"its parameters' estimation error not known; the bound allows {FLOOR_MARGIN} times the noise)"
                  if unknown else f"{spread[k]:.4g} from its parameters' estimation error; the bound allows "
                  f"{FLOOR_MARGIN} times the first and {ESTIMATION_QUANTILE:.3g} times the second)")
@@ -448,7 +470,9 @@ class MultiAxisDiagnosis:
             "noise": {"sigma_q": dict(zip([a.output for a in bundle.plant.axes],
                                           np.atleast_1d(result["weights"].sigma_q).tolist())),
                       "sigma_u": dict(zip([a.output for a in bundle.plant.axes],
-                                          np.atleast_1d(result["weights"].sigma_u).tolist()))},
+                                          np.atleast_1d(result["weights"].sigma_u).tolist())),
+                      "process": ({a.output: p.as_dict() for a, p in zip(bundle.plant.axes, result["process_noise"])}
+                                  if result.get("process_noise") is not None else None)},
             "location": result["located"], "candidates": result["log"],
             "nominal_free": list(bundle.nominal_free[0]), "runtime_s": round(result["seconds"], 2),
             "at_bound": structure_at_bound(final), "bounds_widened": bounds_widened(final),

@@ -20,7 +20,7 @@ from motiontwin.ident.diagnosis import effects as effect_models
 from motiontwin.ident.diagnosis.augmented import (AUGMENTED_CLASS, axis_prefix, load_augmented, load_structure,
                                                   load_written, write_axes_structure, write_structure)
 from motiontwin.ident.diagnosis.bundle import Bundle, PlantInfo
-from motiontwin.ident.diagnosis.noise import ProcessNoise, noisy_simulator
+from motiontwin.ident.diagnosis.noise import Process, noisy_simulator
 from motiontwin.ident.diagnosis.plant_roles import PlantRoles
 from motiontwin.ident.diagnosis.workers import map_jobs
 
@@ -222,7 +222,7 @@ def validation_shift(bundle: Bundle, loop: outputerror.Loop, fit: outputerror.Fi
 
 
 def validation_floor(loop: outputerror.Loop, bundle: Bundle, values: dict[str, float], sigma_q: float | np.ndarray,
-                     count: int = FLOOR_REPLICATES, process: ProcessNoise | None = None) -> float | np.ndarray:
+                     count: int = FLOOR_REPLICATES, process: Process | None = None) -> float | np.ndarray:
     """RMS of measured minus free-run q that the fitted model itself leaves on the validation excitation
     [m]: :func:`floor_rms` on the validation recording. No model can bring the validation RMS below this
     floor, so the improvement is also reported above it."""
@@ -230,17 +230,17 @@ def validation_floor(loop: outputerror.Loop, bundle: Bundle, values: dict[str, f
 
 
 def floor_rms(loop: outputerror.Loop, rec: Recording, values: dict[str, float], sigma_q: float | np.ndarray,
-              process: ProcessNoise | None = None, count: int = FLOOR_REPLICATES) -> float | np.ndarray:
+              process: Process | None = None, count: int = FLOOR_REPLICATES) -> float | np.ndarray:
     """RMS of ``rec``'s q minus the free run that a correct model leaves [m]: the model re-simulated with white
-    encoder noise of the estimated level fed back through the controller and, for one axis, the process
-    force noise ``process`` (:mod:`noise`) acting on the plant: the noise and its closed-loop echo, which no
-    free-run simulation can predict. A multi-axis loop takes one noise level per axis and returns one floor
-    per axis."""
+    encoder noise of the estimated level fed back through the controller and the process force noise
+    ``process`` (:mod:`noise`) acting on the plant: the noise and its closed-loop echo, which no free-run
+    simulation can predict. A multi-axis loop takes one encoder noise level and one process noise per axis (a
+    tuple) and returns one floor per axis."""
     return floors(loop, rec, values, sigma_q, process, count)[0]
 
 
 def floors(loop: outputerror.Loop, rec: Recording, values: dict[str, float], sigma_q: float | np.ndarray,
-           process: ProcessNoise | None = None, count: int = FLOOR_REPLICATES,
+           process: Process | None = None, count: int = FLOOR_REPLICATES,
            force_noise: float = 0.0) -> tuple[float | np.ndarray, float | np.ndarray]:
     """The floors of both channels from the same replicates: :func:`floor_rms`, and that of the recorded force
     [N], the replicates' commanded force (the controller's answer to the encoder and process noise) plus white
@@ -265,7 +265,7 @@ def floors(loop: outputerror.Loop, rec: Recording, values: dict[str, float], sig
 
 def estimation_rms(train_loop: outputerror.Loop, train: Recording, fit: outputerror.Fit,
                    bounds: dict[str, tuple[float, float]], val_loop: outputerror.Loop, validation: Recording,
-                   val_values: dict[str, float], weights: outputerror.Weights, process: ProcessNoise | None = None,
+                   val_values: dict[str, float], weights: outputerror.Weights, process: Process | None = None,
                    count: int = FLOOR_REPLICATES, max_nfev: int = ESTIMATION_NFEV) -> tuple[float, float]:
     """RMS on the validation recording of the parameter error that the training noise leaves in a correct
     model (one axis), in the position [m] and in the recorded force [N]: the fitted model re-simulated with the
@@ -275,8 +275,8 @@ def estimation_rms(train_loop: outputerror.Loop, train: Recording, fit: outputer
     acceleration) is fitted to its noise; that error is no missing physics, and the floor verdict counts it. A
     refit, not a linearised step: it keeps the bounds and follows the nonlinear cost (stiff friction laws).
     NaN when no replicate's refit moved from the fitted values (a cost too rough there for the trust region) or
-    most of them diverged: the error is unknown, not zero. Several axes: per axis (arrays), encoder noise only,
-    the replicates simulated from the fit's controller start (:func:`outputerror.relation_shift`)."""
+    most of them diverged: the error is unknown, not zero. Several axes: per axis (arrays; ``process`` a tuple, one
+    per axis), the replicates simulated from the fit's controller start (:func:`outputerror.relation_shift`)."""
     n_ax = len(train_loop.channels)
     shape = (n_ax,) if train_loop.axes else ()
     if not train_loop.free:
