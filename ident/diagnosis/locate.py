@@ -3,8 +3,8 @@ force residual in the plant's state coordinates (:class:`effects.Context`) that 
 Units: SI (s, m, N)."""
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
-
 
 import casadi as ca
 import numpy as np
@@ -152,6 +152,66 @@ def process_noise(bundle: Bundle, values: dict[str, float], sigma_q: np.ndarray)
         gain, _ = output_map(model, a, plain)
         out.append(noise.estimate(residual[k], pos[k], vel[k], acc[k], 1 / masses[k], sigma[k] / abs(gain), ts, fc))
     return tuple(out)
+
+
+def force_residual(bundle: Bundle, final: ModelFit, rec: Recording | None = None,
+                   states: np.ndarray | None = None) -> tuple[evidence.InverseDynamics | None, float, float]:
+    """One axis: the force residual of ``final`` on ``rec`` (default: the training recording; inverse dynamics of
+    the augmented model itself, on the measured motion, the force held over each sample), the plant's output gain
+    (position = gain * state + offset) and the model's input gain d(acceleration)/d(force) [1/kg]. The states a
+    measurement does not give (delay, load, bristle, drift states) are ``states`` (default: the model's free run on
+    the training recording, :func:`free_run_states`). None for the residual when the acceleration does not respond
+    to the input."""
+    plant = bundle.plant
+    if final.effects:
+        model, prefix = bundle.cache.models[tuple(final.names)], "plant."
+    else:
+        model, prefix = plant.model, ""
+    values = {v.name: float(v.start) for v in model.parameters} | final.fit.values
+    gain, offset = output_map(plant.model, plant.roles, {k[len(prefix):]: v for k, v in values.items()
+                                                          if k.startswith(prefix)})
+    driven = [v.name for v in model.inputs].index("u" if final.effects else plant.input_name)
+    inv = evidence.inverse_dynamics(_in_state_coordinates(bundle.train if rec is None else rec, gain, offset), model,
+                                    values, prefix + plant.position_state, prefix + plant.velocity_state,
+                                    bundle.controller.sample_time, driven, held_input=True,
+                                    states=free_run_states(bundle, final, model) if states is None else states)
+    if inv is None:
+        return None, gain, math.nan
+    return inv, gain, 1 / evidence.mass_equivalent(model, values, prefix + plant.velocity_state, driven)
+
+
+def free_run_states(bundle: Bundle, final: ModelFit, model: symbolic.SymbolicModel) -> np.ndarray | None:
+    """The state trajectory of the final model's free run on the training recording, rows in ``model.states``
+    order; None for a two-state model (the measured position and velocity are all its states)."""
+    if model.x.numel() == 2:
+        return None
+    run = outputerror.simulate_states(final.loop, bundle.train, final.fit.values, final.fit.initial)
+    rows = {s.name: row for s, row in zip(final.loop.model.states, run)}
+    return np.array([rows[s.name] for s in model.states])
+
+
+def axis_score(bundle: Bundle, current: ModelFit, weights: outputerror.Weights, seed: int) -> float:
+    """One axis, as :func:`locate` scores each of several: the RMS of the force residual of ``current`` on the
+    training recording beyond the one its own noise-free free run leaves through the same filters, over the level
+    its free runs with white encoder noise of the estimated level leave (``LOCATE_REPLICATES``); infinite when the
+    model's acceleration does not respond to its force (no residual to score)."""
+    rec, sig = bundle.train, current.loop.signals
+    model = bundle.cache.models[tuple(current.names)] if current.effects else bundle.plant.model
+    states = free_run_states(bundle, current, model)
+
+    def residual(encoder: np.ndarray | None) -> np.ndarray | None:
+        q, u = outputerror.simulate(current.loop, rec, current.fit.values, noise=encoder, shift=current.fit.shift)
+        columns = {**rec.columns, sig.output: q + (0.0 if encoder is None else encoder), sig.input: u}
+        inv = force_residual(bundle, current, Recording(rec.time, columns, rec.units, rec.meta), states)[0]
+        return None if inv is None else inv.force
+
+    own, data = residual(None), force_residual(bundle, current, rec, states)[0]
+    if own is None or data is None:
+        return math.inf
+    rng = np.random.default_rng(seed)
+    reference = np.mean([np.mean((residual(rng.normal(0.0, weights.sigma_q, rec.time.size)) - own) ** 2)
+                         for _ in range(LOCATE_REPLICATES)])
+    return float(np.sqrt(np.mean((data.force - own) ** 2) / reference))
 
 
 @dataclass

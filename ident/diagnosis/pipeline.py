@@ -25,12 +25,11 @@ from motiontwin.ident.diagnosis.augmented import AUGMENTED_CLASS, write_structur
 from motiontwin.ident.diagnosis.bounds import bounds_widened, structure_at_bound
 from motiontwin.ident.diagnosis.axis_units import bundle_units
 from motiontwin.ident.diagnosis.bundle import Bundle
-from motiontwin.ident.diagnosis.locate import context
+from motiontwin.ident.diagnosis.locate import context, force_residual
 from motiontwin.ident.diagnosis.nominal import (_divergence_hint, check_plant_form, fit_nominal, fit_nominal_axes,
                                                 fit_observer, nominal_free, nominal_start, plant_physics)
 from motiontwin.ident.diagnosis.polish import polished
-from motiontwin.ident.diagnosis.remainder import (EMPIRICAL_EFFECT, explain_remainder, explain_remainder_axes,
-                                                  force_residual)
+from motiontwin.ident.diagnosis.remainder import EMPIRICAL_EFFECT, explain_remainder, explain_remainder_axes
 from motiontwin.ident.diagnosis.nested import simplify_nested, upgrade_nested
 from motiontwin.ident.diagnosis.prune import prune
 from motiontwin.ident.diagnosis.select import VALIDATION_GAIN, select, widen_search_bounds

@@ -8,15 +8,13 @@ from pathlib import Path
 
 import numpy as np
 
-from motiontwin.fmus import symbolic
 from motiontwin.ident import outputerror
 from motiontwin.ident.diagnosis import effects as effect_models
 from motiontwin.ident.diagnosis import empirical
 from motiontwin.ident.diagnosis import evidence
 from motiontwin.ident.diagnosis.axis_units import bundle_units
 from motiontwin.ident.diagnosis.bundle import Bundle
-from motiontwin.ident.diagnosis.locate import _in_state_coordinates, locate
-from motiontwin.ident.diagnosis.plant_roles import output_map
+from motiontwin.ident.diagnosis.locate import force_residual, locate
 from motiontwin.ident.diagnosis.screen import MAX_NFEV, fit_candidate, fit_structure, refine
 from motiontwin.ident.diagnosis.select import MAX_EFFECTS, NEXT_ROUND_SCORE, VALIDATION_GAIN, model_null
 from motiontwin.ident.diagnosis.structure import ModelFit, _log, build_structure, validate, validate_axes
@@ -38,7 +36,7 @@ def explain_remainder(bundle: Bundle, final: ModelFit, weights: outputerror.Weig
     term validated" (significant, but the validation fit does not improve) or "not tested" (the final
     model's acceleration does not respond to its input directly), with ``where`` the axis, time windows,
     velocity/position ranges (measured units) and frequency band. The states a measurement does not give
-    (delay, load, bristle, drift states) come from the final model's free run (:func:`_free_run_states`)."""
+    (delay, load, bristle, drift states) come from the final model's free run (:func:`locate.free_run_states`)."""
     plant = bundle.plant
     inv, gain, _ = force_residual(bundle, final)
     if inv is None:
@@ -137,41 +135,6 @@ def explain_remainder(bundle: Bundle, final: ModelFit, weights: outputerror.Weig
         "cost_reduction": reduction, "null_threshold": threshold, "validation_rms_before": final.val_rms,
         "validation_rms_after": trial.val_rms, "previous": final}}
     return trial, check
-
-
-def force_residual(bundle: Bundle, final: ModelFit) -> tuple[evidence.InverseDynamics | None, float, float]:
-    """The force residual of ``final`` on the training recording (inverse dynamics of the augmented model
-    itself, on the measured motion, the force held over each sample), the plant's output gain (position =
-    gain * state + offset) and the model's input gain d(acceleration)/d(force) [1/kg]. The states a
-    measurement does not give (delay, load, bristle, drift states) come from the model's free run
-    (:func:`_free_run_states`). None for the residual when the acceleration does not respond to the input."""
-    plant = bundle.plant
-    if final.effects:
-        model, prefix = bundle.cache.models[tuple(final.names)], "plant."
-    else:
-        model, prefix = plant.model, ""
-    values = {v.name: float(v.start) for v in model.parameters} | final.fit.values
-    gain, offset = output_map(plant.model, plant.roles, {k[len(prefix):]: v for k, v in values.items()
-                                                          if k.startswith(prefix)})
-    rec = _in_state_coordinates(bundle.train, gain, offset)
-    driven = [v.name for v in model.inputs].index("u" if final.effects else plant.input_name)
-    inv = evidence.inverse_dynamics(rec, model, values, prefix + plant.position_state,
-                                    prefix + plant.velocity_state, bundle.controller.sample_time, driven,
-                                    held_input=True, states=_free_run_states(bundle, final, model))
-    if inv is None:
-        return None, gain, math.nan
-    return inv, gain, 1 / evidence.mass_equivalent(model, values, prefix + plant.velocity_state, driven)
-
-
-def _free_run_states(bundle: Bundle, final: ModelFit,
-                     model: symbolic.SymbolicModel) -> np.ndarray | None:
-    """The state trajectory of the final model's free run on the training recording, rows in ``model.states``
-    order; None for a two-state model (the measured position and velocity are all its states)."""
-    if model.x.numel() == 2:
-        return None
-    run = outputerror.simulate_states(final.loop, bundle.train, final.fit.values, final.fit.initial)
-    rows = {s.name: row for s, row in zip(final.loop.model.states, run)}
-    return np.array([rows[s.name] for s in model.states])
 
 
 def _null_test(bundle: Bundle, final: ModelFit, trial: ModelFit, weights: outputerror.Weights,

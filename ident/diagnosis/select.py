@@ -19,7 +19,7 @@ from motiontwin.ident.diagnosis.bounds import WIDEN_ROUNDS, widened_effects
 from motiontwin.ident.diagnosis.augmented import axis_prefix
 from motiontwin.ident.diagnosis.axis_units import bundle_units
 from motiontwin.ident.diagnosis.bundle import Bundle
-from motiontwin.ident.diagnosis.locate import AxisEvidence, locate
+from motiontwin.ident.diagnosis.locate import AxisEvidence, axis_score, locate
 from motiontwin.ident.diagnosis.screen import (MAX_NFEV, SCREEN_NFEV, _close_richer, candidates,
                                                fit_candidate, placed_structure,
                                                ranked_with_nested, refine, score_test, screen)
@@ -53,20 +53,15 @@ def select(bundle: Bundle, nominal: ModelFit, weights: outputerror.Weights, ctx:
     rounds = 0
     while len(current.effects) < MAX_EFFECTS:
         rounds += 1
+        if rounds > 1 and not bundle.multi_axis:    # one axis: the round's score is that of the converged model
+            current = _converged(bundle, current, weights, work / f"c{rounds}")
         target = _round_axis(bundle, current, weights, rounds, located, progress)
         if target is False:
             break
         axis, ctx = (None, ctx) if target is None else (target.axis, target.context)
         on = "" if axis is None else f" on {axis}"
-        if rounds > 1:  # recompile at the fitted values (integration accuracy) and converge the accepted
-            # structure, so that no candidate is credited with leftover fit slack or integration error
-            loop, bounds = compiled(bundle, current, work / f"c{rounds}")
-            result = outputerror.fit(loop, bundle.train, weights, bounds, start=current.fit.values,
-                                     max_nfev=4 * MAX_NFEV, estimate_start=True,
-                                     shift=current.fit.shift)
-            current = ModelFit(current.effects, loop.with_values(result.values), result, bounds,
-                               work / f"c{rounds}", evidence=current.evidence, axes=current.axes)
-            validate_any(bundle, current, work / f"v{rounds}_refined")
+        if rounds > 1 and bundle.multi_axis:
+            current = _converged(bundle, current, weights, work / f"c{rounds}")
         null, base_gain = bootstrap_null(bundle, current, weights, seed=rounds, progress=progress)
         names = [n for n in candidates(ctx, used.setdefault(axis, set())) if n not in (owned or {})]
 
@@ -176,6 +171,19 @@ def select(bundle: Bundle, nominal: ModelFit, weights: outputerror.Weights, ctx:
         used[axis].add(chosen.effects[-1].family)
         current = chosen
     return current, log, located
+
+
+def _converged(bundle: Bundle, current: ModelFit, weights: outputerror.Weights, folder: Path) -> ModelFit:
+    """The accepted structure recompiled at its fitted values (integration accuracy) and converged, so that no
+    later candidate is credited with leftover fit slack or integration error (and the final model is not left
+    with it when no round follows); validated."""
+    loop, bounds = compiled(bundle, current, folder)
+    result = outputerror.fit(loop, bundle.train, weights, bounds, start=current.fit.values, max_nfev=4 * MAX_NFEV,
+                             estimate_start=True, shift=current.fit.shift)
+    converged = ModelFit(current.effects, loop.with_values(result.values), result, bounds, folder,
+                         evidence=current.evidence, axes=current.axes)
+    validate_any(bundle, converged, folder.parent / f"v{folder.name[1:]}_refined")
+    return converged
 
 
 def bootstrap_null(bundle: Bundle, current: ModelFit, weights: outputerror.Weights, seed: int, progress=None
@@ -315,10 +323,18 @@ def _unphysical(trial: ModelFit, progress, effect: effect_models.Effect | None =
 def _round_axis(bundle: Bundle, current: ModelFit, weights: outputerror.Weights, rounds: int, located: list[dict],
                 progress) -> AxisEvidence | None | bool:
     """The axis a round screens: None for one axis; for several the located one (its scores appended to
-    ``located``), or False when after the first round no axis's force residual reaches ``NEXT_ROUND_SCORE``
-    times its noise reference."""
+    ``located``); or False when after the first round no axis's force residual reaches ``NEXT_ROUND_SCORE``
+    times its noise reference (one axis: :func:`locate.axis_score`; with an unknown controller every round
+    screens, its predictor's correction takes up part of the force residual)."""
     if not bundle.multi_axis:
-        return None
+        if rounds == 1 or bundle.observer is not None:
+            return None
+        score = axis_score(bundle, current, weights, seed=100 + rounds)
+        located.append({"round": rounds, "scores": {bundle.plant.output_name: score}})
+        done = score < NEXT_ROUND_SCORE
+        _log(progress, f"round {rounds}: force residual / noise reference {score:.3g}"
+                       f"{f'; below {NEXT_ROUND_SCORE}, done' if done else ''}")
+        return False if done else None
     ranking = locate(bundle, current, weights, seed=100 + rounds)
     located.append({"round": rounds, "scores": {e.axis: e.score for e in ranking}})
     scores = ", ".join(f"{e.axis} {e.score:.3g}" for e in ranking)
