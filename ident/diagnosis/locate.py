@@ -122,6 +122,12 @@ def _needed_force(model: symbolic.SymbolicModel, bundle: Bundle, values: dict[st
     return np.linalg.solve(gain, (acc - a0).T[:, :, None])[:, :, 0].T
 
 
+def _plant_values(bundle: Bundle, values: dict[str, float]) -> dict[str, float]:
+    """Every plant parameter by its own name: from ``values`` (plain or ``plant.``-prefixed), else its start."""
+    plain = {k[len("plant."):] if k.startswith("plant.") else k: v for k, v in values.items()}
+    return {v.name: plain.get(v.name, float(v.start)) for v in bundle.plant.model.parameters}
+
+
 def process_noise(bundle: Bundle, values: dict[str, float], sigma_q: np.ndarray) -> tuple[noise.ProcessNoise, ...]:
     """The process force noise of every axis of a multi-axis bundle's training recording under the refitted
     nominal plant (``values``): :func:`noise.estimate` of each axis's inverse-dynamics force residual, in its axis
@@ -129,8 +135,7 @@ def process_noise(bundle: Bundle, values: dict[str, float], sigma_q: np.ndarray)
     the one before it, the acceleration the central second difference of the filtered position, as
     :func:`noise.held_force`); ``sigma_q``: each axis's encoder noise in its measured unit."""
     model = bundle.plant.model
-    plain = {k[len("plant."):] if k.startswith("plant.") else k: v for k, v in values.items()}
-    plain = {v.name: plain.get(v.name, float(v.start)) for v in model.parameters}
+    plain = _plant_values(bundle, values)
     columns = dict(bundle.train.columns)
     for a in bundle.plant.axes:
         u = np.asarray(columns[a.input], float)
@@ -226,8 +231,7 @@ class AxisEvidence:
 
 def force_residuals(bundle: Bundle, rec: Recording, values: dict[str, float]) -> np.ndarray:
     """Per-axis inverse-dynamics force residual u_k - (force the nominal model needs) [N], axes x samples."""
-    plain = {k[len("plant."):] if k.startswith("plant.") else k: v for k, v in values.items()}
-    plain = {v.name: plain.get(v.name, float(v.start)) for v in bundle.plant.model.parameters}
+    plain = _plant_values(bundle, values)
     x, acc, forces = _states_from(bundle, rec, plain)
     return forces - _needed_force(bundle.plant.model, bundle, plain, x, acc)
 
