@@ -242,7 +242,7 @@ def noise_level(residual: np.ndarray, ts: float) -> float:
     nperseg = min(1024, x.size)
     f, pxx = welch(x, fs=1 / ts, nperseg=nperseg)
     band = pxx[f >= 0.25 / ts]
-    segments = 1 + (x.size - nperseg) // (nperseg // 2)
+    segments = 1 + (x.size - nperseg) // (nperseg - nperseg // 2)   # welch's default overlap: half a segment
     median_over_mean = float(gammaincinv(segments, 0.5)) / segments
     level = float(np.median(band)) / median_over_mean if band.size else float(np.var(x)) * 2 * ts
     return float(np.sqrt(max(level, 1e-300) / (2 * ts)))

@@ -49,6 +49,21 @@ class InverseDynamics:
     u: np.ndarray | None = None
 
 
+def held_mean(u: np.ndarray) -> np.ndarray:
+    """The force acting around each sample when the recorded one was held over each period (zero-order hold): the
+    mean of samples k-1 and k."""
+    u = np.asarray(u, float)
+    return 0.5 * (np.concatenate([u[:1], u[:-1]]) + u)
+
+
+def central_acceleration(x: np.ndarray, a: np.ndarray, ts: float) -> np.ndarray:
+    """``a`` with its inner samples replaced by the central second difference of ``x`` (along the last axis): for a
+    force held over each sample, x[k+1] - 2 x[k] + x[k-1] = ts^2/m (u[k-1] + u[k])/2 exactly (:func:`held_mean`)."""
+    out = np.array(a, float)
+    out[..., 1:-1] = (x[..., 2:] - 2 * x[..., 1:-1] + x[..., :-2]) / ts ** 2
+    return out
+
+
 def inverse_dynamics(rec: Recording, model: symbolic.SymbolicModel, values: dict[str, float],
                      position_state: str, velocity_state: str, ts: float,
                      input_index: int = 0, held_input: bool = False,
@@ -76,7 +91,7 @@ def inverse_dynamics(rec: Recording, model: symbolic.SymbolicModel, values: dict
     x, v, a = mirror_derivatives(rec["q"], fs, fc)
     u = np.asarray(rec["u"], float)
     if held_input:
-        u = 0.5 * (np.concatenate([u[:1], u[:-1]]) + u)
+        u = held_mean(u)
     u_f, udot, _ = mirror_derivatives(u, fs, fc)
     names = [s.name for s in model.states]
     i_x, i_v = names.index(position_state), names.index(velocity_state)

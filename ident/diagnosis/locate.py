@@ -132,22 +132,19 @@ def process_noise(bundle: Bundle, values: dict[str, float], sigma_q: np.ndarray)
     """The process force noise of every axis of a multi-axis bundle's training recording under the refitted
     nominal plant (``values``): :func:`noise.estimate` of each axis's inverse-dynamics force residual, in its axis
     coordinates, with the force held over each sample (each axis's recorded force averaged over the sample and
-    the one before it, the acceleration the central second difference of the filtered position, as
-    :func:`noise.held_force`); ``sigma_q``: each axis's encoder noise in its measured unit."""
+    the one before it, :func:`evidence.held_mean`, the acceleration the central second difference of the filtered
+    position, :func:`evidence.central_acceleration`, as :func:`noise.held_force` does); ``sigma_q``: each axis's
+    encoder noise in its measured unit."""
     model = bundle.plant.model
     plain = _plant_values(bundle, values)
-    columns = dict(bundle.train.columns)
-    for a in bundle.plant.axes:
-        u = np.asarray(columns[a.input], float)
-        columns[a.input] = 0.5 * (np.concatenate([u[:1], u[:-1]]) + u)
+    held = {a.input: evidence.held_mean(bundle.train[a.input]) for a in bundle.plant.axes}
+    columns = {**bundle.train.columns, **held}
     rec = Recording(bundle.train.time, columns, bundle.train.units, bundle.train.meta)
     ts = bundle.controller.sample_time
     fc = startvalues.derivative_cutoff(1 / ts)
     x, acc, forces = _states_from(bundle, rec, plain, fc)
     pos, vel, _, _ = _axis_motion(bundle, rec, plain, fc)
-    held = np.array(acc)
-    held[:, 1:-1] = (pos[:, 2:] - 2 * pos[:, 1:-1] + pos[:, :-2]) / ts ** 2
-    residual = forces - _needed_force(model, bundle, plain, x, held)
+    residual = forces - _needed_force(model, bundle, plain, x, evidence.central_acceleration(pos, acc, ts))
     p = np.array([plain[v.name] for v in model.parameters])
     _, g = _acceleration_map(model, bundle)(x[:, 0], np.zeros(model.u.numel()), p)
     masses = np.diag(np.linalg.inv(np.array(g)))

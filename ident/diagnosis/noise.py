@@ -210,13 +210,11 @@ def within_residual(process: ProcessNoise, encoder_floor: float, with_process: f
 
 def held_force(inv: evidence.InverseDynamics, input_gain: float, ts: float) -> np.ndarray:
     """The force residual with the acceleration taken as the central second difference of the filtered
-    position: for a force held over each sample, x[k+1] - 2 x[k] + x[k-1] = ts^2/m (u[k-1] + u[k])/2 exactly,
-    the mean the held-input inverse dynamics uses. The spectral derivative differs from it by up to 2 % at
+    position (:func:`evidence.central_acceleration`), exact for the held-input mean the inverse dynamics uses. The
+    spectral derivative differs from it by up to 2 % at
     the cut-off, and the controller's broadband force (its derivative action on encoder noise) would turn
     that difference into a force noise no one applied."""
-    a = np.array(inv.a)
-    a[1:-1] = (inv.x[2:] - 2 * inv.x[1:-1] + inv.x[:-2]) / ts ** 2
-    return inv.force + (inv.a - a) / input_gain
+    return inv.force + (inv.a - evidence.central_acceleration(inv.x, inv.a, ts)) / input_gain
 
 
 def of_bundle(bundle: Bundle, values: dict[str, float], sigma_q: float, resolved: bool = False) -> ProcessNoise:
@@ -265,24 +263,19 @@ def noisy_simulator(loop: Loop, rec: Recording, values: dict[str, float], proces
     axis's input), from the controller start ``shift`` (the fit's, so that a replicate differs from the fitted
     free run by the noise alone). The returned u is the force the controller commanded (the process noise is not
     in a recorded force)."""
-    per_axis = isinstance(process, tuple)
-    if per_axis and len(process) != len(loop.channels):
-        raise ValueError(f"process noise for {len(process)} axes, the loop has {len(loop.channels)}")
+    per_channel = process if isinstance(process, tuple) else (process,)
+    if present(process) and len(per_channel) != len(loop.channels):
+        raise ValueError(f"process noise for {len(per_channel)} axes, the loop has {len(loop.channels)}")
 
     def simulate(noise: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
-        if not present(process) or (loop.axes and not per_axis):
+        if not present(process):
             return outputerror.simulate(loop, rec, values, noise=noise, shift=shift)
-        if not per_axis:
-            w = process.sample(rec.time.size, loop.ts, rng)
-            q, u = outputerror.simulate(loop, with_force_noise(rec, w, loop.signals.disturbance), values,
-                                        noise=noise, shift=shift)
-            return q, u - w
-        w = np.array([p.sample(rec.time.size, loop.ts, rng) for p in process])
+        w = np.array([p.sample(rec.time.size, loop.ts, rng) for p in per_channel])
         noisy = rec
         for k, sig in enumerate(loop.channels):
             noisy = with_force_noise(noisy, w[k], sig.disturbance)
         q, u = outputerror.simulate(loop, noisy, values, noise=noise, shift=shift)
-        return q, u - w
+        return q, u - w.reshape(np.shape(u))
     return simulate
 
 

@@ -54,14 +54,14 @@ def select(bundle: Bundle, nominal: ModelFit, weights: outputerror.Weights, ctx:
     while len(current.effects) < MAX_EFFECTS:
         rounds += 1
         if rounds > 1 and not bundle.multi_axis:    # one axis: the round's score is that of the converged model
-            current = _converged(bundle, current, weights, work / f"c{rounds}")
+            current = _converged(bundle, current, weights, work, rounds)
         target = _round_axis(bundle, current, weights, rounds, located, progress)
         if target is False:
             break
         axis, ctx = (None, ctx) if target is None else (target.axis, target.context)
         on = "" if axis is None else f" on {axis}"
         if rounds > 1 and bundle.multi_axis:
-            current = _converged(bundle, current, weights, work / f"c{rounds}")
+            current = _converged(bundle, current, weights, work, rounds)
         null, base_gain = bootstrap_null(bundle, current, weights, seed=rounds, progress=progress)
         names = [n for n in candidates(ctx, used.setdefault(axis, set())) if n not in (owned or {})]
 
@@ -173,16 +173,17 @@ def select(bundle: Bundle, nominal: ModelFit, weights: outputerror.Weights, ctx:
     return current, log, located
 
 
-def _converged(bundle: Bundle, current: ModelFit, weights: outputerror.Weights, folder: Path) -> ModelFit:
+def _converged(bundle: Bundle, current: ModelFit, weights: outputerror.Weights, work: Path, rounds: int) -> ModelFit:
     """The accepted structure recompiled at its fitted values (integration accuracy) and converged, so that no
     later candidate is credited with leftover fit slack or integration error (and the final model is not left
     with it when no round follows); validated."""
+    folder = work / f"c{rounds}"
     loop, bounds = compiled(bundle, current, folder)
     result = outputerror.fit(loop, bundle.train, weights, bounds, start=current.fit.values, max_nfev=4 * MAX_NFEV,
                              estimate_start=True, shift=current.fit.shift)
     converged = ModelFit(current.effects, loop.with_values(result.values), result, bounds, folder,
                          evidence=current.evidence, axes=current.axes)
-    validate_any(bundle, converged, folder.parent / f"v{folder.name[1:]}_refined")
+    validate_any(bundle, converged, work / f"v{rounds}_refined")
     return converged
 
 

@@ -79,8 +79,9 @@ def main() -> None:
               f"; {doc['unexplained']['status']} on {doc['unexplained'].get('axis')}" if doc.get("unexplained") else "")
         for axis, v in doc["validation"]["per_axis"].items():
             own = true.get("floor_rms", {}).get(axis)
+            own_text = f", the truth's own {own:.3g} m" if own else ""
             print(f"  {axis}: validation RMS {v['nominal_rms']:.3g} -> {v['augmented_rms']:.3g} m "
-                  f"(noise floor {v['noise_floor_rms']:.3g} m{f', the truth own {own:.3g} m' if own else ''})")
+                  f"(noise floor {v['noise_floor_rms']:.3g} m{own_text})")
         print(f"wall {wall:.1f} s, CPU {cpu:.1f} s, target {TARGET_S:.0f} s: ratio {wall / TARGET_S:.2f} (wall), "
               f"{cpu / TARGET_S:.2f} (CPU); load average {os.getloadavg()[0]:.2f}")
         ratio("diagnosis_multiaxis.wall_over_target", wall / TARGET_S, f"{TARGET_S:.0f} s budget for a 4-DOF "
