@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import hashlib
 import os
+import platform
 import shutil
 import subprocess
 import tempfile
@@ -29,6 +30,23 @@ def compiler() -> str | None:
     return cc if shutil.which(cc) else None
 
 
+def host_cpu() -> str:
+    """The host CPU's model and instruction-set features (from ``/proc/cpuinfo``, else :mod:`platform`): part of
+    the cache key of a library built with ``-march=native``, so that a cache folder shared by machines with
+    different CPUs never hands one a library built for another's instructions."""
+    keys = ("model name", "flags", "Features", "CPU implementer", "CPU part")
+    found: dict[str, str] = {}
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8", errors="replace") as info:
+            for line in info:
+                key, _, value = line.partition(":")
+                if key.strip() in keys:
+                    found.setdefault(key.strip(), value.strip())
+    except OSError:
+        pass
+    return "\n".join(f"{k}={v}" for k, v in sorted(found.items())) or f"{platform.machine()} {platform.processor()}"
+
+
 def cache_dir(folder: str) -> Path:
     base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
     return Path(base) / "motiontwin" / folder
@@ -36,7 +54,8 @@ def cache_dir(folder: str) -> Path:
 
 def cached_library(sources: dict[str, str], folder: str, prefix: str, flags: tuple[str, ...] = CFLAGS) -> Path:
     """Path of the shared library built from ``sources`` (file name -> C text), compiled once per
-    (sources, compiler, flags) into ``cache_dir(folder)/prefix-HASH.so`` (``flags``: the compiler flags).
+    (sources, compiler, flags) into ``cache_dir(folder)/prefix-HASH.so`` (``flags``: the compiler flags; with
+    ``-march=native`` the host CPU, :func:`host_cpu`, is part of the key).
 
     Raises CompileError when there is no compiler or it fails (nothing is left in the cache then).
     """
@@ -44,6 +63,8 @@ def cached_library(sources: dict[str, str], folder: str, prefix: str, flags: tup
     if cc is None:
         raise CompileError(f"no C compiler '{os.environ.get('CC', 'gcc')}' found (set CC)")
     digest = hashlib.sha256("\0".join([cc, " ".join(flags)]).encode())
+    if "-march=native" in flags:
+        digest.update(b"\0" + host_cpu().encode())
     for name in sorted(sources):
         digest.update(b"\0" + name.encode() + b"\0" + sources[name].encode())
     cache = cache_dir(folder)
