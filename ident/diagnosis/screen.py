@@ -286,33 +286,64 @@ def score_test(bundle: Bundle, current: ModelFit, name: str, axis: str | None, c
     projection on the same Jacobian without the effect's columns: the step of the other parameters alone, which
     the fit's controller-start prior prices and this projection does not, is not credited to it), the extended
     Jacobian (for the bootstrap null of the same extension) and the effect's fitted parameter count. One
-    Jacobian and a few free runs at one point, where a screening fit takes several Jacobians from two starts:
-    for an effect smooth in its parameters at the vanishing point, a reduction this test does not predict no
-    fit finds near it either."""
+    Jacobian at one point, where a screening fit takes several Jacobians from two starts: for an effect smooth in
+    its parameters at the vanishing point, a reduction this test does not predict no fit finds near it either.
+
+    At the vanishing point the extended model is the current one exactly (the effect acts by nothing), so the
+    residual and every other column are the current fit's own (:func:`_extended_at_vanishing_point`): only the
+    effect's columns are computed, by a loop that differentiates nothing else."""
     effect = effect_models.VOCABULARY[name](ctx)
     if axis is not None:
         effect = on_axis(effect, next(a for a in bundle.plant.axes if a.output == axis), bundle.plant.model)
     start = vanishing_start(effect, effect.initial(ctx))
     fixed = {p.name: float(np.mean(p.bounds)) for p in effect.params if not p.fitted}
+    own = tuple(p.name for p in effect.params if p.fitted)
     if axis is None:
         base = dict(current.fit.values) if current.effects else {"plant." + k: v for k, v in current.fit.values.items()}
         loop, bounds = build_structure(bundle, current.effects + [effect], {**base, **fixed, **start}, folder,
-                                       bundle.train.time.size, min_substeps=current.loop.substeps)
+                                       bundle.train.time.size, min_substeps=current.loop.substeps, only=own)
     else:
         base = dict(current.fit.values)
         loop, bounds = build_axes(bundle, current.placed + [(axis, effect)], {**base, **fixed, **start}, folder,
-                                  bundle.train.time.size, min_substeps=current.loop.substeps)
+                                  bundle.train.time.size, min_substeps=current.loop.substeps, only=own)
         base = {**loop.values, **base}
     point = {**base, **{k: float(np.clip(v, *bounds[k])) for k, v in start.items() if k in bounds}}
-    at = outputerror.fit(loop, bundle.train, weights, bounds, start=point, max_nfev=1,
-                         estimate_start=True, shift=current.fit.shift)
-    columns = {p.name: loop.free.index(p.name) for p in effect.params if p.fitted and p.name in loop.free}
-    if not (np.all(np.isfinite(at.jacobian)) and np.all(np.isfinite(at.residual))):
-        return math.nan, at.jacobian, len(columns)
-    without = np.delete(at.jacobian, list(columns.values()), axis=1)
-    lowest_without = float(at.residual @ at.residual - evidence.projected_gain(without, at.residual[None, :])[0])
-    lowest = _quadratic_minimum(at.jacobian, at.residual, columns, point, bounds)
-    return lowest_without - lowest, at.jacobian, sum(p.fitted for p in effect.params)
+    residual, jacobian, columns = _extended_at_vanishing_point(bundle, current, loop, point, weights)
+    if not (np.all(np.isfinite(jacobian)) and np.all(np.isfinite(residual))):
+        return math.nan, jacobian, len(columns)
+    without = np.delete(jacobian, list(columns.values()), axis=1)
+    lowest_without = float(residual @ residual - evidence.projected_gain(without, residual[None, :])[0])
+    lowest = _quadratic_minimum(jacobian, residual, columns, point, bounds)
+    return lowest_without - lowest, jacobian, sum(p.fitted for p in effect.params)
+
+
+def _extended_at_vanishing_point(bundle: Bundle, current: ModelFit, loop: outputerror.Loop, point: dict[str, float],
+                                 weights: outputerror.Weights) -> tuple[np.ndarray, np.ndarray, dict[str, int]]:
+    """The weighted residual and Jacobian of the current structure extended by an effect at its vanishing point
+    ``point``, and the effect's columns (name -> column): the current fit's residual and Jacobian (its parameters,
+    then the start states it estimated) beside the effect's columns from ``loop``, which differentiates the
+    effect's parameters only (``build_structure``'s ``only``), from the same start state. Why: the effect's
+    states make its loop the dearest of the screening (a delay's Pade states need 14 RK4 substeps per sample),
+    and differentiating it by every parameter again only recomputed the current fit's columns (14 columns of the
+    4-DOF plant: 18 s of its screening's CPU)."""
+    fit = current.fit
+    rec = bundle.train
+    if fit.residual is None or fit.weights is None or not _same_weights(fit.weights, weights):
+        fit = outputerror.fit(current.loop, rec, weights, current.bounds, start=fit.values, max_nfev=1,
+                              estimate_start=True, shift=fit.shift)     # the current columns under ``weights``
+    values = {**loop.values, **point}
+    s0 = outputerror.initial_state(loop, rec, values, None, fit.shift)
+    drive = outputerror.drive(rec, signals=loop.channels, closed=loop.closed)
+    pf = np.array([values[n] for n in loop.fixed])
+    own = outputerror.weighted_jacobian(loop, s0, drive, loop.theta(values), pf, [], weights)
+    offset = fit.jacobian.shape[1]
+    return fit.residual, np.hstack([fit.jacobian, own]), {n: offset + k for k, n in enumerate(loop.free)}
+
+
+def _same_weights(a: outputerror.Weights, b: outputerror.Weights) -> bool:
+    def same(x, y) -> bool:
+        return (x is None) == (y is None) and (x is None or np.array_equal(np.asarray(x), np.asarray(y)))
+    return all(same(getattr(a, f), getattr(b, f)) for f in ("sigma_q", "sigma_u", "whiten_q", "whiten_u"))
 
 
 def _quadratic_minimum(jac: np.ndarray, residual: np.ndarray, columns: dict[str, int], point: dict[str, float],

@@ -155,11 +155,13 @@ def start_states(bundle: Bundle, model: symbolic.SymbolicModel) -> dict[str, lis
 
 def build_structure(bundle: Bundle, effects: list[effect_models.Effect], values: dict[str, float], folder: Path,
                     n_samples: int, with_jacobian: bool = True, min_substeps: int = 1,
-                    substeps: int | None = None) -> tuple[outputerror.Loop, dict[str, tuple[float, float]]]:
+                    substeps: int | None = None, only: tuple[str, ...] | None = None
+                    ) -> tuple[outputerror.Loop, dict[str, tuple[float, float]]]:
     """Write and load the augmented model with ``effects`` and compile its loop (at least ``min_substeps``
     RK4 steps per sample, so that structures compared with each other share the integration accuracy).
     A structure already compiled with the same samples/substeps is reused from ``bundle.cache`` (one
-    :class:`LoopCache` per diagnosis, so concurrent or repeated diagnoses share nothing)."""
+    :class:`LoopCache` per diagnosis, so concurrent or repeated diagnoses share nothing). ``only``: the loop
+    differentiates these free parameters alone and no start state (:func:`screen.score_test`'s effect columns)."""
     cache: LoopCache = bundle.cache
     names = tuple(e.name for e in effects)
     model = cache.models.get(names)
@@ -172,12 +174,14 @@ def build_structure(bundle: Bundle, effects: list[effect_models.Effect], values:
     tracking.update({s: "u" for e in effects for s in e.tracks_force})
     min_substeps = max([min_substeps] + [e.min_substeps for e in effects])
     substeps = substeps or max(min_substeps, outputerror.stable_substeps(model, all_values, bundle.controller.sample_time))
-    key = (names, n_samples, substeps, with_jacobian)
+    key = (names, n_samples, substeps, with_jacobian, only)
     if key not in cache.loops:
+        starts = start_states(bundle, model)
+        if only is not None:
+            free, starts = [n for n in free if n in only], {**starts, "initial_states": []}
         cache.loops[key] = outputerror.build_loop(model, bundle.controller, "q",
                                                   free, all_values, n_samples, substeps=substeps, tracking=tracking,
-                                                  with_jacobian=with_jacobian,
-                                                  **start_states(bundle, model))
+                                                  with_jacobian=with_jacobian, **starts)
     return cache.loops[key].with_values(all_values), bounds
 
 
@@ -381,9 +385,10 @@ def _axes_cache(bundle: Bundle) -> dict:
 
 
 def build_axes(bundle: Bundle, effects: list[tuple[str, effect_models.Effect]], values: dict[str, float],
-               folder: Path, n_samples: int, with_jacobian: bool = True,
-               min_substeps: int = 1) -> tuple[outputerror.Loop, dict[str, tuple[float, float]]]:
-    """Write, load and compile the multi-axis loop of the nominal plant + ``effects`` (cached by structure)."""
+               folder: Path, n_samples: int, with_jacobian: bool = True, min_substeps: int = 1,
+               only: tuple[str, ...] | None = None) -> tuple[outputerror.Loop, dict[str, tuple[float, float]]]:
+    """Write, load and compile the multi-axis loop of the nominal plant + ``effects`` (cached by structure;
+    ``only``: as :func:`build_structure`'s)."""
     cache = _axes_cache(bundle)
     names = tuple(f"{e.name}@{axis}" for axis, e in effects)
     model = cache.models.get(names)
@@ -393,8 +398,9 @@ def build_axes(bundle: Bundle, effects: list[tuple[str, effect_models.Effect]], 
             values, folder)
     free, bounds, all_values = structure_parameters(model, [e for _, e in effects], *bundle.nominal_free, values)
     substeps = max(min_substeps, outputerror.stable_substeps(model, all_values, bundle.controller.sample_time))
-    key = ("axes",) + (names, n_samples, substeps, with_jacobian)
+    key = ("axes",) + (names, n_samples, substeps, with_jacobian, only)
     if key not in cache.loops:
+        free = free if only is None else [n for n in free if n in only]
         cache.loops[key] = outputerror.build_loop(model, bundle.controller, bundle.plant.axes[0].output, free,
                                                   all_values, n_samples, substeps=substeps,
                                                   tracking=_tracking(bundle, effects), with_jacobian=with_jacobian,
