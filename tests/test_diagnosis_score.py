@@ -8,6 +8,8 @@ candidate's fitted reduction must beat in the selection. Bundles: the short benc
 """
 from __future__ import annotations
 
+import dataclasses
+
 import pytest
 
 from motiontwin.ident.diagnosis import effects as effect_models
@@ -47,6 +49,20 @@ def test_score_test_predicts_nothing_where_the_fit_finds_nothing(tmp_path, case,
     assert fitted < threshold
     assert predicted <= fitted + threshold
     assert predicted < threshold                         # not screened
+
+
+def test_the_prediction_under_doubled_noise_levels_is_a_quarter(tmp_path):
+    """The test reuses the current fit's residual and Jacobian beside the delay's own column only when that fit was
+    weighted as the test is (else it takes them again under the test's weights): every weighted cost scales as
+    1 / sigma^2, so doubling both noise levels divides the prediction by four (a single column's projected gain
+    does not depend on its scale, so mixing the fit's old weights with the delay's new ones would leave it as
+    it was)."""
+    bundle, current, weights, ctx = short_bundle_nominal(tmp_path / "delay", "time_delay", 508)
+    predicted, _, _ = score_test(bundle, current, "time_delay", None, ctx, weights, tmp_path / "white")
+    doubled = dataclasses.replace(weights, sigma_q=2 * weights.sigma_q, sigma_u=2 * weights.sigma_u)
+    quarter, _, _ = score_test(bundle, current, "time_delay", None, ctx, doubled, tmp_path / "doubled")
+    assert predicted > 1e5
+    assert quarter == pytest.approx(predicted / 4, rel=1e-3)
 
 
 def test_the_selection_screens_the_delay_only_when_its_score_test_passes(tmp_path, monkeypatch):
