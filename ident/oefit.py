@@ -108,6 +108,12 @@ class Weights:
     whiten_q: np.ndarray | None = None
     whiten_u: np.ndarray | None = None
 
+    def same_as(self, other: "Weights") -> bool:
+        """Whether ``other`` weights every residual as these do (equal levels and taps; arrays compared by value)."""
+        def same(x, y) -> bool:
+            return (x is None) == (y is None) and (x is None or np.array_equal(np.asarray(x), np.asarray(y)))
+        return all(same(getattr(self, f), getattr(other, f)) for f in ("sigma_q", "sigma_u", "whiten_q", "whiten_u"))
+
 
 def whitened(x: np.ndarray, taps: np.ndarray | None) -> np.ndarray:
     """``x`` filtered along its first axis (time) by the causal FIR ``taps`` from zero initial conditions:

@@ -328,7 +328,7 @@ def _extended_at_vanishing_point(bundle: Bundle, current: ModelFit, loop: output
     4-DOF plant: 18 s of its screening's CPU)."""
     fit = current.fit
     rec = bundle.train
-    if fit.residual is None or fit.weights is None or not _same_weights(fit.weights, weights):
+    if fit.residual is None or fit.weights is None or not fit.weights.same_as(weights):
         fit = outputerror.fit(current.loop, rec, weights, current.bounds, start=fit.values, max_nfev=1,
                               estimate_start=True, shift=fit.shift)     # the current columns under ``weights``
     values = {**loop.values, **point}
@@ -338,12 +338,6 @@ def _extended_at_vanishing_point(bundle: Bundle, current: ModelFit, loop: output
     own = outputerror.weighted_jacobian(loop, s0, drive, loop.theta(values), pf, [], weights)
     offset = fit.jacobian.shape[1]
     return fit.residual, np.hstack([fit.jacobian, own]), {n: offset + k for k, n in enumerate(loop.free)}
-
-
-def _same_weights(a: outputerror.Weights, b: outputerror.Weights) -> bool:
-    def same(x, y) -> bool:
-        return (x is None) == (y is None) and (x is None or np.array_equal(np.asarray(x), np.asarray(y)))
-    return all(same(getattr(a, f), getattr(b, f)) for f in ("sigma_q", "sigma_u", "whiten_q", "whiten_u"))
 
 
 def _quadratic_minimum(jac: np.ndarray, residual: np.ndarray, columns: dict[str, int], point: dict[str, float],
