@@ -375,6 +375,8 @@ def parameter_scale(theta0: np.ndarray, r0: np.ndarray | None = None, j0: np.nda
 #: largest magnitude of a solver Jacobian entry: its column norms (squares summed over 1e5+ rows) stay finite
 JACOBIAN_LIMIT = 1e100
 RESIDUAL_LIMIT = 1e12      # a weighted residual's largest magnitude in the solver (a diverged run's samples)
+#: the trust-region fit's xtol, ftol and gtol: a relative cost change below it is the solver's own convergence
+TOLERANCE = 1e-10
 
 
 def fit(loop: Loop, rec: Recording, weights: Weights, bounds: dict[str, tuple[float, float]] | None = None,
@@ -511,7 +513,8 @@ def fit(loop: Loop, rec: Recording, weights: Weights, bounds: dict[str, tuple[fl
             # overflows the solver's sums: its cost is inf, the trust region shrinks and the step is refused,
             # which is the answer, not a warning
             sol = least_squares(res_all, x_start, jac=jac_all, bounds=(lo_all / scale, hi_all / scale),
-                                method="trf", x_scale="jac", max_nfev=max_nfev, xtol=1e-10, ftol=1e-10, gtol=1e-10)
+                                method="trf", x_scale="jac", max_nfev=max_nfev, xtol=TOLERANCE, ftol=TOLERANCE,
+                                gtol=TOLERANCE)
         xs = sol.x
         success = bool(sol.success or sol.status == 0)
         nfev = int(sol.nfev)

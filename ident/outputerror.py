@@ -46,7 +46,7 @@ from motiontwin.ident.controller import Controller, at_recording_step
 from motiontwin.ident.leastsquares import (LeastSquaresResult, UnidentifiableError, check_identifiability,
                                           hac_covariance)
 from motiontwin.ident.loopstart import _column, initial_state
-from motiontwin.ident.oefit import (Fit, Weights, _interior, bound_arrays, controller_states, drive, fit,
+from motiontwin.ident.oefit import (TOLERANCE, Fit, Weights, _interior, bound_arrays, controller_states, drive, fit,
                                     measured, relation_shift, residuals, simulate, simulate_states,
                                     squared_norm, start_shift, state_indices, weighted_jacobian, whitened)
 from motiontwin.ident.oeloop import (Loop, Signals, _check_names, axis_signals, build_loop, default_bounds,

@@ -118,7 +118,7 @@ LIBRARY_VALUES = {
     "delay_T": 3e-4,
     "resonance_m2": 0.2, "resonance_fa": 150.0, "resonance_zeta": 0.05,
     "backlash_m2": 0.2, "backlash_fa": 150.0, "backlash_zeta": 0.05, "backlash_b": 5e-6, "backlash_eps": 1e-7,
-    "lugre_Fc": 0.2, "lugre_z0": 1e-4,
+    "lugre_Fc": 0.2, "lugre_dFs": 0.1, "lugre_vs": 0.01, "lugre_z0": 1e-4,
     "saturation_Fmax": 1e3, "saturation_eps": 1e-3,   # neutral: the PID winds up when it saturates
     "cogging_a1": 0.3, "cogging_b1": -0.1, "cogging_a2": 0.05, "cogging_b2": 0.02, "cogging_pitch": 0.032,
     "cogging_n": 3.0, "cogging_zero": 0.0, "cogging_quarter": math.pi / 2,
@@ -133,7 +133,7 @@ def _state_values(form: Form) -> dict[str, float]:
     g, b = form.gain, form.offset
     v = dict(LIBRARY_VALUES)
     for name in ("coulomb_v_eps", "asym_v_eps", "stribeck_vs", "stribeck_v_eps", "ripple_period", "backlash_b",
-                 "backlash_eps", "lugre_z0", "cogging_pitch", "load_v_eps", "drift_v_eps"):
+                 "backlash_eps", "lugre_z0", "lugre_vs", "cogging_pitch", "load_v_eps", "drift_v_eps"):
         v[name] /= g
     v["inertia_slope"] *= g ** 2
     v["inertia_centre"] = (v["inertia_centre"] - b) / g
