@@ -52,7 +52,7 @@ from motiontwin.ident.oefit import (TOLERANCE, Fit, Weights, _interior, bound_ar
 from motiontwin.ident.oeloop import (Loop, Signals, _check_names, axis_signals, build_loop, default_bounds,
                                      initial_motion_states, output_state, stable_substeps)
 
-__all__ = ["Signals", "Loop", "Weights", "Fit", "OutputErrorResult", "build_loop", "default_bounds",
+__all__ = ["TOLERANCE", "Signals", "Loop", "Weights", "Fit", "OutputErrorResult", "build_loop", "default_bounds",
            "simulate", "simulate_states", "residuals", "fit", "statistics", "identify", "bound_arrays",
            "axis_signals", "drive", "initial_state", "measured", "stable_substeps", "_column", "_interior",
            "state_indices", "weighted_jacobian", "output_state", "initial_motion_states", "start_shift",

@@ -171,7 +171,8 @@ def test_floor_of_a_chaotic_backlash_loop_is_the_median_of_perturbed_reruns(shor
                                                                            monkeypatch: pytest.MonkeyPatch) -> None:
     """A PID loop hunting in a backlash gap is chaotic: reruns of the noise-free truth perturbed by 1e-12 of the
     force miss the validation recording by amounts spread widely (3x on session 25's machine, 1.24x on session
-    41's: chaos amplifies the CPU's round-off differently; one run is a lucky draw), and the floor is their median. A loop without backlash (Coulomb) is not: its reruns agree to 1e-9 and the floor is the
+    41's: chaos amplifies the CPU's round-off differently; one run is a lucky draw), and the floor is their median.
+    A loop without backlash (Coulomb) is not: its reruns agree to 1e-9 and the floor is the
     noise-free run's. The benchmark's detectability counts against the top of the spread, and not an effect
     that leaves the noise-free training run unchanged."""
     durations = independent.DURATIONS
