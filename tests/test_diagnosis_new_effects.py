@@ -203,8 +203,7 @@ def test_lugre_and_backlash_states(tmp_path):
     is the plant's mass less the load: (m - m2)*der(v) = -d*v - F_z - F_transmission."""
     fc, dfs, vs, z0, m2, fa, zeta, b, eps = 0.15, 0.08, 0.02, 1e-4, 0.6, 200.0, 0.05, 5e-6, 1e-9
     values = {"lugre_Fc": fc, "lugre_dFs": dfs, "lugre_vs": vs, "lugre_z0": z0, "backlash_m2": m2, "backlash_fa": fa,
-              "backlash_zeta": zeta,
-              "backlash_b": b, "backlash_eps": eps}
+              "backlash_zeta": zeta, "backlash_b": b, "backlash_eps": eps}
     model, f, p = _augmented(tmp_path, ["lugre_friction", "backlash"], values)
     names = [st.name for st in model.states]
     rng = np.random.default_rng(4)
