@@ -21,6 +21,12 @@ from motiontwin.ident.plant_states import output_state, per_model
 _LOG = logging.getLogger("motiontwin.ident.outputerror")
 JIT_OPTIONS = {"jit": True, "compiler": "shell", "jit_options": {"flags": ["-O2"]}}
 CALL_INSTRUCTIONS = 400     # plant right-hand sides above this many SX instructions are called, not inlined
+#: a step whose written-out form would exceed this many instructions (right-hand side x 4 RK4 stages x substeps)
+#: is one substep function chained in a loop instead (:func:`_substep_chain`): written out, a stiff LuGre bristle
+#: state's 25-100 substeps gave 1-11 MB of C on which gcc spent 100-175 s each (the KUKA robot test: 800 s of
+#: compiling on a cold cache). Measured on the two real-recording tests, cold / warm cache: 300 -> KUKA 73 / 47 s,
+#: servo 48 / 15 s; 4000 -> 95 / 52 s, 131 / 18 s; written out (before) -> 600+ / 68 s, 146 / 18 s
+INLINE_STEP_INSTRUCTIONS = 300
 
 
 @dataclass(frozen=True)
@@ -250,7 +256,8 @@ def build_loop(model: symbolic.SymbolicModel, controller: Controller | None, pos
     f = ca.Function("f", [model.x, model.u, model.p], [model.dx])
     # a large right-hand side (a coupled mechanism's mass-matrix solve) is called, not inlined, in every RK4
     # stage (MX graph): the step and its sensitivity step then compile from kilobytes instead of megabytes
-    sym = ca.MX if f.n_instructions() > CALL_INSTRUCTIONS else ca.SX
+    large = f.n_instructions() > CALL_INSTRUCTIONS
+    sym = ca.MX if large or 4 * substeps * f.n_instructions() > INLINE_STEP_INSTRUCTIONS else ca.SX
     theta = sym.sym("theta", len(free))
     pfix = sym.sym("pfix", len(fixed))
     p_full = ca.vertcat(*[theta[free.index(n)] if n in free else pfix[fixed.index(n)] for n in names])
@@ -286,12 +293,16 @@ def build_loop(model: symbolic.SymbolicModel, controller: Controller | None, pos
         if tick == 0:               # recorded: the position and force at the sample instant
             q, u = q_tick, u_tick
         uvec = plant_input(u_tick)
-        for _ in range(substeps // ticks):
-            k1 = f(xk, uvec, p_full)
-            k2 = f(xk + h / 2 * k1, uvec, p_full)
-            k3 = f(xk + h / 2 * k2, uvec, p_full)
-            k4 = f(xk + h * k3, uvec, p_full)
-            xk = xk + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+        if sym is ca.MX:            # one called RK4 substep, chained in a loop (not unrolled) in the generated C
+            xk = _substep_chain(f, ca.MX if large else ca.SX, nx, uvec.numel(), p_full.numel(), h,
+                                substeps // ticks)(xk, uvec, p_full)
+        else:
+            for _ in range(substeps // ticks):
+                k1 = f(xk, uvec, p_full)
+                k2 = f(xk + h / 2 * k1, uvec, p_full)
+                k3 = f(xk + h / 2 * k2, uvec, p_full)
+                k4 = f(xk + h * k3, uvec, p_full)
+                xk = xk + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
     s_next, out_k = ca.vertcat(xk, zk), ca.vertcat(q, u)
     step = ca.Function("step", [s, w, theta, pfix], [ca.densify(s_next), ca.densify(q), ca.densify(u)])
     columns = list(range(nx + nz)) if initial_states is None else [int(i) for i in initial_states]
@@ -305,7 +316,7 @@ def build_loop(model: symbolic.SymbolicModel, controller: Controller | None, pos
         select_p = np.array([[1.0 if n == m else 0.0 for m in free] for n in names]).reshape(len(names), len(free))
         select_u = np.array([[1.0 if i == k else 0.0 for k in k_in] for i in range(len(inputs))])
         aug, seed = _called_sensitivity_step(model, observed, controller, plant_input, select_p, select_u, p_full,
-                                             s, w, theta, pfix, substeps, ts, columns)
+                                             s, w, theta, pfix, substeps, ts, columns, large)
     pair = None
     if native or (native is None and native_chain.available()):
         try:
@@ -356,7 +367,7 @@ def _sensitivity_step(s: ca.SX, w: ca.SX, theta: ca.SX, pfix: ca.SX, s_next: ca.
 def _called_sensitivity_step(model: symbolic.SymbolicModel, observed: list[str], controller: Controller | None,
                              plant_input: Callable, select_p: np.ndarray, select_u: np.ndarray, p_full: ca.MX,
                              s: ca.MX, w: ca.MX, theta: ca.MX, pfix: ca.MX, substeps: int, ts: float,
-                             initial: list[int]) -> tuple[ca.Function, np.ndarray]:
+                             initial: list[int], large: bool = True) -> tuple[ca.Function, np.ndarray]:
     """:func:`_sensitivity_step` for a large plant (MX graph): the variational equations of the same RK4
     step written out, with the plant's derivatives as called functions (:func:`_plant_derivatives`), so that
     the generated code holds them once instead of one forward derivative per sensitivity direction inlined in
@@ -391,17 +402,8 @@ def _called_sensitivity_step(model: symbolic.SymbolicModel, observed: list[str],
         if tick == 0:
             dq, du = dq_tick, du_tick
         uvec, duvec = plant_input(u_tick), su @ du_tick
-
-        def stage(xs: ca.MX, dxs: ca.MX, uvec=uvec, duvec=duvec) -> tuple[ca.MX, ca.MX]:
-            return slope(xs, uvec, p_val, dxs, duvec)
-
-        for _ in range(substeps // ticks):
-            k1, d1 = stage(xk, sk)
-            k2, d2 = stage(xk + h / 2 * k1, sk + h / 2 * d1)
-            k3, d3 = stage(xk + h / 2 * k2, sk + h / 2 * d2)
-            k4, d4 = stage(xk + h * k3, sk + h * d3)
-            xk = xk + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
-            sk = sk + h / 6 * (d1 + 2 * d2 + 2 * d3 + d4)
+        xk, sk = _sensitivity_substep_chain(slope, ca.MX if large else ca.SX, nx, na, uvec.numel(), p_val.numel(),
+                                            h, substeps // ticks)(xk, sk, uvec, duvec, p_val)
     s_sens = ca.vertcat(sk, dzk)
     outs = [ca.vertcat(xk, zk, ca.vec(s_sens)), ca.vec(dq[:, :nth].T), ca.vec(du[:, :nth].T)]
     if n0:
@@ -409,6 +411,40 @@ def _called_sensitivity_step(model: symbolic.SymbolicModel, observed: list[str],
     aug = ca.Function("sstep", [s_aug, w, theta, pfix], [ca.densify(o) for o in outs])
     seed = np.hstack([np.zeros((ns, nth)), np.eye(ns)[:, initial]]).ravel(order="F")
     return aug, seed
+
+
+def _substep_chain(f: ca.Function, sym: type, nx: int, nu: int, n_p: int, h: float, n: int) -> Callable:
+    """``(x, u, p) -> x`` after ``n`` RK4 substeps of ``h``: one substep function chained by ``mapaccum``, which the
+    code generator writes as a loop, so the generated C does not grow with the substeps (the same operations in
+    the same order as written out). ``sym``: ca.SX inlines ``f`` in the substep (a small plant: as fast as the
+    written-out step), ca.MX calls it in each stage (a large one)."""
+    x, u, p = sym.sym("x", nx), sym.sym("u", nu), sym.sym("p", n_p)
+    k1 = f(x, u, p)
+    k2 = f(x + h / 2 * k1, u, p)
+    k3 = f(x + h / 2 * k2, u, p)
+    k4 = f(x + h * k3, u, p)
+    chain = ca.Function("rk4", [x, u, p], [x + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)]).mapaccum("rk4_n", n)
+    return lambda xk, uk, pk: chain(xk, uk, pk)[:, -1]
+
+
+def _sensitivity_substep_chain(slope: Callable, sym: type, nx: int, na: int, nu: int, n_p: int, h: float, n: int
+                               ) -> Callable:
+    """:func:`_substep_chain` of the state and its sensitivities ``(x, Sx, u, Su, p) -> (x, Sx)``, the
+    variational RK4 of :func:`_called_sensitivity_step`."""
+    x, sx = sym.sym("x", nx), sym.sym("sx", nx, na)
+    u, su, p = sym.sym("u", nu), sym.sym("su", nu, na), sym.sym("p", n_p)
+    k1, d1 = slope(x, u, p, sx, su)
+    k2, d2 = slope(x + h / 2 * k1, u, p, sx + h / 2 * d1, su)
+    k3, d3 = slope(x + h / 2 * k2, u, p, sx + h / 2 * d2, su)
+    k4, d4 = slope(x + h * k3, u, p, sx + h * d3, su)
+    sub = ca.Function("rk4_sens", [x, sx, u, su, p],
+                      [x + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4), sx + h / 6 * (d1 + 2 * d2 + 2 * d3 + d4)])
+    chain = sub.mapaccum("rk4_sens_n", n, [0, 1], [0, 1])
+
+    def run(xk: ca.MX, sk: ca.MX, uk: ca.MX, duk: ca.MX, pk: ca.MX) -> tuple[ca.MX, ca.MX]:
+        xs, ss = chain(xk, sk, uk, duk, pk)
+        return xs[:, -1], ss[:, -na:] if na else ss
+    return run
 
 
 #: a plant whose full Jacobian [df/dx, df/du, df/dp] exceeds this many CasADi instructions gets forward directional

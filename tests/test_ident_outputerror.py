@@ -17,6 +17,7 @@ from motiontwin.cli import main
 from motiontwin.fmus import build, writeback
 from motiontwin.harness.recording import make_recording, write_recording
 from motiontwin.ident import multipleshooting as ms
+from motiontwin.ident import oeloop
 from motiontwin.ident import outputerror as oe
 from motiontwin.ident.controller import Controller, controller_document
 from tests.fmi_util import fmpy_closed_loop
@@ -217,6 +218,34 @@ def test_compiled_chain_matches_casadi_mapaccum(model, closed):
         assert np.shape(fast) == ref.shape and _relative_error(fast, ref) < 1e-12
     for fast, ref in zip(loops[0].jac(*args), loops[1].jac(*args)):
         assert np.shape(fast) == ref.shape and _relative_error(fast, ref) < 1e-12
+
+
+@pytest.mark.parametrize("closed", [False, True])
+def test_a_step_of_many_substeps_is_one_substep_chained_and_gives_the_written_out_values(model, closed,
+                                                                                           monkeypatch):
+    """A small plant at many RK4 substeps (a stiff LuGre bristle state takes 100+) is built as one substep chained
+    in a loop, not written out: its step and sensitivity step do not grow with the substeps (written out, the
+    KUKA robot test's compiled from 1-11 MB of C, 800 s of gcc on a cold cache), with the written-out step's free
+    run and Jacobian (CasADi's own evaluation of both, so no compiler is needed here)."""
+    n = 300
+    ctrl = pd_controller() if closed else None
+
+    default = oeloop.INLINE_STEP_INSTRUCTIONS
+
+    def loop(substeps: int, limit: int) -> oe.Loop:
+        monkeypatch.setattr(oeloop, "INLINE_STEP_INSTRUCTIONS", limit)
+        return oe.build_loop(model, ctrl, "x", ["m", "d"], {}, n, ts=TS, substeps=substeps, native=False)
+
+    sizes = {k: loop(k, 0).step.n_instructions() for k in (8, 64)}
+    assert sizes[8] == sizes[64] < loop(8, 10 ** 9).step.n_instructions()
+    # the default threshold chains 1024 substeps of this plant (9 instructions) and writes 2 out
+    assert loop(1024, default).step.n_instructions() == sizes[8] and loop(2, default).step.is_a("SXFunction")
+    chained, written = loop(64, 0), loop(64, 10 ** 9)
+    args = _chain_inputs(written, n, seed=4)
+    for a, b in zip(chained.sim(*args), written.sim(*args)):
+        assert _relative_error(a, b) < 1e-12
+    for a, b in zip(chained.jac(*args), written.jac(*args)):
+        assert np.size(b) and _relative_error(a, b) < 1e-12
 
 
 def test_initial_state_sensitivities_of_chosen_states_only(model):
