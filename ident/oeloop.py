@@ -255,7 +255,8 @@ def build_loop(model: symbolic.SymbolicModel, controller: Controller | None, pos
     fixed = [n for n in names if n not in free]
     f = ca.Function("f", [model.x, model.u, model.p], [model.dx])
     # a large right-hand side (a coupled mechanism's mass-matrix solve) is called, not inlined, in every RK4
-    # stage (MX graph): the step and its sensitivity step then compile from kilobytes instead of megabytes
+    # stage (MX graph), and a step of many substeps chains one substep (:data:`INLINE_STEP_INSTRUCTIONS`): the
+    # step and its sensitivity step then compile from kilobytes instead of megabytes
     large = f.n_instructions() > CALL_INSTRUCTIONS
     sym = ca.MX if large or 4 * substeps * f.n_instructions() > INLINE_STEP_INSTRUCTIONS else ca.SX
     theta = sym.sym("theta", len(free))
@@ -368,10 +369,11 @@ def _called_sensitivity_step(model: symbolic.SymbolicModel, observed: list[str],
                              plant_input: Callable, select_p: np.ndarray, select_u: np.ndarray, p_full: ca.MX,
                              s: ca.MX, w: ca.MX, theta: ca.MX, pfix: ca.MX, substeps: int, ts: float,
                              initial: list[int], large: bool = True) -> tuple[ca.Function, np.ndarray]:
-    """:func:`_sensitivity_step` for a large plant (MX graph): the variational equations of the same RK4
-    step written out, with the plant's derivatives as called functions (:func:`_plant_derivatives`), so that
-    the generated code holds them once instead of one forward derivative per sensitivity direction inlined in
-    every stage."""
+    """:func:`_sensitivity_step` for a large plant or a step of many substeps (MX graph): the variational
+    equations of the same RK4 step, one substep chained (:func:`_sensitivity_substep_chain`), with the plant's
+    derivatives as called functions for a large plant (``large``; :func:`_plant_derivatives`), so that the
+    generated code holds them once instead of one forward derivative per sensitivity direction inlined in every
+    stage, and inlined in the substep for a small one."""
     nx, ns, nth = model.x.numel(), s.numel(), theta.numel()
     nz, n_ax = ns - nx, len(observed)
     n0 = len(initial)
