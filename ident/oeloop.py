@@ -299,11 +299,7 @@ def build_loop(model: symbolic.SymbolicModel, controller: Controller | None, pos
                                 substeps // ticks)(xk, uvec, p_full)
         else:
             for _ in range(substeps // ticks):
-                k1 = f(xk, uvec, p_full)
-                k2 = f(xk + h / 2 * k1, uvec, p_full)
-                k3 = f(xk + h / 2 * k2, uvec, p_full)
-                k4 = f(xk + h * k3, uvec, p_full)
-                xk = xk + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+                xk = _rk4(f, xk, uvec, p_full, h)
     s_next, out_k = ca.vertcat(xk, zk), ca.vertcat(q, u)
     step = ca.Function("step", [s, w, theta, pfix], [ca.densify(s_next), ca.densify(q), ca.densify(u)])
     columns = list(range(nx + nz)) if initial_states is None else [int(i) for i in initial_states]
@@ -421,12 +417,17 @@ def _substep_chain(f: ca.Function, sym: type, nx: int, nu: int, n_p: int, h: flo
     the same order as written out). ``sym``: ca.SX inlines ``f`` in the substep (a small plant: as fast as the
     written-out step), ca.MX calls it in each stage (a large one)."""
     x, u, p = sym.sym("x", nx), sym.sym("u", nu), sym.sym("p", n_p)
+    chain = ca.Function("rk4", [x, u, p], [_rk4(f, x, u, p, h)]).mapaccum("rk4_n", n)
+    return lambda xk, uk, pk: chain(xk, uk, pk)[:, -1]
+
+
+def _rk4(f: Callable, x, u, p, h: float):
+    """One classical RK4 substep of ``h`` of der(x) = f(x, u, p), u held (SX or MX, as the arguments)."""
     k1 = f(x, u, p)
     k2 = f(x + h / 2 * k1, u, p)
     k3 = f(x + h / 2 * k2, u, p)
     k4 = f(x + h * k3, u, p)
-    chain = ca.Function("rk4", [x, u, p], [x + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)]).mapaccum("rk4_n", n)
-    return lambda xk, uk, pk: chain(xk, uk, pk)[:, -1]
+    return x + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
 
 
 def _sensitivity_substep_chain(slope: Callable, sym: type, nx: int, na: int, nu: int, n_p: int, h: float, n: int
