@@ -33,6 +33,7 @@ __all__ = [
     "default_segment_length",
     "acceleration_from_position",
     "second_difference_response",
+    "state_space_response",
     "JointModel",
     "JointModelFit",
     "fit_joint_frf",
@@ -123,6 +124,18 @@ def second_difference_response(frequency: np.ndarray, sample_rate: float) -> np.
     return -4.0 * sample_rate**2 * np.sin(np.pi * np.asarray(frequency) / sample_rate) ** 2
 
 
+def state_space_response(matrices: Sequence[np.ndarray], z: np.ndarray) -> np.ndarray:
+    """C (z I - A)^-1 B + D of a SISO state-space system (A, B, C, D) at the complex points ``z`` (s or z), in
+    one batched solve (python-control evaluates its systems point by point without Slycot: 0.3 s on 8000)."""
+    a, b, c, d = (np.atleast_2d(np.asarray(m, dtype=float)) for m in matrices)
+    z = np.asarray(z, dtype=complex)
+    if a.shape[0] == 0 or a.size == 0:
+        return np.full(z.shape, d[0, 0], dtype=complex)
+    x = np.linalg.solve(z.reshape(-1)[:, None, None] * np.eye(a.shape[0]) - a,
+                        np.broadcast_to(b, (z.size,) + b.shape))
+    return ((c @ x)[:, 0, 0] + d[0, 0]).reshape(z.shape)
+
+
 @dataclass(frozen=True)
 class JointModel:
     """Cheung's joint model. gain K; alpha [rad/s]; resonances/antiresonances: ((omega [rad/s], zeta), ...)."""
@@ -149,10 +162,7 @@ class JointModel:
         controller sees: ZOH delay and aliasing included)."""
         sys_d = control.c2d(control.ss(self.transfer_function()), 1.0 / sample_rate, method="zoh")
         z = np.exp(2j * np.pi * np.asarray(frequency, dtype=float) / sample_rate)
-        a, b, c, d = (np.asarray(m) for m in (sys_d.A, sys_d.B, sys_d.C, sys_d.D))
-        eye = np.eye(a.shape[0])
-        x = np.linalg.solve(z[:, None, None] * eye - a, np.broadcast_to(b, (z.size,) + b.shape))
-        return (c @ x)[:, 0, 0] + d[0, 0]
+        return state_space_response((sys_d.A, sys_d.B, sys_d.C, sys_d.D), z)
 
     def transfer_function(self) -> control.TransferFunction:
         """P(s) as a python-control transfer function."""

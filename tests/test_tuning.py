@@ -97,6 +97,41 @@ def test_margins_of_textbook_discrete_loop(k: float) -> None:
     assert m.pm_deg == pytest.approx(pm, abs=1e-2)
 
 
+@pytest.mark.parametrize("k", [0.3, 0.6])
+def test_exact_crossovers_of_textbook_discrete_loop_to_round_off_on_a_coarse_grid(k: float) -> None:
+    """L(z) = k/(z(z-1)) on 60 grid points: the crossovers are found on the loop itself, not interpolated on
+    the grid (GM -20 log k at f = 1/(6 Ts), PM 90 deg - 1.5 theta_c at theta_c = 2 asin(k/2)) to 1e-9,
+    where the grid's own interpolation is off by 1e-3 and more."""
+    f = tuning.frequency_grid(TS, 60)
+
+    def loop_at(x: float) -> complex:
+        z = np.exp(2j * np.pi * x * TS)
+        return k / (z * (z - 1))
+
+    gm, pm, f_pc, f_gc = tuning_margins.exact_crossovers(loop_at, f, np.array([loop_at(x) for x in f]))
+    theta_c = 2 * math.asin(k / 2)
+    assert gm == pytest.approx(-20 * math.log10(k), abs=1e-9)
+    assert f_pc == pytest.approx(1 / (6 * TS), rel=1e-9)
+    assert pm == pytest.approx(90 - 1.5 * math.degrees(theta_c), abs=1e-9)
+    assert f_gc == pytest.approx(theta_c / (2 * math.pi * TS), rel=1e-9)
+    grid = tuning.margins_from_response(f, np.array([loop_at(x) for x in f]), stable=True)
+    assert abs(grid.pm_deg - pm) > 1e-3
+
+
+def test_loop_margins_equal_python_controls_stability_margins_on_the_cheung_loops() -> None:
+    """The reported GM, PM and crossovers of the Table 2 d1 loop equal python-control's ``stability_margins``
+    on the independent loop's dense response (a spline through 8000 points) to its interpolation error."""
+    p = tuning.controller_defaults()
+    m = tuning.loop_margins(p, NOMINAL)
+    f = np.logspace(-1, np.log10(0.9995 / (2 * TS)), 8000)
+    resp = np.asarray(independent_loop(p, NOMINAL)(np.exp(2j * np.pi * f * TS))).ravel()
+    gm, pm, _, wpc, wgc, _ = control.stability_margins((np.abs(resp), np.degrees(np.angle(resp)), 2 * np.pi * f))
+    assert m.gm_db == pytest.approx(20 * math.log10(gm), abs=1e-5)
+    assert m.pm_deg == pytest.approx(pm, abs=1e-5)
+    assert m.phase_crossover_hz == pytest.approx(wpc / (2 * np.pi), rel=1e-6)
+    assert m.gain_crossover_hz == pytest.approx(wgc / (2 * np.pi), rel=1e-6)
+
+
 def test_fmu_law_equals_paper_equations_tustin() -> None:
     """The symbolic model's Tustin matrices (what the FMU runs) = python-control's Tustin of eqs. (9)-(11)."""
     rng = np.random.default_rng(0)

@@ -44,22 +44,22 @@ from __future__ import annotations
 
 import functools
 import math
-import warnings
 from dataclasses import replace
-from typing import Sequence
+from typing import Callable, Sequence
 
 import casadi as ca
 import control
 import numpy as np
 import scipy.linalg
+import scipy.optimize
 
-from motiontwin.ident.frf import JointModel
+from motiontwin.ident.frf import JointModel, state_space_response
 from motiontwin.ident.tuning.spec import CONTROLLER_CLASS, LoopMargins, TuningError
 
 __all__ = [
     "controller_defaults", "controller_matrices", "controller_system", "check_plant", "discrete_plant",
     "loop_system", "frequency_grid", "closed_loop_modes", "slowest_time_constant", "margins_from_response",
-    "loop_margins", "disk_margin_from_response", "position_sets", "feedforward_path_response",
+    "loop_margins", "exact_crossovers", "disk_margin_from_response", "position_sets", "feedforward_path_response",
 ]
 
 
@@ -253,13 +253,15 @@ def margins_from_response(f: np.ndarray, loop: np.ndarray, stable: bool) -> Loop
 
 def loop_margins(parameters: dict[str, float], plant: JointModel | control.LTI, delay_samples: int = 1,
                  points: int = 8000) -> LoopMargins:
-    """Margins of the discrete loop built with python-control: stability from the closed-loop poles, GM/PM
-    from ``control.stability_margins`` on a dense grid of the loop response up to Nyquist; CLBW, Ms, max |S|
-    below CLBW and the balanced disk margin (:func:`disk_margin_from_response`) on the same grid.
+    """Margins of the discrete loop built with python-control: stability from the closed-loop poles; GM and PM
+    at the exact crossovers (:func:`exact_crossovers`, bracketed on a dense grid of the loop response up to
+    Nyquist); CLBW, Ms, max |S| below CLBW and the balanced disk margin (:func:`disk_margin_from_response`) on
+    the same grid.
 
-    stability_margins gets the (mag, phase, omega) response, not the system: for these 11th-order, lightly
-    damped sampled loops its polynomial method is ill-conditioned and its 'frd' fallback interpolates a
-    coarse grid, which reported e.g. a PM of -16.8 deg at 350 Hz where |L| = 0.48.
+    Why not ``control.stability_margins``: for these 11th-order, lightly damped sampled loops its polynomial
+    method is ill-conditioned (a PM of -16.8 deg at 350 Hz where |L| = 0.48), and given the response instead it
+    root-finds on a spline through the grid, point by point (1.2 s per loop on 8000 points); the tests keep it
+    as the reference (``tests/test_tuning.py``).
     """
     loop = loop_system(parameters, plant, delay_samples)
     ts = loop.dt
@@ -267,20 +269,45 @@ def loop_margins(parameters: dict[str, float], plant: JointModel | control.LTI, 
     tau_cl = slowest_time_constant(closed_loop_modes(controller_matrices(parameters),
                                                      (sampled.A, sampled.B, sampled.C)), ts)
     f = frequency_grid(ts, points)
-    w = 2 * np.pi * f
-    response = np.asarray(loop(np.exp(1j * w * ts))).reshape(-1)
+    matrices = (loop.A, loop.B, loop.C, loop.D)
+    response = state_space_response(matrices, np.exp(2j * np.pi * f * ts))
     radius = float(np.max(np.abs(control.poles(control.feedback(loop, 1)))))
     stable = radius < 1.0
     grid = margins_from_response(f, response, stable)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        gm, pm, _, wpc, wgc, _ = control.stability_margins((np.abs(response), np.degrees(np.angle(response)), w))
+
+    def loop_at(x: float) -> complex:
+        return complex(state_space_response(matrices, np.exp(2j * np.pi * x * ts)))
+
+    gm, pm, f_pc, f_gc = exact_crossovers(loop_at, f, response)
     dm, dgm, dpm = disk_margin_from_response(response)
-    return LoopMargins(stable=stable, gm_db=float(20 * np.log10(gm)) if np.isfinite(gm) else math.inf,
-                       pm_deg=float(pm) if np.isfinite(pm) else math.inf, bandwidth_hz=grid.bandwidth_hz,
-                       ms=grid.ms, s_below_bw=grid.s_below_bw,
-                       gain_crossover_hz=float(wgc / (2 * np.pi)), phase_crossover_hz=float(wpc / (2 * np.pi)),
+    return LoopMargins(stable=stable, gm_db=gm, pm_deg=pm, bandwidth_hz=grid.bandwidth_hz,
+                       ms=grid.ms, s_below_bw=grid.s_below_bw, gain_crossover_hz=f_gc, phase_crossover_hz=f_pc,
                        disk_margin=dm, disk_gm_db=dgm, disk_pm_deg=dpm, spectral_radius=radius, tau_cl=tau_cl)
+
+
+def exact_crossovers(loop_at: Callable[[float], complex], f: np.ndarray, response: np.ndarray
+                     ) -> tuple[float, float, float, float]:
+    """(GM [dB], PM [deg], phase crossover [Hz], gain crossover [Hz]) of the loop ``loop_at(f)`` (f in Hz) at its
+    exact crossovers, each bracketed by a sign change of Im L (with Re L <= 0 there: the negative real axis) or
+    of |L| - 1 between neighbours of the grid ``f`` (``response`` = L on it) and found by Brent's method to
+    round-off. The choice as python-control's ``stability_margins``: GM of the phase crossover whose |L| is
+    nearest 1, PM (in [-180, 180)) of the gain crossover with the smallest |PM|; inf and nan when there is
+    none."""
+    gm, f_pc = math.inf, math.nan
+    for i in _crossings(response.imag):
+        x = scipy.optimize.brentq(lambda v: loop_at(v).imag, f[i], f[i + 1], xtol=1e-13 * f[i], rtol=1e-15)
+        value = loop_at(x)
+        if value.real <= 0 and abs(value) > 0:
+            g = -20 * math.log10(abs(value))
+            if abs(g) < abs(gm):
+                gm, f_pc = g, x
+    pm, f_gc = math.inf, math.nan
+    for i in _crossings(np.abs(response) - 1):
+        x = scipy.optimize.brentq(lambda v: abs(loop_at(v)) - 1, f[i], f[i + 1], xtol=1e-13 * f[i], rtol=1e-15)
+        p = float(np.remainder(math.degrees(np.angle(loop_at(x))), 360.0) - 180.0)
+        if abs(p) < abs(pm):
+            pm, f_gc = p, x
+    return gm, pm, f_pc, f_gc
 
 
 def disk_margin_from_response(loop: np.ndarray) -> tuple[float, float, float]:
@@ -311,10 +338,8 @@ def feedforward_path_response(parameters: dict[str, float], f: np.ndarray) -> np
     _, names, defaults = _law()
     values = {**defaults, **parameters, "Kv": 1.0, "Ka": 0.0, "Kj": 0.0}
     ts = float(values["Ts"])
-    a, b, c, d = (np.array(m, dtype=float) for m in _feedforward_law()([float(values[n]) for n in names]))
-    z = np.exp(2j * np.pi * f * ts)
-    x = np.linalg.solve(z[:, None, None] * np.eye(a.shape[0]) - a, np.broadcast_to(b, (z.size,) + b.shape))
-    return (c @ x)[:, 0, 0] + d[0, 0]
+    matrices = [np.array(m, dtype=float) for m in _feedforward_law()([float(values[n]) for n in names])]
+    return state_space_response(matrices, np.exp(2j * np.pi * f * ts))
 
 
 class _LoopEvaluator:
@@ -331,13 +356,11 @@ class _LoopEvaluator:
             a, b, c, d = (np.asarray(m, dtype=float) for m in (sys.A, sys.B, sys.C, sys.D))
             if abs(d[0, 0]) > 0:
                 raise TuningError(f"plant set {k}: the sampled plant must be strictly proper")
-            self.plants.append((a, b, c, np.asarray(sys(self.z)).reshape(-1)))
+            self.plants.append((a, b, c, state_space_response((a, b, c, d), self.z)))
 
     def response(self, parameters: dict[str, float]) -> tuple[np.ndarray, tuple[np.ndarray, ...]]:
-        a, b, c, d = controller_matrices(parameters)
-        eye = np.eye(a.shape[0])
-        x = np.linalg.solve(self.z[:, None, None] * eye - a, np.broadcast_to(b, (self.z.size,) + b.shape))
-        return (c @ x)[:, 0, 0] + d[0, 0], (a, b, c, d)
+        matrices = controller_matrices(parameters)
+        return state_space_response(matrices, self.z), matrices
 
     def evaluate(self, parameters: dict[str, float]) -> list[LoopMargins]:
         cz, (ac, bc, cc, dc) = self.response(parameters)

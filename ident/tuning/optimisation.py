@@ -34,7 +34,7 @@ import control
 import numpy as np
 import scipy.optimize
 
-from motiontwin.ident.frf import JointModel
+from motiontwin.ident.frf import JointModel, state_space_response
 from motiontwin.ident.tuning.margins import (_LoopEvaluator, controller_defaults, discrete_plant,
                                              feedforward_path_response, loop_margins)
 from motiontwin.ident.tuning.spec import (FeedforwardFit, InfeasibleSpecError, LoopMargins, TuningError,
@@ -88,7 +88,8 @@ def feedforward_gains(parameters: dict[str, float], plants: Sequence[JointModel 
     orders = (1, 2, 3) if jerk else (1, 2)
     blocks = []
     for k, plant in enumerate(plants):
-        pz = np.asarray(discrete_plant(plant, ts, delay_samples, where=f"plant set {k}")(z)).reshape(-1)
+        sampled = discrete_plant(plant, ts, delay_samples, where=f"plant set {k}")
+        pz = state_space_response((sampled.A, sampled.B, sampled.C, sampled.D), z)
         blocks.append(np.column_stack([path * pz * s ** n for n in orders]))
     columns = np.vstack(blocks)
     scale = np.max(np.abs(columns), axis=0)

@@ -25,7 +25,7 @@ import control
 import numpy as np
 
 from motiontwin.harness.recording import write_figure
-from motiontwin.ident.frf import JointModel
+from motiontwin.ident.frf import JointModel, state_space_response
 from motiontwin.ident.tuning import LoopMargins, TuningSpec, frequency_grid, loop_margins, loop_system
 
 __all__ = ["loop_responses", "loop_figure", "write_loop_figure", "plants_from_document", "replot_design"]
@@ -39,7 +39,7 @@ def loop_responses(parameters: dict[str, float], plants: Sequence[JointModel | c
     for plant in plants:
         loop = loop_system(parameters, plant, delay_samples)
         f = frequency_grid(loop.dt, points) if f is None else f
-        out.append(np.asarray(loop(np.exp(2j * np.pi * f * loop.dt))).reshape(-1))
+        out.append(state_space_response((loop.A, loop.B, loop.C, loop.D), np.exp(2j * np.pi * f * loop.dt)))
     return f, out
 
 
