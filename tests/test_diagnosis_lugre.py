@@ -11,7 +11,7 @@ from motiontwin.ident.benchmarks import independent
 from motiontwin.ident.diagnosis import effects as effect_models
 from motiontwin.ident.diagnosis.screen import fit_structure, refine
 from motiontwin.ident.diagnosis.structure import validate
-from tests.test_diagnosis_polish import _nominal
+from tests.diagnosis_util import refitted_nominal
 
 
 def test_a_lugre_breakaway_above_the_sliding_level_is_fitted(tmp_path, monkeypatch) -> None:
@@ -22,7 +22,7 @@ def test_a_lugre_breakaway_above_the_sliding_level_is_fitted(tmp_path, monkeypat
     monkeypatch.setattr(independent, "DURATIONS", (4.0, 2.0))
     truth = independent.write_bundle(tmp_path / "bundle", independent.draw_case("lugre", 13006))
     law = truth["laws"][0]["parameters"]
-    bundle, nominal, weights, ctx = _nominal(tmp_path / "bundle")
+    bundle, nominal, weights, ctx = refitted_nominal(tmp_path / "bundle", process_noise=True)
     fit = refine(bundle, fit_structure(bundle, nominal, effect_models.VOCABULARY["lugre_friction"](ctx), ctx,
                                        weights, tmp_path / "lugre"), weights)
     validate(bundle, fit, tmp_path / "validation")

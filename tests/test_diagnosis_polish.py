@@ -16,12 +16,10 @@ from motiontwin.ident import outputerror
 from motiontwin.ident.benchmarks import independent
 from motiontwin.ident.diagnosis import effects as effect_models
 from motiontwin.ident.diagnosis import noise, report
-from motiontwin.ident.diagnosis.bundle import read_bundle
-from motiontwin.ident.diagnosis.locate import context
-from motiontwin.ident.diagnosis.nominal import fit_nominal, nominal_start
 from motiontwin.ident.diagnosis.polish import _no_worse, polished
 from motiontwin.ident.diagnosis.screen import fit_structure, refine
-from motiontwin.ident.diagnosis.structure import LoopCache, ModelFit, build_structure
+from motiontwin.ident.diagnosis.structure import ModelFit, build_structure
+from tests.diagnosis_util import refitted_nominal
 
 
 def test_whitening_filters_as_scipy_does() -> None:
@@ -71,7 +69,7 @@ def test_the_prediction_error_refit_recovers_the_mass_the_white_weights_miss(cou
     weights spend themselves there. Refitted by :func:`polish.polished`, the mass is within 8 % of the truth
     and the validation RMS falls to within 5 times the truth's own floor (from 17 times)."""
     folder, truth = coulomb_case
-    bundle, nominal, weights, ctx = _nominal(folder)
+    bundle, nominal, weights, ctx = refitted_nominal(folder, process_noise=True)
     coulomb = effect_models.VOCABULARY["coulomb_friction"](ctx)
     start = {**{"plant." + k: v for k, v in nominal.fit.values.items()}, "coulomb_Fc": 0.018, "coulomb_v_eps": 1e-3}
     loop, bounds = build_structure(bundle, [coulomb], start, tmp_path / "fit", bundle.train.time.size)
@@ -87,20 +85,10 @@ def test_the_prediction_error_refit_recovers_the_mass_the_white_weights_miss(cou
 
 
 
-def _nominal(folder: Path) -> tuple:
-    """The bundle in ``folder`` (its process noise estimated), its refitted nominal model, weights and context."""
-    bundle = read_bundle(folder)
-    bundle.cache = LoopCache()
-    bundle.start = nominal_start(bundle)
-    nominal, weights = fit_nominal(bundle)
-    bundle.process_noise = noise.of_bundle(bundle, nominal.fit.values, weights.sigma_q)
-    return bundle, nominal, weights, context(bundle, nominal)
-
-
 def _white_asymmetric(folder: Path, work: Path) -> tuple:
     """The bundle in ``folder`` with asymmetric friction fitted as the selection fits it (white weights, from
     its data-driven starts), its weights and context."""
-    bundle, nominal, weights, ctx = _nominal(folder)
+    bundle, nominal, weights, ctx = refitted_nominal(folder, process_noise=True)
     white = refine(bundle, fit_structure(bundle, nominal, effect_models.VOCABULARY["asymmetric_friction"](ctx), ctx,
                                          weights, work / "asymmetric"), weights)
     return bundle, white, weights, ctx

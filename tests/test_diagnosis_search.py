@@ -22,16 +22,13 @@ from motiontwin.ident.diagnosis.locate import context
 from motiontwin.ident.diagnosis.nominal import fit_nominal, nominal_start
 from motiontwin.ident.diagnosis.screen import SCREEN_NFEV, VANISHING_RTOL, fit_structure, screening_defect
 from motiontwin.ident.diagnosis.structure import LoopCache, validate_any
+from tests.diagnosis_util import refitted_nominal
 
 
 def short_bundle_nominal(folder, case: str, seed: int) -> tuple:
     """A short benchmark bundle of ``case`` written to ``folder``, its nominal refit, weights and context."""
     bench.write_bundle(folder, case, seed=seed, durations=(1.5, 0.75), engine="casadi")
-    bundle = read_bundle(folder)
-    bundle.cache = LoopCache()
-    bundle.start = nominal_start(bundle)
-    fit, weights = fit_nominal(bundle)
-    return bundle, fit, weights, context(bundle, fit)
+    return refitted_nominal(folder)
 
 
 @pytest.fixture(scope="module")
@@ -110,11 +107,7 @@ def stiff_nominal(tmp_path_factory):
     60x below the truth's and a damping 300x above, dynamics that need 3 RK4 substeps where its start needed 1."""
     root = tmp_path_factory.mktemp("stiff")
     independent.generate(root, "heldout", only=["lugre"])
-    bundle = read_bundle(root / "heldout" / "lugre")
-    bundle.cache = LoopCache()
-    bundle.start = nominal_start(bundle)
-    fit, weights = fit_nominal(bundle)
-    return bundle, fit, weights, context(bundle, fit), root / "work"
+    return (*refitted_nominal(root / "heldout" / "lugre"), root / "work")
 
 
 def test_nominal_refit_is_integrated_as_finely_as_its_values_need(stiff_nominal):

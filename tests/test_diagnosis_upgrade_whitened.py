@@ -10,12 +10,9 @@ import pytest
 from motiontwin.ident import outputerror
 from motiontwin.ident.benchmarks import independent
 from motiontwin.ident.diagnosis import effects as effect_models
-from motiontwin.ident.diagnosis import noise
-from motiontwin.ident.diagnosis.bundle import read_bundle
-from motiontwin.ident.diagnosis.locate import context
-from motiontwin.ident.diagnosis.nominal import fit_nominal, nominal_start
 from motiontwin.ident.diagnosis.polish import polished
-from motiontwin.ident.diagnosis.structure import LoopCache, ModelFit, build_structure
+from motiontwin.ident.diagnosis.structure import ModelFit, build_structure
+from tests.diagnosis_util import refitted_nominal
 
 
 def test_a_stribeck_hump_the_white_weights_bury_is_named_under_the_whitened_ones(tmp_path) -> None:
@@ -26,12 +23,7 @@ def test_a_stribeck_hump_the_white_weights_bury_is_named_under_the_whitened_ones
     the breakaway level within 20 % of the truth; red if the upgrade is not judged."""
     independent.generate(tmp_path, "audit", only=["offset+stribeck"])
     truth = json.loads((tmp_path / "audit" / "offset+stribeck.truth.json").read_text())
-    bundle = read_bundle(tmp_path / "audit" / "offset+stribeck")
-    bundle.cache = LoopCache()
-    bundle.start = nominal_start(bundle)
-    nominal, weights = fit_nominal(bundle)
-    bundle.process_noise = noise.of_bundle(bundle, nominal.fit.values, weights.sigma_q)
-    ctx = context(bundle, nominal)
+    bundle, nominal, weights, ctx = refitted_nominal(tmp_path / "audit" / "offset+stribeck", process_noise=True)
     effects = [effect_models.VOCABULARY[name](ctx) for name in ("gravity_offset", "coulomb_friction")]
     laws = {law["law"]: law for law in truth["laws"]}
     start = {"plant.m": truth["axis"]["mass"], "plant.d": truth["axis"]["damping"],

@@ -16,13 +16,11 @@ from motiontwin.ident.benchmarks import independent
 from motiontwin.ident.diagnosis import augmented
 from motiontwin.ident.diagnosis import effects as effect_models
 from motiontwin.ident.diagnosis import sensor_effects, structure
-from motiontwin.ident.diagnosis.bundle import read_bundle
-from motiontwin.ident.diagnosis.locate import context
-from motiontwin.ident.diagnosis.nominal import fit_nominal, nominal_start
 from motiontwin.ident.diagnosis.plant_roles import PlantRoles
 from motiontwin.ident.diagnosis.screen import SCREEN_NFEV, fit_structure
 from motiontwin.ident.oeloop import _state_for_output
 from motiontwin.ident.plant_states import output_expression
+from tests.diagnosis_util import refitted_nominal
 
 GEARED = '''model Geared "Axis read through a gear ratio and an offset: q = 2 x + 0.01"
   parameter Real m(unit = "kg") = 2.0;
@@ -86,11 +84,7 @@ def independent_encoder_case(tmp_path_factory):
     folder = tmp_path_factory.mktemp("encoder") / "encoder_error"
     name, seed = next(c for c in independent.case_list("heldout") if c[0] == "encoder_error")
     truth = independent.write_bundle(folder, independent.draw_case(name, seed))
-    bundle = read_bundle(folder)
-    bundle.cache = structure.LoopCache()
-    bundle.start = nominal_start(bundle)
-    nominal, weights = fit_nominal(bundle)
-    return bundle, nominal, weights, context(bundle, nominal), truth, folder.parent / "work"
+    return (*refitted_nominal(folder), truth, folder.parent / "work")
 
 
 def test_encoder_error_beats_a_force_ripple_on_an_independent_truth(independent_encoder_case):

@@ -53,6 +53,7 @@ def explain_remainder(bundle: Bundle, final: ModelFit, weights: outputerror.Weig
                                                    "explains the remaining force residual (cross-validated)"}
     signals = {"x": inv.x, "v": inv.v, "a": inv.a, "u": inv.u}
     regression = law
+    trial: ModelFit | None = None
     for attempt in range(2):     # fit the regression's terms, drop those the output-error fit leaves small, refit
         if attempt:
             pruned = empirical.refitted(law, trial.fit.values, signals)
