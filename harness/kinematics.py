@@ -19,6 +19,7 @@ platform anchors ``p + R b_j``. Velocities are twists ``[v; w]`` (world frame), 
 """
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -100,6 +101,14 @@ HEXAPOD_HOME = np.array([0.0, 0.0, 0.8, 0.0, 0.0, 0.0])
 
 def hexapod_anchors(geom: HexapodGeometry = HEXAPOD) -> tuple[np.ndarray, np.ndarray]:
     """Base anchors A (6x3, world) and platform anchors b (6x3, platform frame), leg j = row j."""
+    a, b = _anchors(geom)
+    return a.copy(), b.copy()
+
+
+@functools.lru_cache(maxsize=8)
+def _anchors(geom: HexapodGeometry) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`hexapod_anchors`, computed once per geometry (the direct kinematics asks for them per Newton step
+    of every sample); read-only, shared."""
     gb, gp = geom.base_half_angle, geom.platform_half_angle
     third = 2 * np.pi / 3
     base_angles = np.array([gb, third - gb, third + gb, 2 * third - gb, 2 * third + gb, 3 * third - gb])
@@ -107,6 +116,7 @@ def hexapod_anchors(geom: HexapodGeometry = HEXAPOD) -> tuple[np.ndarray, np.nda
                             2.5 * third - gp, 2.5 * third + gp])
     a = geom.base_radius * np.column_stack([np.cos(base_angles), np.sin(base_angles), np.zeros(6)])
     b = geom.platform_radius * np.column_stack([np.cos(plat_angles), np.sin(plat_angles), np.zeros(6)])
+    a.flags.writeable = b.flags.writeable = False
     return a, b
 
 
@@ -132,20 +142,28 @@ def angular_velocity_map(angles: np.ndarray) -> np.ndarray:
 
 def hexapod_inverse(pose: np.ndarray, geom: HexapodGeometry = HEXAPOD) -> np.ndarray:
     """Leg lengths (6,) from the pose [x, y, z, a, b, c]."""
-    pose = np.asarray(pose, dtype=float)
-    a, b = hexapod_anchors(geom)
-    legs = pose[:3] + b @ rotation(pose[3:]).T - a
-    return np.linalg.norm(legs, axis=1)
+    return _legs(np.asarray(pose, dtype=float), geom)[1]
 
 
 def hexapod_length_jacobian(pose: np.ndarray, geom: HexapodGeometry = HEXAPOD) -> np.ndarray:
     """d(leg lengths)/d(pose) (6x6): row j = [u_j, (r_j x u_j) @ H] with u_j the leg unit vector."""
     pose = np.asarray(pose, dtype=float)
-    a, b = hexapod_anchors(geom)
+    return _length_jacobian(pose, *_legs(pose, geom))
+
+
+def _legs(pose: np.ndarray, geom: HexapodGeometry) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(platform anchors in the world frame relative to p, leg lengths, leg vectors) at ``pose``."""
+    a, b = _anchors(geom)
     r = b @ rotation(pose[3:]).T
     legs = pose[:3] + r - a
-    u = legs / np.linalg.norm(legs, axis=1, keepdims=True)
-    return np.hstack([u, np.cross(r, u) @ angular_velocity_map(pose[3:])])
+    return r, np.linalg.norm(legs, axis=1), legs
+
+
+def _length_jacobian(pose: np.ndarray, r: np.ndarray, lengths: np.ndarray, legs: np.ndarray) -> np.ndarray:
+    u = legs / lengths[:, None]
+    (r0, r1, r2), (u0, u1, u2) = r.T, u.T      # r x u row by row, as np.cross forms it (same round-off)
+    cross = np.column_stack([r1 * u2 - r2 * u1, r2 * u0 - r0 * u2, r0 * u1 - r1 * u0])
+    return np.hstack([u, cross @ angular_velocity_map(pose[3:])])
 
 
 def hexapod_direct(lengths: np.ndarray, geom: HexapodGeometry = HEXAPOD, guess: np.ndarray | None = None,
@@ -158,10 +176,11 @@ def hexapod_direct(lengths: np.ndarray, geom: HexapodGeometry = HEXAPOD, guess: 
     lengths = np.asarray(lengths, dtype=float)
     pose = np.array(HEXAPOD_HOME if guess is None else guess, dtype=float)
     for _ in range(max_iter):
-        residual = hexapod_inverse(pose, geom) - lengths
+        r, now, legs = _legs(pose, geom)
+        residual = now - lengths
         if np.max(np.abs(residual)) < tol:
             return pose
-        pose = pose - np.linalg.solve(hexapod_length_jacobian(pose, geom), residual)
+        pose = pose - np.linalg.solve(_length_jacobian(pose, r, now, legs), residual)
     if np.max(np.abs(hexapod_inverse(pose, geom) - lengths)) < 1e3 * tol:
         return pose
     raise RuntimeError(f"hexapod direct kinematics did not converge in {max_iter} iterations")
