@@ -28,6 +28,12 @@ DRIVER = Path(__file__).with_name("chain.c")
 #: (-ffp-contract=off, no fast-math); smaller ones keep the default -O2 (a coupled plant's called-function
 #: form, about 0.4 MB, compiles at -O2 in 6.5 s of CPU and runs its Jacobian chain 1.2x faster than at -O1)
 LARGE_SOURCE = 1_000_000
+#: ... and gcc's register allocator considers at most 50 pseudo-registers per reload (default 500): in a function
+#: of 1900 scalars and 30 000 statements (the Hexapod's plant derivative in its sensitivity step) its hard-register
+#: assignment took 27 of the 39 s of gcc. Measured on the Hexapod smoke bundle (``bench_hexapod.py --smoke``, an
+#: empty cache): 133.7 -> 85.0 s, one source 39 -> 19 s; warm 20.4 / 18.2 s against 20.5 / 19.1 s, the same
+#: lines. Register allocation does not change the arithmetic. A compiler that refuses it gets plain -O1.
+LARGE_SOURCE_FLAGS = ("-O1", "--param=lra-max-considered-reload-pseudos=50")
 #: the chains are built for the host's instructions, which they never leave (the cache key holds the CPU,
 #: :func:`clib.host_cpu`), still IEEE (-ffp-contract=off, no fast-math: the same results to the last digit). Measured
 #: side by side (one worker each): the 4-DOF diagnosis's chains 225.6 -> 187.7 s of CPU, a 1.5 s Hexapod bundle's
@@ -47,18 +53,11 @@ def available() -> bool:
 
 def compile_functions(functions: list[ca.Function]) -> ctypes.CDLL:
     """Generate C for ``functions`` (CasADi C API), compile with the driver, load; cached by source hash."""
-    gen = ca.CodeGenerator("model.c", {"with_header": False, "casadi_int": "long long int",
-                                       "casadi_real": "double"})
-    for fn in functions:
-        gen.add(fn)
-    source = gen.dump()
+    source = _generate(functions)
     sources = {"model.c": source, DRIVER.name: DRIVER.read_text()}
-    level = "-O2" if len(source) <= LARGE_SOURCE else "-O1"
+    level = ("-O2",) if len(source) <= LARGE_SOURCE else LARGE_SOURCE_FLAGS
     with _LOCK:
-        try:
-            path = str(clib.cached_library(sources, "ident", "chain", (level, HOST_FLAG) + clib.CFLAGS[1:]))
-        except clib.CompileError:
-            path = str(clib.cached_library(sources, "ident", "chain", (level,) + clib.CFLAGS[1:]))
+        path = str(_first_built(sources, [(*level, HOST_FLAG), level, level[:1]]))
         if path not in _LOADED:
             lib = ctypes.CDLL(path)
             lib.mt_chain.restype = ctypes.c_int
@@ -68,6 +67,26 @@ def compile_functions(functions: list[ca.Function]) -> ctypes.CDLL:
                                      ctypes.c_long, ctypes.c_long, ctypes.c_long, ctypes.c_long]
             _LOADED[path] = lib
         return _LOADED[path]
+
+
+def _generate(functions: list[ca.Function]) -> str:
+    gen = ca.CodeGenerator("model.c", {"with_header": False, "casadi_int": "long long int",
+                                       "casadi_real": "double"})
+    for fn in functions:
+        gen.add(fn)
+    return gen.dump()
+
+
+def _first_built(sources: dict[str, str], attempts: list[tuple[str, ...]]) -> Path:
+    """The library built with the first of ``attempts`` (flag sets, each before ``clib.CFLAGS[1:]``) that the
+    compiler accepts; the last one's error when none does."""
+    *first, last = dict.fromkeys(attempts)
+    for flags in first:
+        try:
+            return clib.cached_library(sources, "ident", "chain", flags + clib.CFLAGS[1:])
+        except clib.CompileError:
+            continue
+    return clib.cached_library(sources, "ident", "chain", last + clib.CFLAGS[1:])
 
 
 def _dense(fn: ca.Function) -> None:

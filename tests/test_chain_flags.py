@@ -93,3 +93,32 @@ def test_a_compiler_that_refuses_the_host_flag_gets_the_portable_build(cache, mo
     out = _run(_step())
     assert np.all(np.isfinite(out))
     assert len(list(cache.glob("chain-*.so"))) == 1
+
+
+def test_a_large_source_gets_the_reload_limit_and_a_compiler_that_refuses_it_plain_o1(cache, monkeypatch, tmp_path):
+    """Above ``LARGE_SOURCE`` the chain is compiled with ``LARGE_SOURCE_FLAGS`` (-O1 and gcc's reload limit): the
+    same results bit for bit as plain -O1; a compiler refusing the limit (and the host flag) gets plain -O1."""
+    gcc = clib.compiler()
+    if gcc is None:
+        pytest.skip("no C compiler")
+    log = tmp_path / "flags.log"
+    wrapper = tmp_path / "cc-logged"
+    wrapper.write_text(f"#!/bin/sh\necho \"$*\" >> {log}\nexec {shutil.which(gcc)} \"$@\"\n")
+    wrapper.chmod(wrapper.stat().st_mode | stat.S_IEXEC)
+    monkeypatch.setenv("PATH", f"{tmp_path}{os.pathsep}{os.environ['PATH']}")
+    monkeypatch.setenv("CC", wrapper.name)
+    monkeypatch.setattr(chain, "LARGE_SOURCE", 0)
+    limited = _run(_step())
+    assert "--param=lra-max-considered-reload-pseudos=50" in log.read_text().split("\n")[0]
+    monkeypatch.setattr(chain, "LARGE_SOURCE_FLAGS", ("-O1",))
+    monkeypatch.setattr(chain, "HOST_FLAG", "-O1")
+    np.testing.assert_array_equal(limited, _run(_step()))
+    refusing = tmp_path / "cc-plain"
+    refusing.write_text("#!/bin/sh\nfor a in \"$@\"; do case \"$a\" in --param=*|-march=native) echo unknown >&2; "
+                        f"exit 1;; esac; done\nexec {shutil.which(gcc)} \"$@\"\n")
+    refusing.chmod(refusing.stat().st_mode | stat.S_IEXEC)
+    monkeypatch.setenv("CC", refusing.name)
+    monkeypatch.setattr(chain, "LARGE_SOURCE_FLAGS", ("-O1", "--param=lra-max-considered-reload-pseudos=50"))
+    monkeypatch.setattr(chain, "HOST_FLAG", "-march=native")
+    chain._LOADED.clear()
+    np.testing.assert_array_equal(limited, _run(_step()))
