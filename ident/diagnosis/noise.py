@@ -110,13 +110,14 @@ def unpredictable_part(force: np.ndarray, x: np.ndarray, v: np.ndarray, a: np.nd
     direction = np.sign(v) * 1e6      # never a neighbour across a reversal
     features = [np.column_stack([v / span[1] * 400]), np.column_stack([x / span[0] * 400, direction]),
                 np.column_stack([x / span[0] * 400, v / span[1] * 40, a / span[2] * 20])]
+    neighbours = [_neighbours(points, halves) for points in features]
     local = np.zeros(n)
     for _ in range(BACKFITTING):
         coef, *_ = np.linalg.lstsq(laws, force - local, rcond=None)
         linear = force - laws @ coef
-        rest, chosen, remaining = linear, 0, list(features)
+        rest, chosen, remaining = linear, 0, list(neighbours)
         while remaining:
-            trials = [_neighbour_residual(rest, points, halves) for points in remaining]
+            trials = [_neighbour_residual(rest, near, halves) for near in remaining]
             k = int(np.argmin([np.mean(t ** 2) for t in trials]))
             if not np.mean(trials[k] ** 2) < np.mean(rest ** 2):
                 break
@@ -126,11 +127,17 @@ def unpredictable_part(force: np.ndarray, x: np.ndarray, v: np.ndarray, a: np.nd
     return rest * np.sqrt(NEIGHBOURS / (NEIGHBOURS + 1)) ** chosen
 
 
-def _neighbour_residual(rest: np.ndarray, points: np.ndarray, halves: list) -> np.ndarray:
-    """``rest`` minus the mean of its ``NEIGHBOURS`` nearest samples in ``points`` from the other half."""
+def _neighbours(points: np.ndarray, halves: list) -> list[np.ndarray]:
+    """Per half (fit, use): the indices into the fit half of each used sample's ``NEIGHBOURS`` nearest in
+    ``points`` (they depend on the points only: found once, reused by every backfitting round and selection
+    step)."""
+    return [spatial.cKDTree(points[fit]).query(points[use], k=NEIGHBOURS)[1] for fit, use in halves]
+
+
+def _neighbour_residual(rest: np.ndarray, neighbours: list[np.ndarray], halves: list) -> np.ndarray:
+    """``rest`` minus the mean of its ``NEIGHBOURS`` nearest samples from the other half (:func:`_neighbours`)."""
     out = np.array(rest)
-    for fit, use in halves:
-        _, idx = spatial.cKDTree(points[fit]).query(points[use], k=NEIGHBOURS)
+    for (fit, use), idx in zip(halves, neighbours):
         out[use] = rest[use] - rest[fit][idx].mean(axis=1)
     return out
 
