@@ -69,6 +69,16 @@ def test_hexapod_inverse_is_symmetric_at_home():
     assert lengths[0] == pytest.approx(np.hypot(planar, kin.HEXAPOD_HOME[2]), rel=1e-14)
 
 
+def test_anchors_handed_out_are_copies_of_the_ones_the_kinematics_keep():
+    """The kinematics compute the anchors once per geometry; changing the arrays a caller got changes nothing."""
+    before = kin.hexapod_inverse(kin.HEXAPOD_HOME)
+    a, b = kin.hexapod_anchors()
+    a[:] = 0.0
+    b[:] = 0.0
+    np.testing.assert_array_equal(kin.hexapod_inverse(kin.HEXAPOD_HOME), before)
+    assert np.ptp(kin.hexapod_anchors()[0]) > 0
+
+
 def test_hexapod_length_jacobian_matches_finite_differences():
     pose = np.array([0.03, -0.02, 0.78, 0.1, -0.05, 0.2])
     jac = kin.hexapod_length_jacobian(pose)
