@@ -129,7 +129,7 @@ def state_space_response(matrices: Sequence[np.ndarray], z: np.ndarray) -> np.nd
     one batched solve (python-control evaluates its systems point by point without Slycot: 0.3 s on 8000)."""
     a, b, c, d = (np.atleast_2d(np.asarray(m, dtype=float)) for m in matrices)
     z = np.asarray(z, dtype=complex)
-    if a.shape[0] == 0 or a.size == 0:
+    if a.size == 0:
         return np.full(z.shape, d[0, 0], dtype=complex)
     x = np.linalg.solve(z.reshape(-1)[:, None, None] * np.eye(a.shape[0]) - a,
                         np.broadcast_to(b, (z.size,) + b.shape))

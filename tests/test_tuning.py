@@ -118,7 +118,7 @@ def test_exact_crossovers_of_textbook_discrete_loop_to_round_off_on_a_coarse_gri
     assert abs(grid.pm_deg - pm) > 1e-3
 
 
-def test_loop_margins_equal_python_controls_stability_margins_on_the_cheung_loops() -> None:
+def test_loop_margins_equal_python_controls_stability_margins_on_the_cheung_loop() -> None:
     """The reported GM, PM and crossovers of the Table 2 d1 loop equal python-control's ``stability_margins``
     on the independent loop's dense response (a spline through 8000 points) to its interpolation error."""
     p = tuning.controller_defaults()

@@ -4,8 +4,8 @@ loop on the same dense grid (its point-by-point evaluation, then ``control.stabi
 a spline root-finding), side by side in one run.
 
 Loops: the Table 2 d1 design and six designs with Kp, Ki, Kd scaled by 0.3-3 (seeded), each on the three
-position sets of the Cheung joint (``tuning.position_sets``), 8000 points up to Nyquist. Printed per loop: both
-times and the GM, PM and crossovers of each; at the end the largest differences.
+position sets (``tuning.position_sets``) of the CheungJoint's start values, 8000 points up to Nyquist. Printed
+per loop: both times and the GM, PM and crossovers of each; at the end the largest differences.
 
 Run: .venv/bin/python tests/benchmarks/bench_tuning_margins.py [--smoke]   (--smoke: the d1 design, one set)
 Ratio: the summed time of ``loop_margins`` over python-control's (the baseline).
@@ -25,11 +25,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
 from motiontwin.ident import tuning  # noqa: E402
 from motiontwin.ident.frf import JointModel  # noqa: E402
+from motiontwin.ident.tuning.spec import cheung_joint_defaults, joint_model_from_fields  # noqa: E402
 from motiontwin.ident.tuning import margins as tuning_margins  # noqa: E402
 from ratios import ratio, smoke  # noqa: E402
 
-#: the Cheung joint of tests/test_tuning.py: K = 1/2 kg, alpha 5 rad/s, one resonance pair at 400 / 300 Hz
-NOMINAL = JointModel(1 / 2.0, 5.0, ((2 * np.pi * 400, 0.05),), ((2 * np.pi * 300, 0.05),))
 POINTS = 8000
 
 
@@ -46,12 +45,13 @@ def python_control(parameters: dict[str, float], plant: JointModel) -> tuple[flo
 
 def main() -> None:
     quick = smoke()
+    nominal = joint_model_from_fields({}, cheung_joint_defaults())   # MotionTwin.Plants.CheungJoint's start values
     rng = np.random.default_rng(0)
     base = tuning.controller_defaults()
     designs = [base] + ([] if quick else [
         dict(base, Kp=base["Kp"] * rng.uniform(0.3, 3), Ki=base["Ki"] * rng.uniform(0.3, 3),
              Kd=base["Kd"] * rng.uniform(0.3, 3)) for _ in range(6)])
-    plants = tuning.position_sets(NOMINAL)[1:2] if quick else tuning.position_sets(NOMINAL)
+    plants = tuning.position_sets(nominal)[1:2] if quick else tuning.position_sets(nominal)
     ours_s = theirs_s = 0.0
     worst = np.zeros(4)
     for parameters in designs:
