@@ -60,6 +60,25 @@ class Controller:
         """The step of the recordings and of the simulated loop [s]."""
         return self.Ts * self.ticks
 
+    def entries(self) -> np.ndarray:
+        """The nonzero entries of A, B, C, D, each column-major: the last inputs of a loop's compiled step
+        (``ident.oeloop``), so that its C code is the same for every controller with the same nonzero pattern
+        and a compiled chain is reused by the next bundle of the same plant (the values are not folded into the
+        code; the arithmetic is the same)."""
+        return np.concatenate([_nonzeros(m) for m in (self.A, self.B, self.C, self.D)])
+
+    def symbolic(self, entries: ca.SX | ca.MX) -> list:
+        """A, B, C, D with their nonzeros from the symbols ``entries`` (laid out as :meth:`entries`) and
+        structural zeros elsewhere."""
+        matrices, start = [], 0
+        for m in (self.A, self.B, self.C, self.D):
+            m = np.atleast_2d(np.asarray(m, dtype=float)) if np.size(m) else np.zeros(np.shape(m) or (0, 0))
+            pattern = ca.sparsify(ca.DM((m != 0).astype(float))).sparsity()
+            count = pattern.nnz()
+            matrices.append(type(entries)(pattern, entries[start:start + count]))
+            start += count
+        return matrices
+
     def describe_rate(self) -> str:
         """How the controller's period relates to the recording's, in words."""
         if self.ticks == 1:
@@ -68,6 +87,12 @@ class Controller:
                 f"{self.sample_time:.6g} s: simulated at its own period (the reference held over each recorded "
                 f"sample, the position taken from the model at each update), the force recorded at the update on "
                 f"the sample instant")
+
+
+def _nonzeros(matrix: np.ndarray) -> np.ndarray:
+    """The nonzero entries of ``matrix`` in column-major order (CasADi's order of the nonzeros)."""
+    flat = np.asarray(matrix, dtype=float).ravel(order="F")
+    return flat[flat != 0]
 
 
 #: a recording step is a whole number of controller periods when within this relative tolerance (the one the

@@ -260,7 +260,8 @@ def build_loop(model: symbolic.SymbolicModel, controller: Controller | None, pos
     large = f.n_instructions() > CALL_INSTRUCTIONS
     sym = ca.MX if large or 4 * substeps * f.n_instructions() > INLINE_STEP_INSTRUCTIONS else ca.SX
     theta = sym.sym("theta", len(free))
-    pfix = sym.sym("pfix", len(fixed))
+    gains = controller.entries() if controller is not None else np.zeros(0)
+    pfix = sym.sym("pfix", len(fixed) + gains.size)     # the fixed parameters, then the controller's entries
     p_full = ca.vertcat(*[theta[free.index(n)] if n in free else pfix[fixed.index(n)] for n in names])
     q_expr = ca.vertcat(*[_output_expression(model, name) for name in observed])
     h_out = ca.Function("h", [model.x, model.u, model.p], [q_expr])
@@ -280,7 +281,7 @@ def build_loop(model: symbolic.SymbolicModel, controller: Controller | None, pos
                          "directly; closing a sampled loop around it is an algebraic loop")
     h = ts / substeps
     if controller is not None:
-        A, B, C, D = (ca.DM(m) for m in (controller.A, controller.B, controller.C, controller.D))
+        A, B, C, D = controller.symbolic(pfix[len(fixed):])
     xk, zk = x, z
     for tick in range(ticks):       # a controller faster than the recording updates ticks times per sample
         if controller is None:
@@ -323,9 +324,32 @@ def build_loop(model: symbolic.SymbolicModel, controller: Controller | None, pos
                 raise
             _LOG.warning("compiled chain unavailable, using CasADi's mapaccum chain: %s", exc)
     sim, jac = pair or _casadi_pair(step, aug, seed, n_samples, JIT_OPTIONS if jit else {})
+    sim, jac = _with_gains(sim, gains), (_with_gains(jac, gains) if jac else None)
+    step = _step_with_gains(step, gains)
     return Loop(model, controller, observed[0], list(free), values, substeps, n_samples, sim, jac,
                 dict(tracking or {}), signals if not axes else axes[0], ts, step, tuple(axes or ()), tuple(columns),
                 None if shift_states is None else tuple(int(i) for i in shift_states))
+
+
+def _with_gains(run: Callable, gains: np.ndarray) -> Callable:
+    """``run(s0, W, theta, pfix)`` of the chain whose last ``pfix`` entries are the controller's ``gains``."""
+    if not gains.size:
+        return run
+
+    def bound(s0, W, theta, pfix):
+        return run(s0, W, theta, np.concatenate([np.asarray(pfix, dtype=float).ravel(), gains]))
+    return bound
+
+
+def _step_with_gains(step: ca.Function, gains: np.ndarray) -> ca.Function:
+    """``step(s, w, theta, pfix)`` with the controller's ``gains`` appended to ``pfix``: the one-sample step with
+    the loop's documented inputs."""
+    if not gains.size:
+        return step
+    sym = ca.SX if step.is_a("SXFunction") else ca.MX
+    args = [sym.sym(step.name_in(i), step.sparsity_in(i)) for i in range(3)]
+    pfix = sym.sym("pfix", step.numel_in(3) - gains.size)
+    return ca.Function("step", [*args, pfix], step.call([*args, ca.vertcat(pfix, gains)], True))
 
 
 def _check_controller_shape(controller: Controller, n_axes: int) -> None:
@@ -385,7 +409,7 @@ def _called_sensitivity_step(model: symbolic.SymbolicModel, observed: list[str],
     ticks = controller.ticks if controller is not None else 1
     h = ts / substeps
     if controller is not None:
-        A, B, C, D = (ca.DM(m) for m in (controller.A, controller.B, controller.C, controller.D))
+        A, B, C, D = controller.symbolic(pfix[pfix.numel() - controller.entries().size:])
     xk, sk, zk, dzk = x, sx, z, sz
     for tick in range(ticks):       # a controller faster than the recording, as in build_loop's step
         if controller is None:

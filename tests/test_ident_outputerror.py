@@ -204,6 +204,56 @@ def _relative_error(a, b) -> float:
     return float(np.max(np.abs(a - b)) / scale) if scale > 0 else float(np.max(np.abs(a)))
 
 
+def pid_controller(kp: float, ki: float, kd: float, tau: float) -> Controller:
+    """PID with a first-order derivative filter on e = r - q (two states, a full A), Tustin-discretised."""
+    num, den = np.polyadd(np.polymul([kp, ki], [tau, 1.0]), [kd, 0.0, 0.0]), np.polymul([1.0, 0.0], [tau, 1.0])
+    a, b, c, d, _ = sps.cont2discrete(sps.tf2ss(num, den), TS, "bilinear")
+    return Controller(TS, a, np.hstack([b, -b]), c, np.hstack([d, -d]))
+
+
+def exact_closed_loop(ctrl: Controller, values: dict[str, float], s0: np.ndarray, W: np.ndarray) -> np.ndarray:
+    """q at the sample instants of m dv/dt = u - d v (exact zero-order-hold discretisation) in the loop of
+    ``ctrl`` on [r, q + noise], u = controller + u_ext (W's rows r, u_ext, noise)."""
+    m, d = values["m"], values["d"]
+    ad, bd, *_ = sps.cont2discrete((np.array([[0.0, 1.0], [0.0, -d / m]]), np.array([[0.0], [1 / m]]),
+                                    np.eye(2), np.zeros((2, 1))), TS, "zoh")
+    x, z, q = s0[:2].copy(), s0[2:].copy(), np.empty(W.shape[1])
+    for k in range(W.shape[1]):
+        q[k] = x[0]
+        y = np.array([W[0, k], x[0] + W[2, k]])
+        u = ctrl.C @ z + ctrl.D @ y + W[1, k]
+        z = ctrl.A @ z + ctrl.B @ y
+        x = ad @ x + bd[:, 0] * u[0]
+    return q
+
+
+def test_a_second_controller_of_the_same_pattern_reuses_the_compiled_chain(model, tmp_path, monkeypatch):
+    """The controller's nonzero entries are inputs of the compiled step, not constants folded into its C code:
+    the loop of a second controller with the same nonzero pattern compiles nothing, and each loop's free run and
+    Jacobian follow its own gains (against the exact discretisation of the linear plant in the same loop, and
+    its finite differences)."""
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
+    n = 600
+    controllers = [pid_controller(2e4, 1e5, 300.0, 1e-3), pid_controller(8e3, 2e4, 90.0, 5e-4)]
+    libraries = []
+    for ctrl in controllers:
+        loop = oe.build_loop(model, ctrl, "x", ["m", "d"], {}, n, ts=TS, substeps=8, native=True)
+        libraries.append(sorted(p.name for p in (tmp_path / "motiontwin" / "ident").glob("*.so")))
+        s0, W, theta, pfix = _chain_inputs(loop, n, seed=5)
+        q, _ = loop.sim(s0, W, theta, pfix)
+        reference = exact_closed_loop(ctrl, TRUTH, s0, W)
+        assert _relative_error(q[0], reference) < 1e-9
+        dq = loop.jac(s0, W, theta, pfix)[0]
+        for k, name in enumerate(["m", "d"]):
+            step = 1e-6 * TRUTH[name]
+            up, down = ({**TRUTH, name: TRUTH[name] + sign * step} for sign in (1, -1))
+            slope = (exact_closed_loop(ctrl, up, s0, W) - exact_closed_loop(ctrl, down, s0, W)) / (2 * step)
+            assert _relative_error(dq[:, k], slope) < 1e-5
+    assert libraries[0] and libraries[1] == libraries[0]
+    assert _relative_error(exact_closed_loop(controllers[1], TRUTH, s0, W),
+                           exact_closed_loop(controllers[0], TRUTH, s0, W)) > 0.1
+
+
 @pytest.mark.parametrize("closed", [False, True])
 def test_compiled_chain_matches_casadi_mapaccum(model, closed):
     """The C chain (generated step + driver) and CasADi's own mapaccum chain of the same step function give
