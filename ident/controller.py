@@ -72,8 +72,7 @@ class Controller:
         structural zeros elsewhere."""
         matrices, start = [], 0
         for m in (self.A, self.B, self.C, self.D):
-            m = np.atleast_2d(np.asarray(m, dtype=float)) if np.size(m) else np.zeros(np.shape(m) or (0, 0))
-            pattern = ca.sparsify(ca.DM((m != 0).astype(float))).sparsity()
+            pattern = ca.sparsify(ca.DM((np.asarray(m, dtype=float) != 0).astype(float))).sparsity()
             count = pattern.nnz()
             matrices.append(type(entries)(pattern, entries[start:start + count]))
             start += count
