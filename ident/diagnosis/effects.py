@@ -110,10 +110,11 @@ def position_ripple(ctx: Context) -> Effect:
         if c.force is None:
             return [{"ripple_period": span / 4, "ripple_a": 0.0, "ripple_b": 0.0}]
         best = []
-        for period in periods:
+        mat = np.column_stack([np.empty_like(c.x), np.empty_like(c.x), np.ones_like(c.x), _sign(c)])
+        for period in periods:      # the level and sign columns are the same for every period
             k = 2 * np.pi / period
-            cols = [np.sin(k * c.x), np.cos(k * c.x), np.ones_like(c.x), _sign(c)]
-            coef, *_ = np.linalg.lstsq(np.column_stack(cols), c.force, rcond=None)
+            mat[:, 0], mat[:, 1] = np.sin(k * c.x), np.cos(k * c.x)
+            coef, *_ = np.linalg.lstsq(mat, c.force, rcond=None)
             best.append((float(np.hypot(coef[0], coef[1])), period, coef[0], coef[1]))
         best.sort(reverse=True)
         return [{"ripple_period": p, "ripple_a": a, "ripple_b": b} for _, p, a, b in best[:2]]
