@@ -298,6 +298,27 @@ def test_a_step_of_many_substeps_is_one_substep_chained_and_gives_the_written_ou
         assert np.size(b) and _relative_error(a, b) < 1e-12
 
 
+def test_casadis_chains_are_built_when_first_called_and_give_the_compiled_chains_values(model, monkeypatch):
+    """Without the compiled chain (``native=False``) the free run and Jacobian are CasADi ``mapaccum`` chains, built
+    on their first call: a caller that only steps the loop (the k-step-ahead score) builds none (0.37 s each on the
+    KUKA test's 64-substep loop); once called they give the compiled chain's values."""
+    n = 400
+    built = []
+    real_chain = oeloop._chain
+    monkeypatch.setattr(oeloop, "_chain", lambda *args: built.append(args[1]) or real_chain(*args))
+    lazy = oe.build_loop(model, pd_controller(), "x", ["m", "d"], {}, n, ts=TS, substeps=4, native=False)
+    assert built == [] and lazy.step is not None
+    compiled = oe.build_loop(model, pd_controller(), "x", ["m", "d"], {}, n, ts=TS, substeps=4, native=True)
+    args = _chain_inputs(compiled, n, seed=6)
+    for a, b in zip(lazy.sim(*args), compiled.sim(*args)):
+        assert _relative_error(a, b) < 1e-12
+    assert built == [n]
+    for a, b in zip(lazy.jac(*args), compiled.jac(*args)):
+        assert np.size(b) and _relative_error(a, b) < 1e-12
+    lazy.sim(*args)
+    assert built == [n, n]
+
+
 def test_initial_state_sensitivities_of_chosen_states_only(model):
     """A loop compiled with the start sensitivities of some states gives the same parameter columns and, for
     those states, the same start columns as one compiled with every state's; the fit's Jacobian refuses a
@@ -325,9 +346,11 @@ def test_initial_state_sensitivities_of_chosen_states_only(model):
 def test_compiled_chain_cached_and_fallback_without_compiler(model, monkeypatch, tmp_path):
     """The library is compiled once per generated source (second build reuses the cached file); without a
     working C compiler the loop falls back to the CasADi chain (unless the compiled one is demanded)."""
-    import casadi as ca
     from motiontwin.ident import chain
 
+    casadi_chains = []      # the CasADi chains built, each when its loop's free run is first called
+    real_chain = oeloop._chain
+    monkeypatch.setattr(oeloop, "_chain", lambda *args: casadi_chains.append(args[1]) or real_chain(*args))
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
     oe.build_loop(model, None, "x", ["m"], {}, 50, ts=TS, substeps=2)
     built = sorted((tmp_path / "motiontwin" / "ident").glob("chain-*.so"))
@@ -338,15 +361,16 @@ def test_compiled_chain_cached_and_fallback_without_compiler(model, monkeypatch,
     monkeypatch.setenv("CC", "no-such-compiler-motiontwin")
     assert not chain.available()
     fallback = oe.build_loop(model, None, "x", ["m"], {}, 50, ts=TS, substeps=2)
-    assert isinstance(fallback.sim, ca.Function)
     args = _chain_inputs(native, 50, seed=4)
     assert _relative_error(native.sim(*args)[0], fallback.sim(*args)[0]) < 1e-12
+    assert casadi_chains == [50]
     monkeypatch.setenv("MOTIONTWIN_NATIVE_CHAIN", "0")
     monkeypatch.delenv("CC")
     assert not chain.available()
     monkeypatch.delenv("MOTIONTWIN_NATIVE_CHAIN")
     monkeypatch.setenv("CC", "false")   # a "compiler" that always fails
-    assert isinstance(oe.build_loop(model, None, "x", ["m"], {}, 50, ts=TS, substeps=2).sim, ca.Function)
+    oe.build_loop(model, None, "x", ["m"], {}, 50, ts=TS, substeps=2).sim(*args)
+    assert casadi_chains == [50, 50]
     with pytest.raises(RuntimeError, match="compiling"):
         oe.build_loop(model, None, "x", ["m"], {}, 50, ts=TS, substeps=2, native=True)
 
