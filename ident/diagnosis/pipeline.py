@@ -69,7 +69,7 @@ def run(bundle: Bundle, work: Path, progress=None) -> dict:
     owned = plant_physics(bundle, nominal, ctx)
     for effect, name in owned.items():
         _log(progress, f"{effect}: not offered, the plant's own {name} carries this force and is refitted")
-    final, log, _ = select(bundle, nominal, weights, ctx, work / "trials", progress, owned)
+    final, log, located = select(bundle, nominal, weights, ctx, work / "trials", progress, owned)
     final = prune(bundle, final, weights, work / "prune", progress)
     final = simplify_nested(bundle, final, weights, ctx, work / "simplify", progress)
     final = upgrade_nested(bundle, final, weights, ctx, work / "upgrade", progress)
@@ -117,7 +117,7 @@ def run(bundle: Bundle, work: Path, progress=None) -> dict:
     _log(progress, f"diagnosis done in {time.perf_counter() - t0:.1f} s")
     return {"bundle": bundle, "nominal": nominal, "final": final, "weights": weights, "context": ctx,
             "log": log, "augmented_values": values, "q_augmented": q_aug, "u_augmented": u_aug,
-            "remainder": remainder,
+            "remainder": remainder, "located": located,
             "augmented_model": written, "validation_floor": floor,
             "estimation_rms": None if unknown_spread else spread, "estimation_unknown": unknown_spread, "force": force,
             "seconds": time.perf_counter() - t0,

@@ -328,10 +328,11 @@ def _round_axis(bundle: Bundle, current: ModelFit, weights: outputerror.Weights,
                 progress) -> AxisEvidence | None | bool:
     """The axis a round screens: None for one axis; for several the located one (its scores appended to
     ``located``); or False when after the first round no axis's force residual reaches ``NEXT_ROUND_SCORE``
-    times its noise reference (one axis: :func:`locate.axis_score`; with an unknown controller every round
-    screens, its predictor's correction takes up part of the force residual)."""
+    times its noise reference (one axis: :func:`locate.axis_score`; with an unknown controller too: the data's
+    force residual is inverse dynamics on the measured motion and force, which the observer does not touch, and
+    the model's own and noisy runs are its predictor's, with the force it applied)."""
     if not bundle.multi_axis:
-        if rounds == 1 or bundle.observer is not None:
+        if rounds == 1:
             return None
         score = axis_score(bundle, current, weights, seed=100 + rounds)
         located.append({"round": rounds, "scores": {bundle.plant.output_name: score}})
