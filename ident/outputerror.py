@@ -98,6 +98,7 @@ def statistics(loop: Loop, result: Fit, bounds: dict[str, tuple[float, float]] |
     determine (a rank-deficient Jacobian)."""
     j = result.jacobian
     names = loop.free + [f"{n}(t0)" for n in result.initial]
+    names += [f"start shift {k + 1}" for k in range(j.shape[1] - len(names))]   # a fit with ``estimate_start``
     report = check_identifiability(j, names)
     if not report.identifiable:
         raise UnidentifiableError(report.message(), report.unidentifiable, report.null_directions)

@@ -327,6 +327,44 @@ def estimation_rms(train_loop: outputerror.Loop, train: Recording, fit: outputer
     return (result[0], result[1]) if train_loop.axes else (float(result[0][0]), float(result[1][0]))
 
 
+SANDWICH_DRAWS = 32          # parameter draws from the sandwich covariance in sandwich_rms
+
+
+def sandwich_rms(train_loop: outputerror.Loop, fit: outputerror.Fit, bounds: dict[str, tuple[float, float]],
+                 val_loop: outputerror.Loop, validation: Recording, val_values: dict[str, float],
+                 count: int = SANDWICH_DRAWS) -> tuple[float, float]:
+    """RMS on the validation recording (position [m], recorded force [N]) of the parameter error that the fit's
+    own training residual implies: parameters drawn from the HAC (Newey-West) sandwich covariance of the fit
+    (:func:`outputerror.statistics`, the start estimates marginalised, parameters on a bound held), within the
+    bounds, and the validation free run of each against the fitted model's. One axis. Why: refits on noise
+    replicates (:func:`estimation_rms`) only see the scatter that the loop they re-simulate gives the noise; an
+    unknown controller's predictor pins each replicate to the recorded motion through its observer, while the
+    recorded force itself answered the noise through the real, unknown loop. The sandwich reads the scatter from
+    the residual as it is (it also counts a model error as noise: an upper reading). NaN when the Jacobian does
+    not determine the parameters."""
+    try:
+        stats = outputerror.statistics(train_loop, fit, bounds)
+    except (ValueError, np.linalg.LinAlgError):
+        return math.nan, math.nan
+    if stats.robust_covariance is None or not np.all(np.isfinite(stats.robust_covariance)):
+        return math.nan, math.nan
+    names = list(train_loop.free)
+    keys = [n if n in val_values else "plant." + n for n in names]
+    lo, hi = outputerror.bound_arrays(train_loop, bounds)
+    q_val, u_val = outputerror.simulate(val_loop, validation, val_values)
+    rng = np.random.default_rng(2)
+    draws = rng.multivariate_normal(stats.estimate, stats.robust_covariance, count, method="eigh")
+    power, force = [], []
+    for theta in np.clip(draws, lo, hi):
+        q, u = outputerror.simulate(val_loop, validation, {**val_values, **dict(zip(keys, map(float, theta)))})
+        power.append(np.mean((q - q_val) ** 2))
+        force.append(np.mean((u - u_val) ** 2))
+    finite = np.isfinite(power) & np.isfinite(force)
+    if finite.sum() < (count + 1) // 2:
+        return math.nan, math.nan
+    return float(np.sqrt(np.mean(np.array(power)[finite]))), float(np.sqrt(np.mean(np.array(force)[finite])))
+
+
 def on_axis(effect: effect_models.Effect, roles: PlantRoles,
             model: symbolic.SymbolicModel | None = None) -> effect_models.Effect:
     """``effect`` acting on the axis ``roles``: its parameters and variables prefixed by the axis output
