@@ -111,6 +111,7 @@ def test_an_unknown_controllers_estimation_error_is_read_from_the_fits_residual(
     q_truth, _ = outputerror.simulate(loop, bundle.validation, at_truth, shift=shift)
     cost = float(np.sqrt(np.mean((result["q_augmented"] - q_truth) ** 2)))    # what the fitted parameters cost
     assert 0.5 * cost < result["estimation_rms"] < 2 * cost, (cost, result["estimation_rms"])
+    assert result["estimation_from"] == pipeline.SANDWICH
 
 
 def _white_asymmetric(folder: Path, work: Path) -> tuple:

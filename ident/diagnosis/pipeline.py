@@ -96,13 +96,15 @@ def run(bundle: Bundle, work: Path, progress=None) -> dict:
                    f"{bundle.process_noise.describe()}")
     floor, force = validation_floors(bundle, final, loop, values, u_aug, weights.sigma_q, progress)
     spread = None      # the parameters' estimation error matters only above the noise floor's margin
+    estimation_from = REPLICATES
     unknown_spread = False
     if (np.sqrt(np.mean((bundle.validation["q"] - q_aug) ** 2)) > FLOOR_MARGIN * floor
             or (force is not None and force.rms > FLOOR_MARGIN * force.floor)):
         spread, force_spread = estimation_rms(final.loop, bundle.train, final.fit, final.bounds, loop,
                                               bundle.validation, values, weights, bundle.process_noise)
         if bundle.observer is not None:     # the predictor's replicates miss the real loop's scatter
-            spread, force_spread = _with_sandwich(bundle, final, loop, values, spread, force_spread, progress)
+            spread, force_spread, estimation_from = _with_sandwich(bundle, final, loop, values, spread, force_spread,
+                                                                   progress)
         if math.isnan(spread):
             _log(progress, f"validation floor {floor:.4g} from the noise; the parameters' estimation error is not "
                            f"known: the refits of the noise replicates did not move from the fitted values (the "
@@ -122,6 +124,7 @@ def run(bundle: Bundle, work: Path, progress=None) -> dict:
             "remainder": remainder, "located": located,
             "augmented_model": written, "validation_floor": floor,
             "estimation_rms": None if unknown_spread else spread, "estimation_unknown": unknown_spread, "force": force,
+            "estimation_from": estimation_from,
             "seconds": time.perf_counter() - t0,
             "plant_physics": owned, "process_noise": bundle.process_noise}
 
@@ -188,21 +191,26 @@ def above_floor(bundle: Bundle, remainder: dict, q_final: np.ndarray, floor: flo
                 "force_estimation_rms": None if unknown_spread else force.spread} if force is not None else {})}
 
 
+REPLICATES, SANDWICH = "its noise replicates refitted", "the fit's HAC sandwich"   # where an estimation error is from
+
+
 def _with_sandwich(bundle: Bundle, final: ModelFit, loop: outputerror.Loop, values: dict[str, float], spread: float,
-                   force_spread: float, progress=None) -> tuple[float, float]:
+                   force_spread: float, progress=None) -> tuple[float, float, str]:
     """An unknown controller's estimation error: the larger of the replicates' (``spread``, ``force_spread``) and
-    the fit's HAC sandwich's (:func:`structure.sandwich_rms`), in each channel. On the held-out Coulomb bundle
+    the fit's HAC sandwich's (:func:`structure.sandwich_rms`), in each channel, and where the position's is from.
+    On the held-out Coulomb bundle
     without its controller the replicates gave 1.3e-5 rad where the fitted mass (5 % light, as the known
     controller's fit) costs 7.5e-5 on the validation run, and the verdict called the right structure
     "unexplained"; the sandwich gives 9.8e-5."""
     position, force = sandwich_rms(final.loop, final.fit, final.bounds, loop, bundle.validation, values)
     if math.isnan(position):
-        return spread, force_spread
+        return spread, force_spread, REPLICATES
     _log(progress, f"the parameters' estimation error from the fit's HAC sandwich: {position:.4g} (replicates: "
                    f"{spread:.4g}), force {force:.4g} ({force_spread:.4g}); an unknown controller's predictor pins "
                    f"its replicates to the recorded motion, so the larger counts")
     return (max(position, spread) if not math.isnan(spread) else position,
-            max(force, force_spread) if not math.isnan(force_spread) else force)
+            max(force, force_spread) if not math.isnan(force_spread) else force,
+            SANDWICH if math.isnan(spread) or position > spread else REPLICATES)
 
 
 def floor_bound(floor: float, spread: float) -> float:

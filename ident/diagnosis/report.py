@@ -159,8 +159,8 @@ def diagnosis_document(result: dict, out: Path, fmu_path: Path | None) -> dict:
         "residual_check": {k: remainder[k] for k in ("status", "reason") if k in remainder},
         "validation": {"nominal_rms": float(nominal.val_rms), "augmented_rms": aug_rms,
                        **_above_floor(float(nominal.val_rms), aug_rms, result["validation_floor"]),
-                       **({"estimation_rms": result["estimation_rms"]} if result.get("estimation_rms") is not None
-                          else {}),
+                       **({"estimation_rms": result["estimation_rms"], "estimation_from": result["estimation_from"]}
+                          if result.get("estimation_rms") is not None else {}),
                        **({"force_rms": result["force"].rms, "force_floor_rms": result["force"].floor,
                            "force_estimation_rms": None if result.get("estimation_unknown") else result["force"].spread}
                           if result.get("force") is not None else {})},
@@ -366,7 +366,7 @@ def _estimation_text(doc: dict, m: str) -> str:
     spread = val.get("estimation_rms")
     if not spread or doc.get("unexplained") or val["augmented_excess_rms"] < val["noise_floor_rms"]:
         return ""
-    return (f" The parameters' estimation error on this training recording (its noise replicates refitted) moves "
+    return (f" The parameters' estimation error on this training recording ({val['estimation_from']}) moves "
             f"the validation run by {spread:.4g} {m} RMS, which takes up that error: the training run determines "
             f"some parameter weakly (see the Parameters table); a training run that excites it more would pin it.")
 
