@@ -40,6 +40,8 @@ from motiontwin.ident.diagnosis.structure import (FLOOR_REPLICATES, LoopCache, M
 
 #: the final validation RMS may exceed the estimated noise floor by this factor before the verdict is "unexplained"
 FLOOR_MARGIN = 1.5
+#: where the parameters' estimation error is from (diagnosis.json's ``validation.estimation_from``)
+REPLICATES, SANDWICH = "its noise replicates refitted", "the fit's HAC sandwich"
 #: the parameters' estimation error of one fit is one draw, whose RMS ``FLOOR_REPLICATES`` refits estimate; where
 #: one direction dominates (a weakly excited mass) the draw over that estimate follows Student's t with as many
 #: degrees of freedom, and the verdict allows its 97.5 % quantile (2.57)
@@ -191,17 +193,13 @@ def above_floor(bundle: Bundle, remainder: dict, q_final: np.ndarray, floor: flo
                 "force_estimation_rms": None if unknown_spread else force.spread} if force is not None else {})}
 
 
-REPLICATES, SANDWICH = "its noise replicates refitted", "the fit's HAC sandwich"   # where an estimation error is from
-
-
 def _with_sandwich(bundle: Bundle, final: ModelFit, loop: outputerror.Loop, values: dict[str, float], spread: float,
                    force_spread: float, progress=None) -> tuple[float, float, str]:
     """An unknown controller's estimation error: the larger of the replicates' (``spread``, ``force_spread``) and
     the fit's HAC sandwich's (:func:`structure.sandwich_rms`), in each channel, and where the position's is from.
-    On the held-out Coulomb bundle
-    without its controller the replicates gave 1.3e-5 rad where the fitted mass (5 % light, as the known
-    controller's fit) costs 7.5e-5 on the validation run, and the verdict called the right structure
-    "unexplained"; the sandwich gives 9.8e-5."""
+    On the held-out Coulomb bundle without its controller the replicates gave 1.3e-5 rad where the fitted mass (5 %
+    light, as the known controller's fit) costs 7.5e-5 on the validation run, and the verdict called the right
+    structure "unexplained"; the sandwich gives 9.8e-5."""
     position, force = sandwich_rms(final.loop, final.fit, final.bounds, loop, bundle.validation, values)
     if math.isnan(position):
         return spread, force_spread, REPLICATES
