@@ -342,6 +342,8 @@ def sandwich_rms(train_loop: outputerror.Loop, fit: outputerror.Fit, bounds: dic
     recorded force itself answered the noise through the real, unknown loop. The sandwich reads the scatter from
     the residual as it is (it also counts a model error as noise: an upper reading). NaN when the Jacobian does
     not determine the parameters."""
+    if not train_loop.free:
+        return 0.0, 0.0
     try:
         stats = outputerror.statistics(train_loop, fit, bounds)
     except (ValueError, np.linalg.LinAlgError):
