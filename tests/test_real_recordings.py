@@ -145,6 +145,8 @@ def test_the_robot_axis_is_diagnosed_without_its_controller_and_its_friction_mat
     assert main(["diagnose", str(bundle), "--out", str(tmp_path / "out")]) == 0
     doc = json.loads((tmp_path / "out" / "diagnosis.json").read_text())
     assert [e["name"] for e in doc["effects"]] == ["coulomb_friction"], doc["candidates"]
+    # the pose-dependent inertia leaves force residual above the noise after the friction: round two screens
+    assert [r["round"] for r in doc["location"]] == [2] and doc["location"][0]["scores"]["q"] > 1.5, doc["location"]
     values = doc["augmented_parameters"]
     speeds = np.array([0.1, 0.2, 0.4])      # rad/s: the recorded peak is 0.44
     ours = values["d"] * speeds + values["coulomb_Fc"] * np.tanh(speeds / values["coulomb_v_eps"])

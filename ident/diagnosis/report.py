@@ -174,6 +174,7 @@ def diagnosis_document(result: dict, out: Path, fmu_path: Path | None) -> dict:
                   "process": (result["process_noise"].as_dict() if result.get("process_noise") is not None
                               else None)},
         "candidates": [{k: v for k, v in entry.items()} for entry in result["log"]],
+        "location": result["located"],      # each round after the first: force residual / noise reference
         "runtime_s": round(result["seconds"], 2),
         "plant_roles": result["bundle"].plant.roles.as_dict(),
         "at_bound": structure_at_bound(final), "bounds_widened": bounds_widened(final),
