@@ -1,8 +1,12 @@
-"""Shared by the diagnosis tests: a bundle read and its nominal model refitted as ``diagnose`` starts."""
+"""Shared by the diagnosis tests: a bundle read and its nominal model refitted as ``diagnose`` starts; a bundle
+copied without its controller."""
 from __future__ import annotations
 
+import json
+import shutil
 from pathlib import Path
 
+from motiontwin.harness.recording import Recording, read_recording, write_recording
 from motiontwin.ident import outputerror
 from motiontwin.ident.diagnosis import effects as effect_models
 from motiontwin.ident.diagnosis import noise
@@ -23,3 +27,19 @@ def refitted_nominal(folder: Path, process_noise: bool = False
     if process_noise:
         bundle.process_noise = noise.of_bundle(bundle, nominal.fit.values, weights.sigma_q)
     return bundle, nominal, weights, context(bundle, nominal)
+
+
+def without_controller(bundle: Path, target: Path, controller: dict | None = None,
+                       keep: tuple[str, ...] = ("u", "q")) -> Path:
+    """A copy of ``bundle`` with ``controller`` (None: the field removed) and recordings of the columns ``keep``."""
+    shutil.copytree(bundle, target)
+    exp = json.loads((target / "experiment.json").read_text())
+    exp.pop("controller")
+    if controller is not None:
+        exp["controller"] = controller
+    (target / "experiment.json").write_text(json.dumps(exp))
+    for part in exp["recordings"].values():
+        rec = read_recording(target / part)
+        write_recording(target / part, Recording(rec.time, {c: rec[c] for c in keep},
+                                                 {c: rec.units[c] for c in ("time", *keep) if c in rec.units}))
+    return target

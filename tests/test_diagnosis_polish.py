@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import json
 import math
-import shutil
 from pathlib import Path
 
 import numpy as np
@@ -21,7 +20,7 @@ from motiontwin.ident.diagnosis.bundle import read_bundle
 from motiontwin.ident.diagnosis.polish import _no_worse, polished
 from motiontwin.ident.diagnosis.screen import fit_structure, refine
 from motiontwin.ident.diagnosis.structure import ModelFit, build_structure, validation_shift
-from tests.diagnosis_util import refitted_nominal
+from tests.diagnosis_util import refitted_nominal, without_controller
 
 
 def test_whitening_filters_as_scipy_does() -> None:
@@ -90,16 +89,10 @@ def test_the_prediction_error_refit_recovers_the_mass_the_white_weights_miss(cou
 def test_an_unknown_controllers_estimation_error_is_read_from_the_fits_residual(coulomb_case, tmp_path) -> None:
     """The same case without its controller (the predictor in its place): the diagnosis names Coulomb friction
     with the mass 5 % light, which costs 7.5e-5 rad on the validation run against the predictor at the truth's
-    parameters. Refits on noise replicates of the predictor read 1.3e-5 for that error (its observer pins them to
-    the recorded motion), and the verdict called the right structure "unexplained"; the fit's HAC sandwich reads
+    parameters. Refits on noise replicates of the predictor read 1.3e-5 for that error, and the verdict called the right structure "unexplained"; the fit's HAC sandwich reads
     9.8e-5, within a factor two of what the truth shows, and the verdict holds."""
     folder, truth = coulomb_case
-    bundle_dir = tmp_path / "bundle"
-    shutil.copytree(folder, bundle_dir)
-    exp = json.loads((bundle_dir / "experiment.json").read_text())
-    del exp["controller"]
-    (bundle_dir / "experiment.json").write_text(json.dumps(exp))
-    bundle = read_bundle(bundle_dir)
+    bundle = read_bundle(without_controller(folder, tmp_path / "bundle"))
     result = pipeline.run(bundle, tmp_path / "work")
     final = result["final"]
     assert final.names == ["coulomb_friction"] and not result["remainder"].get("status", "").startswith("unexplained")

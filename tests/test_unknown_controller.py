@@ -20,7 +20,6 @@ Units: s, m, N.
 from __future__ import annotations
 
 import json
-import shutil
 import tempfile
 from dataclasses import replace
 from pathlib import Path
@@ -30,7 +29,7 @@ import pytest
 
 from motiontwin.cli import main
 from motiontwin.fmus import build
-from motiontwin.harness.recording import Recording, make_recording, read_recording, write_recording
+from motiontwin.harness.recording import make_recording, read_recording, write_recording
 from motiontwin.ident import observer
 from motiontwin.ident import outputerror as oe
 from motiontwin.ident import validation
@@ -38,6 +37,7 @@ from motiontwin.ident.benchmarks import single_axis as bench
 from motiontwin.ident.diagnosis import effects as effect_models
 from motiontwin.ident.diagnosis import noise, pipeline, select
 from motiontwin.ident.diagnosis.bundle import BundleError, make_bundle, read_bundle
+from tests.diagnosis_util import without_controller
 from tests.fmi_util import fmpy_closed_loop
 from tests.test_ident_outputerror import CLASS, NOISE, TRUTH, TS, multisine, pd_controller
 
@@ -118,7 +118,7 @@ def test_k_step_ahead_against_direct_simulation(model, recordings):
     assert observer.k_step_ahead(model, TRUTH, rec, ctrl, signals, 5).horizon_rms < score.horizon_rms
 
 
-def test_cli_identify_and_validate_without_controller(recordings, tmp_path, capsys):
+def test_cli_identify_and_validatewithout_controller(recordings, tmp_path, capsys):
     """identify oe --controller unknown on a CSV of time, u, q only; validate --controller unknown of its --out
     prints the predictor, the observer and the k-step-ahead scores."""
     paths = {}
@@ -158,28 +158,12 @@ def coulomb_bundle(tmp_path_factory) -> Path:
     return folder
 
 
-def _without_controller(bundle: Path, target: Path, controller: dict | None = None,
-                        keep: tuple[str, ...] = ("u", "q")) -> Path:
-    """A copy of ``bundle`` with ``controller`` (None: the field removed) and recordings of the columns ``keep``."""
-    shutil.copytree(bundle, target)
-    exp = json.loads((target / "experiment.json").read_text())
-    exp.pop("controller")
-    if controller is not None:
-        exp["controller"] = controller
-    (target / "experiment.json").write_text(json.dumps(exp))
-    for part in exp["recordings"].values():
-        rec = read_recording(target / part)
-        write_recording(target / part, Recording(rec.time, {c: rec[c] for c in keep},
-                                                 {c: rec.units[c] for c in ("time", *keep) if c in rec.units}))
-    return target
-
-
 #: the vocabulary of the decision test, cut (as bench_independent --smoke does) to keep it fast: the concealed
 #: effect and two rivals that a drifting or wrong predictor would pick (a constant force, a lag)
 DECISION_VOCABULARY = ("coulomb_friction", "gravity_offset", "time_delay")
 
 
-def test_concealed_effect_named_without_controller(coulomb_bundle, tmp_path, monkeypatch):
+def test_concealed_effect_namedwithout_controller(coulomb_bundle, tmp_path, monkeypatch):
     """The known-controller diagnosis names exactly coulomb_friction (test_diagnosis_decisions); with the
     controller and the r, u_ext columns removed, the predictor's diagnosis names exactly the same, and its second
     round is scored as a known controller's is (inverse dynamics on the measured motion and force, which no
@@ -188,7 +172,7 @@ def test_concealed_effect_named_without_controller(coulomb_bundle, tmp_path, mon
     for table in (effect_models.VOCABULARY, effect_models.NESTED):
         for name in [n for n in table if n not in DECISION_VOCABULARY]:
             monkeypatch.delitem(table, name)
-    bundle = read_bundle(_without_controller(coulomb_bundle, tmp_path / "bundle"))
+    bundle = read_bundle(without_controller(coulomb_bundle, tmp_path / "bundle"))
     assert bundle.observer is not None
     with tempfile.TemporaryDirectory(dir=tmp_path) as work:
         result = pipeline.run(bundle, Path(work))
@@ -251,17 +235,17 @@ def test_bundle_without_controller_accepted_and_misspelled_kind_named(coulomb_bu
     """No controller field, or kind "unknown": read with the columns time, u, q only, r = q and u_ext = u (the
     predictor's roles); a misspelled kind or an unknown field of kind unknown is refused naming the field."""
     for name, ctrl in (("absent", None), ("unknown", {"kind": "unknown", "bandwidth_hz": 3.0})):
-        bundle = read_bundle(_without_controller(coulomb_bundle, tmp_path / name, ctrl))
+        bundle = read_bundle(without_controller(coulomb_bundle, tmp_path / name, ctrl))
         assert np.array_equal(bundle.train["r"], bundle.train["q"])
         assert np.array_equal(bundle.train["u_ext"], bundle.train["u"])
         assert bundle.observer.bandwidth_hz == pytest.approx(3.0 if ctrl else observer.DEFAULT_BANDWIDTH_HZ)
     with pytest.raises(BundleError, match=r"field 'kind' is 'unknwon'; .*or 'unknown'"):
-        read_bundle(_without_controller(coulomb_bundle, tmp_path / "typo", {"kind": "unknwon"}))
+        read_bundle(without_controller(coulomb_bundle, tmp_path / "typo", {"kind": "unknwon"}))
     with pytest.raises(BundleError, match=r"field 'controller.gain' is not used by kind 'unknown'"):
-        read_bundle(_without_controller(coulomb_bundle, tmp_path / "extra", {"kind": "unknown", "gain": 1}))
+        read_bundle(without_controller(coulomb_bundle, tmp_path / "extra", {"kind": "unknown", "gain": 1}))
     known = json.loads((coulomb_bundle / "experiment.json").read_text())["controller"]
     with pytest.raises(BundleError, match=r"required column 'r' missing"):
-        read_bundle(_without_controller(coulomb_bundle, tmp_path / "known", known))
+        read_bundle(without_controller(coulomb_bundle, tmp_path / "known", known))
 
 
 def _noisy_mass_damper(force_std: float, encoder_std: float, seed: int, m: float = 2.0, d: float = 1.0,

@@ -204,8 +204,8 @@ def _with_sandwich(bundle: Bundle, final: ModelFit, loop: outputerror.Loop, valu
     if math.isnan(position):
         return spread, force_spread, REPLICATES
     _log(progress, f"the parameters' estimation error from the fit's HAC sandwich: {position:.4g} (replicates: "
-                   f"{spread:.4g}), force {force:.4g} ({force_spread:.4g}); an unknown controller's predictor pins "
-                   f"its replicates to the recorded motion, so the larger counts")
+                   f"{spread:.4g}), force {force:.4g} ({force_spread:.4g}); the predictor's replicates can miss the "
+                   f"scatter of the real, unknown loop, so the larger counts")
     return (max(position, spread) if not math.isnan(spread) else position,
             max(force, force_spread) if not math.isnan(force_spread) else force,
             SANDWICH if math.isnan(spread) or position > spread else REPLICATES)
