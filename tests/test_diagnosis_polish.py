@@ -89,7 +89,8 @@ def test_the_prediction_error_refit_recovers_the_mass_the_white_weights_miss(cou
 def test_an_unknown_controllers_estimation_error_is_read_from_the_fits_residual(coulomb_case, tmp_path) -> None:
     """The same case without its controller (the predictor in its place): the diagnosis names Coulomb friction
     with the mass 5 % light, which costs 7.5e-5 rad on the validation run against the predictor at the truth's
-    parameters. Refits on noise replicates of the predictor read 1.3e-5 for that error, and the verdict called the right structure "unexplained"; the fit's HAC sandwich reads
+    parameters. Refits on noise replicates of the predictor read 1.3e-5 for that error, and the verdict called the
+    right structure "unexplained"; the fit's HAC sandwich reads
     9.8e-5, within a factor two of what the truth shows, and the verdict holds."""
     folder, truth = coulomb_case
     bundle = read_bundle(without_controller(folder, tmp_path / "bundle"))
