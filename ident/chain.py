@@ -23,9 +23,14 @@ __all__ = ["available", "compile_functions", "NativeChain", "native_chains"]
 
 DRIVER = Path(__file__).with_name("chain.c")
 
+#: generated sources below this size (one axis's augmented model and its sensitivity step, 10-250 kB) are
+#: compiled at -O1: gcc takes 30 % less time (1.61 -> 1.13 s on a 120 kB Coulomb-friction chain) and a whole
+#: single-axis diagnosis on a warm cache runs no slower (49.5 / 49.5 s against 49.0 / 48.3 s of CPU at -O1,
+#: the same diagnosis.json); the test suite compiles about 450 such chains on an empty cache
+SMALL_SOURCE = 250_000
 #: generated sources above this size (an inlined sensitivity step of a large plant: megabytes of straight-line
 #: code) are compiled at -O1: gcc -O2 takes minutes on them, -O1 seconds, with the same IEEE results
-#: (-ffp-contract=off, no fast-math); smaller ones keep the default -O2 (a coupled plant's called-function
+#: (-ffp-contract=off, no fast-math); those between keep -O2 (a coupled plant's called-function
 #: form, about 0.4 MB, compiles at -O2 in 6.5 s of CPU and runs its Jacobian chain 1.2x faster than at -O1)
 LARGE_SOURCE = 1_000_000
 #: ... and gcc's register allocator considers at most 50 pseudo-registers per reload (default 500): in a function
@@ -55,7 +60,7 @@ def compile_functions(functions: list[ca.Function]) -> ctypes.CDLL:
     """Generate C for ``functions`` (CasADi C API), compile with the driver, load; cached by source hash."""
     source = _generate(functions)
     sources = {"model.c": source, DRIVER.name: DRIVER.read_text()}
-    level = ("-O2",) if len(source) <= LARGE_SOURCE else LARGE_SOURCE_FLAGS
+    level = optimisation(len(source))
     with _LOCK:
         path = str(_first_built(sources, [(*level, HOST_FLAG), level, level[:1]]))
         if path not in _LOADED:
@@ -67,6 +72,13 @@ def compile_functions(functions: list[ca.Function]) -> ctypes.CDLL:
                                      ctypes.c_long, ctypes.c_long, ctypes.c_long, ctypes.c_long]
             _LOADED[path] = lib
         return _LOADED[path]
+
+
+def optimisation(size: int) -> tuple[str, ...]:
+    """The optimisation flags of a generated source of ``size`` characters (``SMALL_SOURCE``, ``LARGE_SOURCE``)."""
+    if size < SMALL_SOURCE:
+        return ("-O1",)
+    return ("-O2",) if size <= LARGE_SOURCE else LARGE_SOURCE_FLAGS
 
 
 def _generate(functions: list[ca.Function]) -> str:

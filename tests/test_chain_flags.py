@@ -107,6 +107,7 @@ def test_a_large_source_gets_the_reload_limit_and_a_compiler_that_refuses_it_pla
     wrapper.chmod(wrapper.stat().st_mode | stat.S_IEXEC)
     monkeypatch.setenv("PATH", f"{tmp_path}{os.pathsep}{os.environ['PATH']}")
     monkeypatch.setenv("CC", wrapper.name)
+    monkeypatch.setattr(chain, "SMALL_SOURCE", 0)
     monkeypatch.setattr(chain, "LARGE_SOURCE", 0)
     limited = _run(_step())
     assert "--param=lra-max-considered-reload-pseudos=50" in log.read_text().split("\n")[0]
@@ -122,3 +123,25 @@ def test_a_large_source_gets_the_reload_limit_and_a_compiler_that_refuses_it_pla
     monkeypatch.setattr(chain, "HOST_FLAG", "-march=native")
     chain._LOADED.clear()
     np.testing.assert_array_equal(limited, _run(_step()))
+
+
+def test_a_small_source_is_built_at_o1_with_the_o2_builds_results_bit_for_bit(cache, monkeypatch, tmp_path):
+    """Below ``SMALL_SOURCE`` (one axis's chain) the chain is compiled at -O1, which compiles faster and runs as
+    fast; its results are those of the -O2 build to the last bit (IEEE arithmetic, no contraction)."""
+    gcc = clib.compiler()
+    if gcc is None:
+        pytest.skip("no C compiler")
+    log = tmp_path / "flags.log"
+    wrapper = tmp_path / "cc-logged"
+    wrapper.write_text(f"#!/bin/sh\necho \"$*\" >> {log}\nexec {shutil.which(gcc)} \"$@\"\n")
+    wrapper.chmod(wrapper.stat().st_mode | stat.S_IEXEC)
+    monkeypatch.setenv("PATH", f"{tmp_path}{os.pathsep}{os.environ['PATH']}")
+    monkeypatch.setenv("CC", wrapper.name)
+    small = _run(_step())
+    assert log.read_text().split()[0] == "-O1"
+    monkeypatch.setattr(chain, "SMALL_SOURCE", 0)
+    chain._LOADED.clear()
+    o2 = _run(_step())
+    assert log.read_text().split("\n")[1].split()[0] == "-O2"
+    assert len(list(cache.glob("chain-*.so"))) == 2
+    np.testing.assert_array_equal(small, o2)
