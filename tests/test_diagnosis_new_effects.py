@@ -196,13 +196,14 @@ def test_force_laws_of_the_new_effects(tmp_path):
 
 
 def test_lugre_and_backlash_states(tmp_path):
-    """LuGre with the bristle force F_z as state: F = F_z, der(F_z) = (Fc/z0)(v - |v| F_z/g(v)), g(v) the Stribeck
-    curve Fc + (Fs - Fc) exp(-(v/vs)^2) (Dahl's form at Fs = Fc);
+    """LuGre with the bristle force F_z as state: F = F_z + sigma1*dz, dz = v - |v| F_z/g(v), der(F_z) = (Fc/z0)*dz,
+    g(v) the Stribeck curve Fc + (Fs - Fc) exp(-(v/vs)^2) (Dahl's form at Fs = Fc, sigma1 = 0);
     backlash: the load mass is pulled by k*DeadZone(x - x2) + c*DeadZoneSlope(x - x2)*(v - v2), k and c from
     m2, fa, zeta, with the dead zone of half-width b (0 inside the gap, x - x2 -+ b in contact), and the motor
-    is the plant's mass less the load: (m - m2)*der(v) = -d*v - F_z - F_transmission."""
-    fc, dfs, vs, z0, m2, fa, zeta, b, eps = 0.15, 0.08, 0.02, 1e-4, 0.6, 200.0, 0.05, 5e-6, 1e-9
-    values = {"lugre_Fc": fc, "lugre_dFs": dfs, "lugre_vs": vs, "lugre_z0": z0, "backlash_m2": m2, "backlash_fa": fa,
+    is the plant's mass less the load: (m - m2)*der(v) = -d*v - F_z - sigma1*dz - F_transmission."""
+    fc, dfs, vs, z0, sigma1, m2, fa, zeta, b, eps = 0.15, 0.08, 0.02, 1e-4, 30.0, 0.6, 200.0, 0.05, 5e-6, 1e-9
+    values = {"lugre_Fc": fc, "lugre_dFs": dfs, "lugre_vs": vs, "lugre_z0": z0, "lugre_sigma1": sigma1,
+              "backlash_m2": m2, "backlash_fa": fa,
               "backlash_zeta": zeta, "backlash_b": b, "backlash_eps": eps}
     model, f, p = _augmented(tmp_path, ["lugre_friction", "backlash"], values)
     names = [st.name for st in model.states]
@@ -219,6 +220,8 @@ def test_lugre_and_backlash_states(tmp_path):
     contact = np.abs(gap) > b
     spring = k * np.where(contact, gap - np.sign(gap) * b, 0.0) + c * contact * (v - v2)
     stribeck = fc + dfs * np.exp(-(v / vs) ** 2)      # Canudas de Wit et al. (1995): g(v), sigma0 = Fc/z0
-    np.testing.assert_allclose(dx[names.index("lugre_Fz")], fc / z0 * (v - np.abs(v) * fz / stribeck), rtol=1e-10)
+    dz = v - np.abs(v) * fz / stribeck
+    np.testing.assert_allclose(dx[names.index("lugre_Fz")], fc / z0 * dz, rtol=1e-10)
     np.testing.assert_allclose(m2 * dx[names.index("backlash_v2")], spring, rtol=1e-6, atol=1e-6)
-    np.testing.assert_allclose((M - m2) * dx[names.index("plant.v")], -D * v - fz - spring, rtol=1e-6, atol=1e-6)
+    np.testing.assert_allclose((M - m2) * dx[names.index("plant.v")], -D * v - fz - sigma1 * dz - spring, rtol=1e-6,
+                               atol=1e-6)

@@ -118,7 +118,7 @@ LIBRARY_VALUES = {
     "delay_T": 3e-4,
     "resonance_m2": 0.2, "resonance_fa": 150.0, "resonance_zeta": 0.05,
     "backlash_m2": 0.2, "backlash_fa": 150.0, "backlash_zeta": 0.05, "backlash_b": 5e-6, "backlash_eps": 1e-7,
-    "lugre_Fc": 0.2, "lugre_dFs": 0.1, "lugre_vs": 0.01, "lugre_z0": 1e-4,
+    "lugre_Fc": 0.2, "lugre_dFs": 0.1, "lugre_vs": 0.01, "lugre_z0": 1e-4, "lugre_sigma1": 20.0,
     "saturation_Fmax": 1e3, "saturation_eps": 1e-3,   # neutral: the PID winds up when it saturates
     "cogging_a1": 0.3, "cogging_b1": -0.1, "cogging_a2": 0.05, "cogging_b2": 0.02, "cogging_pitch": 0.032,
     "cogging_n": 3.0, "cogging_zero": 0.0, "cogging_quarter": math.pi / 2,
@@ -138,6 +138,7 @@ def _state_values(form: Form) -> dict[str, float]:
     v["inertia_slope"] *= g ** 2
     v["inertia_centre"] = (v["inertia_centre"] - b) / g
     v["resonance_m2"] *= g
+    v["lugre_sigma1"] *= g     # a damping, as the masses: F = sigma1 * g * d(x_s)/dt
     v["backlash_m2"] *= g
     harmonics = [("ripple_a", "ripple_b", 2 * math.pi * b / LIBRARY_VALUES["ripple_period"])]
     cogging = 2 * math.pi * LIBRARY_VALUES["cogging_n"] * b / LIBRARY_VALUES["cogging_pitch"]

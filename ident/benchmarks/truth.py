@@ -267,7 +267,8 @@ def _lugre(s: float, rigid: dict[str, float]) -> TruthPlant:
                       {"m": rigid["m"], "d": 0.0, "Fc": fc, "Fs": fc, "vs": 1.0, "sigma0": fc / z0, "sigma1": 0.0,
                        "sigma2": rigid["d"]},
                       [_effect("lugre_friction", {"Fc": fc, "z0": z0, "sigma0": fc / z0},
-                               {"lugre_Fc": fc, "lugre_dFs": 0.0, "lugre_vs": 1.0, "lugre_z0": z0})])
+                               {"lugre_Fc": fc, "lugre_dFs": 0.0, "lugre_vs": 1.0, "lugre_z0": z0,
+                                "lugre_sigma1": 0.0})])
 
 
 SATURATION_EPS = 1e-3       # rounding of the truth's saturation corners [N]

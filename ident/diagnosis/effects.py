@@ -287,40 +287,46 @@ LUGRE_VS_START = 0.05   # the Stribeck velocity's start, a share of the top reco
 
 
 def lugre_friction(ctx: Context) -> Effect:
-    """LuGre friction (Canudas de Wit et al. 1995) with its Stribeck curve g(v) = Fc + (Fs - Fc) exp(-(v/vs)^2),
-    the bristle damping sigma1 and the viscous part sigma2 at 0 (the plant's d is the viscous part); Fs = Fc is
-    Dahl's form. The bristle state is written as the bristle force F_z = sigma0*z, so that it starts at the held
-    force (its vanishing point Fc, Fs -> 0 is then the current model only after the first few z0 of travel).
+    """LuGre friction (Canudas de Wit et al. 1995) with its Stribeck curve g(v) = Fc + (Fs - Fc) exp(-(v/vs)^2)
+    and its bristle damping sigma1, the viscous part sigma2 at 0 (the plant's d is the viscous part); Fs = Fc,
+    sigma1 = 0 is Dahl's form. The bristle state is written as the bristle force F_z = sigma0*z, so that it starts
+    at the held force (its vanishing point Fc, Fs -> 0 is then the current model only after the first few z0 of
+    travel).
     Why the Stribeck curve: in Dahl's form the fit bends z0 to stand in for a breakaway above the sliding level
-    (the independent tuning-set truth, Fs = 1.5 Fc: z0 58 % low and the recorded force left 1.59x its floor)."""
+    (the independent tuning-set truth, Fs = 1.5 Fc: z0 58 % low and the recorded force left 1.59x its floor).
+    Why sigma1: without it the fresh-seed LuGre truth (sigma1 0.2 of the pre-sliding spring's critical damping)
+    ended at a breakaway 12x too high with vs and z0 on their lower limits, its cost above Coulomb friction's."""
     z0_min = max(1e-6 / _scale(ctx), ctx.v_max * ctx.ts / LUGRE_STEP)
 
     def init(c: Context) -> list[dict[str, float]]:
         fc = abs(float(_ls([_sign(c), np.ones_like(c.v)], c.force)[0])) if c.force is not None else 0.1
         return [{"lugre_Fc": max(fc, 1e-3), "lugre_dFs": 0.0, "lugre_vs": LUGRE_VS_START * c.v_max,
-                 "lugre_z0": k * z0_min} for k in (4, 1.5, 16)]
+                 "lugre_z0": k * z0_min, "lugre_sigma1": 0.0} for k in (4, 1.5, 16)]
     z0_max = max(1e-3 / _scale(ctx), 10 * z0_min)
     params = [_p("lugre_Fc", "N", "Coulomb (sliding) friction level", 1e-6, 1e4, zero=1e-6),
               _p("lugre_dFs", "N", "Static (breakaway) friction level above the Coulomb level, Fs - Fc", 0.0, 1e4,
                  zero=0.0),
               _p("lugre_vs", "m/s", "Stribeck velocity", 1e-4 / _scale(ctx), max(ctx.v_max, 1e-3 / _scale(ctx))),
               _p("lugre_z0", "m", "Pre-sliding displacement Fc/sigma0 (bristle deflection in sliding)", z0_min,
-                 z0_max, physical=(True, True))]   # z0_min: the RK4 substeps; z0_max: a spring, not friction
+                 z0_max, physical=(True, True)),   # z0_min: the RK4 substeps; z0_max: a spring, not friction
+              _p("lugre_sigma1", "N.s/m", "Bristle damping (of the pre-sliding spring)", 0.0,
+                 LUGRE_STEP * ctx.mass / ctx.ts, zero=0.0, physical=(False, True))]   # its rate sigma1/m: as z0_min
     decl = ('  Real lugre_Fz(unit = "N", start = 0, fixed = true) "Bristle force sigma0*z";\n'
             '  Real lugre_F(unit = "N") "LuGre friction force";\n'
             '  Real lugre_dz(unit = "m/s") "Rate of the bristle deflection";\n')
     eqs = ["(lugre_F, lugre_dz) = MotionTwin.Effects.LuGreFriction($v, lugre_z0/lugre_Fc*lugre_Fz, lugre_Fc, "
-           "lugre_Fc + lugre_dFs, lugre_vs, lugre_Fc/lugre_z0, 0.0, 0.0)",
+           "lugre_Fc + lugre_dFs, lugre_vs, lugre_Fc/lugre_z0, lugre_sigma1, 0.0)",
            "der(lugre_Fz) = lugre_Fc/lugre_z0*lugre_dz"]
     return Effect("lugre_friction", FRICTION, params, decl, "lugre_F", eqs, ["LuGreFriction.mo"], init,
                   lambda v, c: {"Fc": v["lugre_Fc"], "Fs": v["lugre_Fc"] + v["lugre_dFs"],
                                 "vs": v["lugre_vs"] * abs(c.position_gain), "z0": v["lugre_z0"] * abs(c.position_gain),
-                                "sigma0": v["lugre_Fc"] / (v["lugre_z0"] * abs(c.position_gain))},
+                                "sigma0": v["lugre_Fc"] / (v["lugre_z0"] * abs(c.position_gain)),
+                                "sigma1": v["lugre_sigma1"] / abs(c.position_gain)},
                   "Friction with pre-sliding (LuGre bristle model): after each velocity reversal the friction force "
                   "builds up over a displacement of about z0 instead of switching with the velocity, so the residual "
                   "is a hysteresis loop in position around every reversal and the axis behaves like a spring of "
-                  "stiffness sigma0 = Fc/z0 at rest; in sliding it follows the Stribeck curve from the breakaway level "
-                  "Fs down to the Coulomb level Fc over the Stribeck velocity vs.",
+                  "stiffness sigma0 = Fc/z0, damped by sigma1, at rest; in sliding it follows the Stribeck curve "
+                  "from the breakaway level Fs down to the Coulomb level Fc over the Stribeck velocity vs.",
                   tracks_force=["lugre_Fz"], min_substeps=math.ceil(ctx.v_max * ctx.ts / z0_min),
                   unphysical=lambda v: "" if v["lugre_z0"] < 0.99 * z0_max else "its pre-sliding displacement "
                   "reaches the largest one allowed (a spring holding a force over the stroke, not friction)")
@@ -523,7 +529,8 @@ NESTED_START: dict[str, Callable[[dict[str, float]], dict[str, float]]] = {
     "load_dependent_friction": lambda v: {"load_Fc0": v["coulomb_Fc"], "load_mu": 0.0,
                                           "load_v_eps": v["coulomb_v_eps"]},
     "friction_drift": lambda v: {"drift_Fc0": v["coulomb_Fc"], "drift_dFc": 0.0, "drift_v_eps": v["coulomb_v_eps"]},
-    "lugre_friction": lambda v: {"lugre_Fc": v["coulomb_Fc"], "lugre_dFs": 0.0, "lugre_z0": 0.0},
+    "lugre_friction": lambda v: {"lugre_Fc": v["coulomb_Fc"], "lugre_dFs": 0.0, "lugre_z0": 0.0,
+                                 "lugre_sigma1": 0.0},
 }
 
 #: richer effect -> the simpler effect's values nearest to it, from the richer one's fitted values and the context
