@@ -41,6 +41,17 @@ def _run(fn: ca.Function) -> np.ndarray:
     return one([1e-3, 0.0], drive, [400.0, 2.0, 0.3], [0.5])[0]
 
 
+def _logged_compiler(gcc: str, tmp_path: Path, monkeypatch) -> Path:
+    """``gcc`` behind a wrapper (set as CC) that appends each command line to the returned log file."""
+    log = tmp_path / "flags.log"
+    wrapper = tmp_path / "cc-logged"
+    wrapper.write_text(f"#!/bin/sh\necho \"$*\" >> {log}\nexec {shutil.which(gcc)} \"$@\"\n")
+    wrapper.chmod(wrapper.stat().st_mode | stat.S_IEXEC)
+    monkeypatch.setenv("PATH", f"{tmp_path}{os.pathsep}{os.environ['PATH']}")
+    monkeypatch.setenv("CC", wrapper.name)
+    return log
+
+
 @pytest.fixture
 def cache(monkeypatch, tmp_path) -> Path:
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
@@ -101,12 +112,7 @@ def test_a_large_source_gets_the_reload_limit_and_a_compiler_that_refuses_it_pla
     gcc = clib.compiler()
     if gcc is None:
         pytest.skip("no C compiler")
-    log = tmp_path / "flags.log"
-    wrapper = tmp_path / "cc-logged"
-    wrapper.write_text(f"#!/bin/sh\necho \"$*\" >> {log}\nexec {shutil.which(gcc)} \"$@\"\n")
-    wrapper.chmod(wrapper.stat().st_mode | stat.S_IEXEC)
-    monkeypatch.setenv("PATH", f"{tmp_path}{os.pathsep}{os.environ['PATH']}")
-    monkeypatch.setenv("CC", wrapper.name)
+    log = _logged_compiler(gcc, tmp_path, monkeypatch)
     monkeypatch.setattr(chain, "SMALL_SOURCE", 0)
     monkeypatch.setattr(chain, "LARGE_SOURCE", 0)
     limited = _run(_step())
@@ -131,12 +137,7 @@ def test_a_small_source_is_built_at_o1_with_the_o2_builds_results_bit_for_bit(ca
     gcc = clib.compiler()
     if gcc is None:
         pytest.skip("no C compiler")
-    log = tmp_path / "flags.log"
-    wrapper = tmp_path / "cc-logged"
-    wrapper.write_text(f"#!/bin/sh\necho \"$*\" >> {log}\nexec {shutil.which(gcc)} \"$@\"\n")
-    wrapper.chmod(wrapper.stat().st_mode | stat.S_IEXEC)
-    monkeypatch.setenv("PATH", f"{tmp_path}{os.pathsep}{os.environ['PATH']}")
-    monkeypatch.setenv("CC", wrapper.name)
+    log = _logged_compiler(gcc, tmp_path, monkeypatch)
     small = _run(_step())
     assert log.read_text().split()[0] == "-O1"
     monkeypatch.setattr(chain, "SMALL_SOURCE", 0)
