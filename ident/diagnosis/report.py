@@ -28,8 +28,8 @@ from motiontwin.ident.diagnosis.structure import ModelFit
 CONTRACT_UNITS = {"F0": "N", "Fc": "N", "Fs": "N", "vs": "m/s", "Fc_pos": "N", "Fc_neg": "N", "amplitude": "N",
                   "period": "m", "delay": "s", "frequency": "Hz", "damping": "1", "mass_min": "kg", "mass_max": "kg",
                   "Fc_equivalent": "N", "offset_while_moving": "N", "A1": "N", "A2": "N", "n": "1", "b": "m",
-                  "gap": "m", "z0": "m", "sigma0": "N/m", "sigma1": "N.s/m", "Fmax": "N", "Fc0": "N", "mu": "1", "Fc_start": "N",
-                  "dFc": "N", "tau": "s", "error_amplitude": "m", "error_amplitude_2": "m"}
+                  "gap": "m", "z0": "m", "sigma0": "N/m", "sigma1": "N.s/m", "Fmax": "N", "Fc0": "N", "mu": "1",
+                  "Fc_start": "N", "dFc": "N", "tau": "s", "error_amplitude": "m", "error_amplitude_2": "m"}
 
 
 def _unit(name: str, units: dict[str, str]) -> str:
