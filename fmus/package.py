@@ -21,8 +21,9 @@ FMI_HEADERS = {
 PLATFORM_DIR = {"2.0": "linux64", "3.0": "x86_64-linux"}
 CFLAGS = ("-O2", "-fPIC", "-std=c99", "-fvisibility=hidden", "-Wall", "-Wno-unused-parameter",
           "-Wno-unused-variable", "-Wno-unused-function")
-# Generated files above this size compile at -O1: gcc -O2's register allocation on the Hexapod's 1.7 MB of
-# straight-line CasADi code takes 111 s against 56 s at -O1 (the whole library fixture waits for it).
+# Generated files of this size or more compile with ``clib.LARGE_SOURCE_FLAGS`` (-O1 and gcc's reload limit): gcc
+# -O2's register allocation on the Hexapod's 1.7 MB of straight-line CasADi code takes 111 s against 56 s at -O1
+# (the whole library fixture waits for it), and the reload limit takes -O1's 43.9 s to 31.5 s.
 LARGE_SOURCE_BYTES = 1_000_000
 
 
@@ -50,19 +51,32 @@ def compile_binary(src_dir: Path, c_files: list[str], output: Path) -> None:
     cc = os.environ.get("CC", "gcc")
     cache = clib.cache_dir("objects")
     cache.mkdir(parents=True, exist_ok=True)
-    objects = []
-    for name in c_files:
-        flags = CFLAGS if (src_dir / name).stat().st_size < LARGE_SOURCE_BYTES else ("-O1", *CFLAGS[1:])
-        key = hashlib.sha256((cc + " ".join(flags)).encode())
-        for h in _local_headers(src_dir, name):
-            key.update(h.encode() + b"\0" + (src_dir / h).read_bytes())
-        key.update((src_dir / name).read_bytes())
-        obj = cache / f"{key.hexdigest()}.o"
-        if not obj.exists():
-            with atomic_path(obj) as tmp:
-                _run([cc, *flags, f"-I{src_dir}", "-c", str(src_dir / name), "-o", str(tmp)], f"compiling {name}")
-        objects.append(str(obj))
+    objects = [str(_object(cc, src_dir, name, cache)) for name in c_files]
     _run([cc, "-shared", "-static-libgcc", *objects, "-o", str(output), "-lm"], f"linking {output.name}")
+
+
+def _object(cc: str, src_dir: Path, name: str, cache: Path) -> Path:
+    """The cached object file of the C file ``name``: at ``CFLAGS``, or for a generated file of
+    ``LARGE_SOURCE_BYTES`` or more with ``clib.LARGE_SOURCE_FLAGS``, at plain -O1 when the compiler refuses
+    gcc's reload limit."""
+    if (src_dir / name).stat().st_size < LARGE_SOURCE_BYTES:
+        return _compiled(cc, src_dir, name, cache, CFLAGS)
+    try:
+        return _compiled(cc, src_dir, name, cache, (*clib.LARGE_SOURCE_FLAGS, *CFLAGS[1:]))
+    except BuildError:
+        return _compiled(cc, src_dir, name, cache, (*clib.LARGE_SOURCE_FLAGS[:1], *CFLAGS[1:]))
+
+
+def _compiled(cc: str, src_dir: Path, name: str, cache: Path, flags: tuple[str, ...]) -> Path:
+    key = hashlib.sha256((cc + " ".join(flags)).encode())
+    for h in _local_headers(src_dir, name):
+        key.update(h.encode() + b"\0" + (src_dir / h).read_bytes())
+    key.update((src_dir / name).read_bytes())
+    obj = cache / f"{key.hexdigest()}.o"
+    if not obj.exists():
+        with atomic_path(obj) as tmp:
+            _run([cc, *flags, f"-I{src_dir}", "-c", str(src_dir / name), "-o", str(tmp)], f"compiling {name}")
+    return obj
 
 
 _INCLUDE = re.compile(r'^\s*#\s*include\s*"([^"]+)"', re.MULTILINE)

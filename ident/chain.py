@@ -29,16 +29,12 @@ DRIVER = Path(__file__).with_name("chain.c")
 #: the same diagnosis.json); the test suite compiles about 450 such chains on an empty cache
 SMALL_SOURCE = 250_000
 #: generated sources above this size (an inlined sensitivity step of a large plant: megabytes of straight-line
-#: code) are compiled at -O1: gcc -O2 takes minutes on them, -O1 seconds, with the same IEEE results
-#: (-ffp-contract=off, no fast-math); those between keep -O2 (a coupled plant's called-function
-#: form, about 0.4 MB, compiles at -O2 in 6.5 s of CPU and runs its Jacobian chain 1.2x faster than at -O1)
+#: code) are compiled with ``clib.LARGE_SOURCE_FLAGS`` (-O1 and gcc's reload limit): gcc -O2 takes minutes on
+#: them, with the same IEEE results (-ffp-contract=off, no fast-math); on the Hexapod smoke bundle
+#: (``bench_hexapod.py --smoke``, an empty cache) the limit took 133.7 -> 85.0 s, warm 20.4 / 18.2 s against
+#: 20.5 / 19.1 s, the same lines. Those between keep -O2 (a coupled plant's called-function form, about 0.4 MB,
+#: compiles at -O2 in 6.5 s of CPU and runs its Jacobian chain 1.2x faster than at -O1)
 LARGE_SOURCE = 1_000_000
-#: ... and gcc's register allocator considers at most 50 pseudo-registers per reload (default 500): in a function
-#: of 1900 scalars and 30 000 statements (the Hexapod's plant derivative in its sensitivity step) its hard-register
-#: assignment took 27 of the 39 s of gcc. Measured on the Hexapod smoke bundle (``bench_hexapod.py --smoke``, an
-#: empty cache): 133.7 -> 85.0 s, one source 39 -> 19 s; warm 20.4 / 18.2 s against 20.5 / 19.1 s, the same
-#: lines. Register allocation does not change the arithmetic. A compiler that refuses it gets plain -O1.
-LARGE_SOURCE_FLAGS = ("-O1", "--param=lra-max-considered-reload-pseudos=50")
 #: the chains are built for the host's instructions, which they never leave (the cache key holds the CPU,
 #: :func:`clib.host_cpu`), still IEEE (-ffp-contract=off, no fast-math: the same results to the last digit). Measured
 #: side by side (one worker each): the 4-DOF diagnosis's chains 225.6 -> 187.7 s of CPU, a 1.5 s Hexapod bundle's
@@ -78,7 +74,7 @@ def optimisation(size: int) -> tuple[str, ...]:
     """The optimisation flags of a generated source of ``size`` characters (``SMALL_SOURCE``, ``LARGE_SOURCE``)."""
     if size < SMALL_SOURCE:
         return ("-O1",)
-    return ("-O2",) if size <= LARGE_SOURCE else LARGE_SOURCE_FLAGS
+    return ("-O2",) if size <= LARGE_SOURCE else clib.LARGE_SOURCE_FLAGS
 
 
 def _generate(functions: list[ca.Function]) -> str:

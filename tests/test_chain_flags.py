@@ -2,9 +2,6 @@
 portable build, a cache entry per CPU, and the portable build when the compiler refuses the flag."""
 from __future__ import annotations
 
-import os
-import shutil
-import stat
 from pathlib import Path
 
 import casadi as ca
@@ -13,6 +10,7 @@ import pytest
 
 from motiontwin.fmus import clib
 from motiontwin.ident import chain
+from tests.compiler_util import wrapped_compiler
 
 N = 400
 
@@ -39,17 +37,6 @@ def _run(fn: ca.Function) -> np.ndarray:
     (one,) = chain.native_chains([fn], N)
     drive = np.sin(np.arange(N) * 0.05)[None, :] * 3.0
     return one([1e-3, 0.0], drive, [400.0, 2.0, 0.3], [0.5])[0]
-
-
-def _logged_compiler(gcc: str, tmp_path: Path, monkeypatch) -> Path:
-    """``gcc`` behind a wrapper (set as CC) that appends each command line to the returned log file."""
-    log = tmp_path / "flags.log"
-    wrapper = tmp_path / "cc-logged"
-    wrapper.write_text(f"#!/bin/sh\necho \"$*\" >> {log}\nexec {shutil.which(gcc)} \"$@\"\n")
-    wrapper.chmod(wrapper.stat().st_mode | stat.S_IEXEC)
-    monkeypatch.setenv("PATH", f"{tmp_path}{os.pathsep}{os.environ['PATH']}")
-    monkeypatch.setenv("CC", wrapper.name)
-    return log
 
 
 @pytest.fixture
@@ -92,40 +79,26 @@ def test_the_cache_key_holds_the_host_cpu(cache, monkeypatch):
 
 
 def test_a_compiler_that_refuses_the_host_flag_gets_the_portable_build(cache, monkeypatch, tmp_path):
-    gcc = clib.compiler()
-    if gcc is None:
-        pytest.skip("no C compiler")
-    wrapper = tmp_path / "cc-without-native"
-    wrapper.write_text("#!/bin/sh\nfor a in \"$@\"; do [ \"$a\" = -march=native ] && { echo 'unknown -march' >&2; "
-                       f"exit 1; }}; done\nexec {shutil.which(gcc)} \"$@\"\n")
-    wrapper.chmod(wrapper.stat().st_mode | stat.S_IEXEC)
-    monkeypatch.setenv("PATH", f"{tmp_path}{os.pathsep}{os.environ['PATH']}")
-    monkeypatch.setenv("CC", wrapper.name)
+    wrapped_compiler(tmp_path, monkeypatch, "cc-without-native", refuse=("-march=native",))
     out = _run(_step())
     assert np.all(np.isfinite(out))
     assert len(list(cache.glob("chain-*.so"))) == 1
 
 
 def test_a_large_source_gets_the_reload_limit_and_a_compiler_that_refuses_it_plain_o1(cache, monkeypatch, tmp_path):
-    """Above ``LARGE_SOURCE`` the chain is compiled with ``LARGE_SOURCE_FLAGS`` (-O1 and gcc's reload limit): the
+    """Above ``LARGE_SOURCE`` the chain is compiled with ``clib.LARGE_SOURCE_FLAGS`` (-O1 and gcc's reload limit): the
     same results bit for bit as plain -O1; a compiler refusing the limit (and the host flag) gets plain -O1."""
-    gcc = clib.compiler()
-    if gcc is None:
-        pytest.skip("no C compiler")
-    log = _logged_compiler(gcc, tmp_path, monkeypatch)
+    log = wrapped_compiler(tmp_path, monkeypatch)
     monkeypatch.setattr(chain, "SMALL_SOURCE", 0)
     monkeypatch.setattr(chain, "LARGE_SOURCE", 0)
     limited = _run(_step())
     assert "--param=lra-max-considered-reload-pseudos=50" in log.read_text().split("\n")[0]
-    monkeypatch.setattr(chain, "LARGE_SOURCE_FLAGS", ("-O1",))
+    limit = clib.LARGE_SOURCE_FLAGS
+    monkeypatch.setattr(clib, "LARGE_SOURCE_FLAGS", ("-O1",))
     monkeypatch.setattr(chain, "HOST_FLAG", "-O1")
     np.testing.assert_array_equal(limited, _run(_step()))
-    refusing = tmp_path / "cc-plain"
-    refusing.write_text("#!/bin/sh\nfor a in \"$@\"; do case \"$a\" in --param=*|-march=native) echo unknown >&2; "
-                        f"exit 1;; esac; done\nexec {shutil.which(gcc)} \"$@\"\n")
-    refusing.chmod(refusing.stat().st_mode | stat.S_IEXEC)
-    monkeypatch.setenv("CC", refusing.name)
-    monkeypatch.setattr(chain, "LARGE_SOURCE_FLAGS", ("-O1", "--param=lra-max-considered-reload-pseudos=50"))
+    wrapped_compiler(tmp_path, monkeypatch, "cc-plain", refuse=("--param=*", "-march=native"))
+    monkeypatch.setattr(clib, "LARGE_SOURCE_FLAGS", limit)
     monkeypatch.setattr(chain, "HOST_FLAG", "-march=native")
     chain._LOADED.clear()
     np.testing.assert_array_equal(limited, _run(_step()))
@@ -134,10 +107,7 @@ def test_a_large_source_gets_the_reload_limit_and_a_compiler_that_refuses_it_pla
 def test_a_small_source_is_built_at_o1_with_the_o2_builds_results_bit_for_bit(cache, monkeypatch, tmp_path):
     """Below ``SMALL_SOURCE`` (one axis's chain) the chain is compiled at -O1, which compiles faster and runs as
     fast; its results are those of the -O2 build to the last bit (IEEE arithmetic, no contraction)."""
-    gcc = clib.compiler()
-    if gcc is None:
-        pytest.skip("no C compiler")
-    log = _logged_compiler(gcc, tmp_path, monkeypatch)
+    log = wrapped_compiler(tmp_path, monkeypatch)
     small = _run(_step())
     assert log.read_text().split()[0] == "-O1"
     monkeypatch.setattr(chain, "SMALL_SOURCE", 0)

@@ -15,9 +15,10 @@ import numpy as np
 import pytest
 from fmpy.validation import validate_fmu
 
-from motiontwin.fmus import build
+from motiontwin.fmus import build, package
 from motiontwin.fmus.frontend import ModelicaError
 from tests import fmi_util as fu
+from tests.compiler_util import wrapped_compiler
 
 VERSIONS = build.FMI_VERSIONS
 
@@ -106,6 +107,25 @@ def test_start_values_compiled_into_the_binary(fmu_dir, version):
     md = fmpy.read_model_description(str(fmu.path))
     starts = {v.name: float(v.start) for v in md.modelVariables if v.causality == "parameter"}
     assert starts == {"m": 1.5, "d": 4.0}
+    result = fmpy.simulate_fmu(str(fmu.path), stop_time=0.5, output_interval=1e-3, start_values={"u": 3.0},
+                               output=["q"])
+    assert np.allclose(result["q"], analytic_step(result["time"], 3.0, 1.5, 4.0), rtol=0, atol=1e-8)
+
+
+@pytest.mark.parametrize("refused", [(), ("--param=*",)])
+def test_a_large_generated_file_is_compiled_with_the_reload_limit_or_plain_o1(tmp_path, monkeypatch, refused):
+    """A file of ``package.LARGE_SOURCE_BYTES`` or more (the Hexapod's 1.77 MB model) is compiled with gcc's reload
+    limit (``clib.LARGE_SOURCE_FLAGS``); a compiler that refuses the limit compiles it at plain -O1. Either FMU
+    gives the analytic step response."""
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
+    monkeypatch.setattr(package, "LARGE_SOURCE_BYTES", 0)      # every file counts as large
+    log = wrapped_compiler(tmp_path, monkeypatch, refuse=refused)
+    model = build.load_model("MotionTwin.Plants.LinearMotorJoint")
+    fmu = build.build_fmu(model, tmp_path / "fmu", "2.0", start_values={"m": 1.5, "d": 4.0})
+    compiles = [line.split() for line in log.read_text().splitlines() if "-c" in line.split()]
+    limited = [c for c in compiles if "--param=lra-max-considered-reload-pseudos=50" in c]
+    assert compiles and all(c[0] == "-O1" for c in compiles)
+    assert len(limited) == (len(compiles) / 2 if refused else len(compiles))     # refused: each tried once
     result = fmpy.simulate_fmu(str(fmu.path), stop_time=0.5, output_interval=1e-3, start_values={"u": 3.0},
                                output=["q"])
     assert np.allclose(result["q"], analytic_step(result["time"], 3.0, 1.5, 4.0), rtol=0, atol=1e-8)
