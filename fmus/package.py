@@ -68,6 +68,7 @@ def _object(cc: str, src_dir: Path, name: str, cache: Path) -> Path:
 
 
 def _compiled(cc: str, src_dir: Path, name: str, cache: Path, flags: tuple[str, ...]) -> Path:
+    """``name`` compiled with ``flags``, cached by compiler, flags, the file and the local headers it includes."""
     key = hashlib.sha256((cc + " ".join(flags)).encode())
     for h in _local_headers(src_dir, name):
         key.update(h.encode() + b"\0" + (src_dir / h).read_bytes())
