@@ -118,7 +118,7 @@ def test_k_step_ahead_against_direct_simulation(model, recordings):
     assert observer.k_step_ahead(model, TRUTH, rec, ctrl, signals, 5).horizon_rms < score.horizon_rms
 
 
-def test_cli_identify_and_validatewithout_controller(recordings, tmp_path, capsys):
+def test_cli_identify_and_validate_without_controller(recordings, tmp_path, capsys):
     """identify oe --controller unknown on a CSV of time, u, q only; validate --controller unknown of its --out
     prints the predictor, the observer and the k-step-ahead scores."""
     paths = {}
@@ -163,7 +163,7 @@ def coulomb_bundle(tmp_path_factory) -> Path:
 DECISION_VOCABULARY = ("coulomb_friction", "gravity_offset", "time_delay")
 
 
-def test_concealed_effect_namedwithout_controller(coulomb_bundle, tmp_path, monkeypatch):
+def test_concealed_effect_named_without_controller(coulomb_bundle, tmp_path, monkeypatch):
     """The known-controller diagnosis names exactly coulomb_friction (test_diagnosis_decisions); with the
     controller and the r, u_ext columns removed, the predictor's diagnosis names exactly the same, and its second
     round is scored as a known controller's is (inverse dynamics on the measured motion and force, which no

@@ -342,8 +342,7 @@ def sandwich_rms(train_loop: outputerror.Loop, fit: outputerror.Fit, bounds: dic
     through, and on the held-out Coulomb case its replicates read 1.3e-5 m where the fitted parameters cost
     7.5e-5 against the truth's (why they spread less is a reading, not measured on its own: the observer holds
     each replicate near the recorded motion). The sandwich reads the scatter from the residual as it is (it also
-    counts a model error as noise: an upper reading). NaN when the Jacobian does
-    not determine the parameters."""
+    counts a model error as noise: an upper reading). NaN when the Jacobian does not determine the parameters."""
     if not train_loop.free:
         return 0.0, 0.0
     try:
